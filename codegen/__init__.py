@@ -1,0 +1,3 @@
+"""printer-codegen: host-side motion maths, firmware that only plays tables back."""
+
+__version__ = "0.1.0"

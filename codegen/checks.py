@@ -1,0 +1,174 @@
+"""Checks on a pulse train (the twin's, or the simulator's): positions, path, motor rates and accelerations.
+
+The same functions judge the twin against the plan (`build`) and the simulated pulses (`verify`).
+- Positions: each motor's final position equals the job's end point rounded once.
+- Path: after every step the tool lies within 1 step + tolerance of the job's path (lines exactly, arcs by
+  their radius, other curves by the true curve sampled 16 times along every chord).
+- Rate: over any 8 consecutive steps no motor exceeds max_velocity * steps_per_mm.
+- Acceleration: the velocity change between consecutive 20 ms windows stays within max_accel * 20 ms, plus the
+  velocity jumps the junction model plans at corners inside those windows, plus one step of quantisation at
+  each window edge (positions are interpolated between step times).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from codegen.kinematics.base import LinearKinematics
+from codegen.planner import RATE_WINDOW, Plan
+from codegen.toolpath import REF_ARC, Segments
+
+ACCEL_WINDOW_S = 0.020
+CHUNK = 1 << 20
+
+
+@dataclass
+class MotorTrain:
+    """One motor's pulses: times (s, on the plan's clock) and directions."""
+
+    time: np.ndarray
+    dir: np.ndarray
+
+
+@dataclass
+class Findings:
+    final: dict[str, int]
+    expected_final: dict[str, int]
+    steps: dict[str, int]
+    max_path_error_mm: float
+    path_limit_mm: float
+    rate_ratio: dict[str, float]  # highest 8-step rate / limit
+    accel_ratio: dict[str, float]  # highest window velocity change / what is allowed
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def step_length_mm(kin: LinearKinematics) -> float:
+    """The largest tool displacement one step of one motor makes."""
+    eye = np.diag(1.0 / kin.limits.steps_per_mm)
+    moved = kin.to_axes(eye, np.zeros((len(eye), 4)))
+    return float(np.linalg.norm(moved[:, :3], axis=1).max())
+
+
+def chord_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (xyz) from points p (N, 3) to their straight segments s (N,), and the nearest points."""
+    a, b = segments.start[s, :3], segments.end[s, :3]
+    ab = b - a
+    denom = np.einsum("ij,ij->i", ab, ab)
+    t = np.clip(np.divide(np.einsum("ij,ij->i", p - a, ab), denom, out=np.zeros(len(s)), where=denom > 0), 0, 1)
+    nearest = a + t[:, None] * ab
+    return np.linalg.norm(p - nearest, axis=1), nearest
+
+
+def fine_distance(p: np.ndarray, fine: np.ndarray) -> np.ndarray:
+    """Distance from points (N, 3) to polylines (N, K + 1, 3) through the true curve."""
+    a, b = fine[:, :-1], fine[:, 1:]
+    ab = b - a
+    denom = np.einsum("nkj,nkj->nk", ab, ab)
+    t = np.clip(np.divide(np.einsum("nkj,nkj->nk", p[:, None, :] - a, ab), denom, out=np.zeros(denom.shape),
+                          where=denom > 0), 0.0, 1.0)
+    return np.linalg.norm(p[:, None, :] - (a + t[..., None] * ab), axis=2).min(axis=1)
+
+
+def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments) -> np.ndarray:
+    """Distance (mm, xyz) from each position to the job's path near its segment."""
+    out = np.empty(len(axes))
+    for lo in range(0, len(axes), CHUNK):
+        p, s = axes[lo:lo + CHUNK, :3], seg[lo:lo + CHUNK]
+        dist, on_chord = chord_distance(p, s, segments)
+        curve = np.flatnonzero(segments.ref_fine[s] >= 0)
+        if len(curve):
+            dist[curve] = fine_distance(p[curve], segments.fine[segments.ref_fine[s[curve]]])
+        arc = segments.ref_kind[s] == REF_ARC
+        if np.any(arc):
+            rows = np.flatnonzero(arc)
+            plane = segments.ref_plane[s[rows]]
+            pu = p[rows, plane[:, 0]] - segments.ref_center[s[rows], 0]
+            pv = p[rows, plane[:, 1]] - segments.ref_center[s[rows], 1]
+            radial = np.abs(np.hypot(pu, pv) - segments.ref_radius[s[rows]])
+            off_plane = p[rows] - on_chord[rows]
+            off_plane[np.arange(len(rows)), plane[:, 0]] = 0.0
+            off_plane[np.arange(len(rows)), plane[:, 1]] = 0.0
+            dist[rows] = np.hypot(radial, np.linalg.norm(off_plane, axis=1))
+        out[lo:lo + CHUNK] = dist
+    return out
+
+
+def max_rate_ratio(train: MotorTrain, max_rate: float) -> float:
+    if len(train.time) <= RATE_WINDOW:
+        return 0.0
+    span = train.time[RATE_WINDOW:] - train.time[:-RATE_WINDOW]
+    return float(RATE_WINDOW / max(span.min(), 1e-12) / max_rate)
+
+
+def corner_jumps(plan: Plan, kin: LinearKinematics) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) of corners and each motor's planned velocity jump there (steps/s), (J,) and (J, M)."""
+    j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
+    change = plan.direction[j] - plan.direction[j - 1]
+    jump = plan.v_entry[j][:, None] * kin.motor_factors(change) * kin.limits.steps_per_mm[None, :]
+    return plan.t_start[j], jump
+
+
+def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, corners_jump: np.ndarray) -> float:
+    if len(train.time) < 3:
+        return 0.0
+    position = np.cumsum(train.dir)
+    t0, t1 = train.time[0], train.time[-1]
+    edges = t0 + ACCEL_WINDOW_S * np.arange(int(np.ceil((t1 - t0) / ACCEL_WINDOW_S)) + 1)
+    if len(edges) < 3:
+        return 0.0
+    p = np.interp(edges, train.time, position)
+    v = np.diff(p) / ACCEL_WINDOW_S
+    dv = np.abs(np.diff(v))
+    # Corners inside the span of both windows (edges[j] .. edges[j + 2]) may jump the velocity.
+    cum = np.concatenate([[0.0], np.cumsum(corners_jump)])
+    lo = np.searchsorted(corners_t, edges[:-2], side="left")
+    hi = np.searchsorted(corners_t, edges[2:], side="right")
+    allowed = max_accel * ACCEL_WINDOW_S + (cum[hi] - cum[lo]) + 2.0 / ACCEL_WINDOW_S
+    return float(np.max(dv / allowed))
+
+
+def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
+          segments: Segments, plan: Plan, kin: LinearKinematics, expected_final: np.ndarray,
+          start_steps: np.ndarray, tolerance: float) -> Findings:
+    """`positions` (P, M): motor steps (relative to the start) after each event (the pulses one interrupt
+    makes together); `position_segment` (P,): the segment each event belongs to."""
+    names = kin.motors
+    spm = kin.limits.steps_per_mm
+    final = np.array([int(t.dir.sum()) for t in trains], dtype=np.int64) + start_steps
+    findings = Findings(
+        final=dict(zip(names, final.tolist())),
+        expected_final=dict(zip(names, expected_final.tolist())),
+        steps={n: len(t.time) for n, t in zip(names, trains)},
+        max_path_error_mm=0.0,
+        path_limit_mm=step_length_mm(kin) + tolerance,
+        rate_ratio={}, accel_ratio={},
+    )
+    for name, got, want in zip(names, final, expected_final):
+        if got != want:
+            findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")
+    if len(positions):
+        like = segments.start[position_segment]
+        axes = kin.to_axes((positions + start_steps[None, :]) / spm[None, :], like)
+        errors = path_errors(axes, position_segment, segments)
+        worst = int(np.argmax(errors))
+        findings.max_path_error_mm = float(errors[worst])
+        if errors[worst] > findings.path_limit_mm + 1e-9:
+            findings.problems.append(
+                f"the tool strays {errors[worst]:.4f} mm from the path (limit {findings.path_limit_mm:.4f} mm: "
+                f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in axes[worst, :3])})")
+    corners_t, jumps = corner_jumps(plan, kin)
+    for m, (name, train) in enumerate(zip(names, trains)):
+        rate = max_rate_ratio(train, kin.limits.max_rate[m])
+        accel = max_accel_ratio(train, kin.limits.max_accel[m] * spm[m], corners_t, jumps[:, m])
+        findings.rate_ratio[name], findings.accel_ratio[name] = rate, accel
+        if rate > 1.0:
+            findings.problems.append(f"motor {name} exceeds its rate over 8 steps by {100 * (rate - 1):.1f} %")
+        if accel > 1.0:
+            findings.problems.append(f"motor {name} exceeds its acceleration by {100 * (accel - 1):.1f} %")
+    return findings

@@ -1,0 +1,148 @@
+"""The command line (CLI.md): build, verify, plan. Exit codes: 0 ok, 1 build/verification failed, 2 bad input."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import json
+import sys
+from pathlib import Path
+
+from codegen import __version__
+from codegen.errors import BuildError, JobError
+from codegen.firmware import Image
+from codegen.job import load_job
+from codegen.pipeline import HostBuild, host_build
+from codegen.report import build_report, human_plan, plan_summary, verify_json, write_json, write_trace
+
+IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
+
+
+def _target_module(kind: str, target: str):
+    try:
+        return importlib.import_module(f"codegen.{kind}.{target}")
+    except ModuleNotFoundError:
+        raise BuildError(f"the {target} target has no {kind} support yet") from None
+
+
+def _out_dir(job, out: str | None) -> Path:
+    return Path(out) if out else Path("build") / job.name
+
+
+def _fingerprint(sources: dict[str, str]) -> str:
+    digest = hashlib.sha256(__version__.encode())
+    for name in sorted(sources):
+        digest.update(name.encode() + b"\0" + sources[name].encode() + b"\0")
+    return digest.hexdigest()
+
+
+def _image_from_report(out_dir: Path, data: dict) -> Image:
+    elf = out_dir / data["elf"] if data.get("elf") else None
+    return Image(out_dir / data["hex"], elf, data["flash_bytes"], data["ram_bytes"], data["table_bytes"],
+                 data["flash_capacity"], data["ram_capacity"], dict(data.get("sections", {})))
+
+
+def _checked_host(job) -> HostBuild:
+    host = host_build(job)
+    if not host.findings.ok:
+        raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
+                         + "\n  ".join(host.findings.problems))
+    return host
+
+
+def _build(job, out: str | None, reuse: bool) -> tuple[HostBuild, object, Path]:
+    host = _checked_host(job)
+    firmware = _target_module("firmware", host.target.target)
+    sources = firmware.render_sources(host.schedule, host.firmware_config())
+    fingerprint = _fingerprint(sources)
+    out_dir = _out_dir(job, out)
+    report_path = out_dir / "report.json"
+    if reuse and report_path.is_file() and (out_dir / "firmware.hex").is_file():
+        previous = json.loads(report_path.read_text(encoding="utf-8"))
+        if previous.get("fingerprint") == fingerprint:
+            return host, _image_from_report(out_dir, previous["image"]), out_dir
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name in IMAGE_FILES:  # never leave an older image next to a failed build
+        (out_dir / name).unlink(missing_ok=True)
+    image = firmware.build_image(sources, out_dir, host.schedule.table_bytes())
+    write_json(report_path, build_report(host, image, fingerprint, sources))
+    return host, image, out_dir
+
+
+def cmd_build(args) -> int:
+    job = load_job(Path(args.job), args.target)
+    host, image, out_dir = _build(job, args.out, reuse=False)
+    print(f"built {out_dir / image.hex_path.name}: flash {image.flash_bytes} of {image.flash_capacity} bytes "
+          f"(tables {host.schedule.table_bytes()}), RAM {image.ram_bytes} of {image.ram_capacity} bytes")
+    print(human_plan(plan_summary(host)))
+    return 0
+
+
+def cmd_verify(args) -> int:
+    job = load_job(Path(args.job), args.target)
+    host, image, out_dir = _build(job, args.out, reuse=True)
+    simulator = _target_module("sim", host.target.target)
+    budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
+    trace = simulator.simulate(image.hex_path, host.firmware_config(), budget)
+    from codegen.verify import compare
+    verdict = compare(host, trace)
+    result = verify_json(host, verdict, image)
+    if args.trace:
+        write_trace(Path(args.trace), host, trace)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        state = "PASS" if result["pass"] else "FAIL"
+        print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in simavr, {result['duration_s']:.4f} s simulated, "
+              f"{result['planned_duration_s']:.4f} s planned")
+        for name, m in result["motors"].items():
+            print(f"  {name}: {m['steps']} steps, ends at {m['final']} (job: {m['expected_final']}), "
+                  f"timing within {m['max_timing_error_us']:.2f} us of the twin, rate {100 * m['max_rate_ratio']:.1f} %"
+                  f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
+        print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+        for problem in result["problems"]:
+            print(f"  problem: {problem}")
+    return 0 if result["pass"] else 1
+
+
+def cmd_plan(args) -> int:
+    job = load_job(Path(args.job), args.target)
+    host = host_build(job)
+    summary = plan_summary(host)
+    print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
+    return 0 if summary["pass"] else 1
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="printer-codegen", description=__doc__)
+    p.add_argument("--version", action="version", version=f"printer-codegen {__version__}")
+    verbs = p.add_subparsers(dest="verb", required=True)
+    for name, handler, help_text in (
+        ("build", cmd_build, "plan the job and build the firmware image"),
+        ("verify", cmd_verify, "build (or reuse the build), run the image in the simulator, compare with the plan"),
+        ("plan", cmd_plan, "plan only: no compiler, no simulator"),
+    ):
+        v = verbs.add_parser(name, help=help_text)
+        v.set_defaults(handler=handler)
+        v.add_argument("job", help="the job file (YAML)")
+        v.add_argument("--target", choices=("avr", "mcs51"), help="override the job's target")
+        if name != "plan":
+            v.add_argument("--out", help="output folder (default build/<name>/)")
+        if name != "build":
+            v.add_argument("--json", action="store_true", help="print one JSON object")
+        if name == "verify":
+            v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.handler(args)
+    except JobError as error:
+        print(error.render(), file=sys.stderr)
+        return error.exit_code
+    except BuildError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return error.exit_code

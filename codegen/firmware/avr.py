@@ -1,0 +1,271 @@
+"""ATmega2560 firmware: render the step-table player for a board, build it with avr-gcc, measure the fit.
+
+The player (templates/avr/) plays `Schedule.encode()` from flash; everything here is deterministic: the same
+schedule and config give byte-identical sources, and the same sources give an identical firmware.hex.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import re
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from codegen.errors import BuildError
+from codegen.firmware import FirmwareConfig, Image
+from codegen.paths import targets_dir
+from codegen.render import render
+from codegen.schedule import TOOL_BIT, Schedule
+
+CHUNK_BYTES = 32767  # avr-gcc objects stop at 32767 bytes
+LINE_BYTES = 16  # table bytes per line of table.c
+CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
+STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
+# Pushes, calls, Y-relative frame slots and SP accesses (0x3d/0x3e) in the naked ISR.
+_STACK_USE = re.compile(
+    r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
+_TEXT_FULL = re.compile(r"region [`']text'")  # ld: "will not fit in region `text'" / "region `text' overflowed"
+UNBOUNDED_FLASH = 8 << 20  # a link that only measures an oversized image
+# Registers of the STEP masks (one per port) next to the player's other register variables (r2-r11, r16-r17);
+# every other register is scratch for the naked ISR, so main's sleep loop clobbers them.
+STEP_MASK_REGS = ("r12", "r13", "r14", "r15")
+_HEX = [f"0x{b:02X}" for b in range(256)]
+
+
+@dataclass(frozen=True)
+class Pin:
+    name: str  # PF0
+    port: str  # F
+    bit: int  # 0
+
+
+@dataclass(frozen=True)
+class MotorWiring:
+    """A job motor's pins on the board."""
+
+    name: str
+    socket: str
+    step: Pin
+    dir: Pin
+    enable: Pin
+    invert_dir: bool
+
+
+@dataclass(frozen=True)
+class BoardPins:
+    mcu: str
+    motors: tuple[MotorWiring, ...]
+    tool: Pin
+    tool_active_high: bool
+    enable_active_low: bool
+
+
+def parse_pin(text: str) -> Pin:
+    match = re.fullmatch(r"P([A-L])([0-7])", str(text).strip())
+    if not match:
+        raise BuildError(f"bad AVR pin `{text}` in a board file (expected e.g. PF0)")
+    return Pin(match.group(0), match.group(1), int(match.group(2)))
+
+
+@lru_cache(maxsize=None)
+def load_target(name: str) -> dict:
+    """A targets/<name>.yaml file (an MCU or a board)."""
+    path = targets_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise BuildError(f"unknown target or board `{name}` (no {path})")
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+def board_pins(config: FirmwareConfig) -> BoardPins:
+    board = load_target(config.board)
+    sockets = board["steppers"]
+    motors = []
+    for m in config.motors:
+        if m.socket not in sockets:
+            raise BuildError(f"board {config.board} has no stepper socket {m.socket} (has {', '.join(sockets)})")
+        s = sockets[m.socket]
+        motors.append(MotorWiring(m.name, m.socket, parse_pin(s["step"]), parse_pin(s["dir"]),
+                                  parse_pin(s["enable"]), m.invert_dir))
+    tool = board["tool"]
+    return BoardPins(board["mcu"], tuple(motors), parse_pin(tool["pin"]), bool(tool["active_high"]),
+                     bool(board["enable_active_low"]))
+
+
+def _ident(name: str) -> str:
+    return re.sub(r"\W", "_", name).lower()
+
+
+def _table_chunks(data: bytes, schedule: Schedule) -> list[dict]:
+    """table.c's chunks as lines of at most LINE_BYTES, with a comment line where each block starts."""
+    flags, runs = schedule.block_flags(), np.diff(schedule.block_runs)
+    marks = {int(o): f"block {b}: flags 0x{int(flags[b]):02X}, {int(runs[b])} run(s)"
+             for b, o in enumerate(schedule.block_offsets())}
+    marks[len(data) - 3] = "end marker"
+    offsets = sorted(marks)
+    chunks = []
+    for base in range(0, len(data), CHUNK_BYTES):
+        end = min(base + CHUNK_BYTES, len(data))
+        cuts = [base] + offsets[bisect.bisect_right(offsets, base):bisect.bisect_left(offsets, end)] + [end]
+        lines = []
+        for a, b in zip(cuts, cuts[1:]):
+            for i in range(a, b, LINE_BYTES):
+                comment = f"0x{a:06X}: {marks[a]}" if i == a and a in marks else ""
+                row = data[i:min(i + LINE_BYTES, b)]
+                lines.append({"comment": comment, "text": ", ".join(_HEX[x] for x in row)})
+        chunks.append({"size": end - base, "lines": lines})
+    return chunks
+
+
+def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]:
+    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c."""
+    if tuple(m.name for m in config.motors) != tuple(schedule.motors):
+        raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
+                         f"{list(schedule.motors)}")
+    pins = board_pins(config)
+    mcu = load_target(pins.mcu)
+    data = schedule.encode()
+    motors = []
+    for index, w in enumerate(pins.motors):
+        motors.append({"name": w.name, "socket": w.socket, "id": _ident(w.name).upper(), "var": _ident(w.name),
+                       "step": {**w.step.__dict__, "var": w.step.port.lower()}, "dir": w.dir.__dict__,
+                       "enable": w.enable.__dict__, "invert": w.invert_dir, "flag": 1 << index})
+    step_ports = []
+    for port in sorted({m["step"]["port"] for m in motors}):
+        group = [m for m in motors if m["step"]["port"] == port]
+        if len(step_ports) == len(STEP_MASK_REGS):
+            raise BuildError(f"board {config.board}: STEP pins on more than {len(STEP_MASK_REGS)} ports")
+        step_ports.append({"port": port, "var": port.lower(), "motors": group,
+                           "reg": STEP_MASK_REGS[len(step_ports)], "names": ", ".join(m["name"] for m in group)})
+    scratch = ["r0", *STEP_MASK_REGS[len(step_ports):], *(f"r{n}" for n in range(18, 32))]
+    outputs: dict[str, list[str]] = {}
+    enables: dict[str, list[str]] = {}
+    for m in motors:
+        for kind in ("step", "dir", "enable"):
+            outputs.setdefault(m[kind]["port"], []).append(f"{m['id']}_{kind.upper()}_BIT")
+        enables.setdefault(m["enable"]["port"], []).append(f"{m['id']}_ENABLE_BIT")
+    outputs.setdefault(pins.tool.port, []).append("TOOL_BIT")
+    f_cpu = int(mcu["f_cpu"])
+    pulse_cycles = math.ceil(config.step_pulse_us * f_cpu / 1e6)
+    context = {
+        "job_name": config.job_name, "job_file": config.job_file, "target": config.target, "board": config.board,
+        "mcu": pins.mcu, "f_cpu": f_cpu, "motors": motors, "step_ports": step_ports,
+        "tool": {**pins.tool.__dict__, "active_high": pins.tool_active_high}, "tool_flag": TOOL_BIT,
+        "enable_active_low": pins.enable_active_low,
+        "output_ports": [(p, " | ".join(bits)) for p, bits in sorted(outputs.items())],
+        "enable_ports": [(p, " | ".join(bits)) for p, bits in sorted(enables.items())],
+        "step_pulse_us": config.step_pulse_us, "step_pulse_cycles": pulse_cycles,
+        "step_path_cycles": int(mcu["step_high_min_cycles"]),
+        "step_pad_cycles": max(0, pulse_cycles - int(mcu["step_high_min_cycles"])),
+        "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
+        "chunks": _table_chunks(data, schedule),
+        "clobber_lines": [", ".join(f'"{r}"' for r in scratch[i:i + 10]) + ("," if i + 10 < len(scratch) else ");")
+                          for i in range(0, len(scratch), 10)],
+    }
+    return {name: render(f"avr/{name}.j2", **context) for name in ("config.h", "table.h", "table.c", "player.c")}
+
+
+def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
+    try:
+        done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    except FileNotFoundError as exc:
+        raise BuildError(f"{cmd[0]} not found: install gcc-avr, binutils-avr and avr-libc") from exc
+    if done.returncode != 0:
+        raise BuildError(f"{what} failed:\n{(done.stderr + done.stdout).strip()}")
+    return done
+
+
+def _section_sizes(elf: Path, cwd: Path) -> dict[str, int]:
+    out = _run(["avr-size", "-A", elf.name], cwd, "avr-size").stdout
+    sizes = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) >= 2 and parts[0].startswith(".") and parts[1].isdigit():
+            sizes[parts[0]] = int(parts[1])
+    return sizes
+
+
+def _check_table_contiguous(elf: Path, cwd: Path) -> None:
+    """The player reads the chunks as one stream: each must start where the previous one ends."""
+    out = _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout
+    chunks = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 4 and parts[3].startswith("table_chunk_"):
+            chunks[int(parts[3][len("table_chunk_"):])] = (int(parts[0], 16), int(parts[1], 16))
+    for k in range(1, len(chunks)):
+        addr, size = chunks[k - 1]
+        if chunks.get(k, (None,))[0] != addr + size:
+            raise BuildError(f"table chunks {k - 1} and {k} are not contiguous in flash ({elf.name})")
+
+
+def _check_isr_stackless(elf: Path, cwd: Path) -> None:
+    """The naked step interrupt saves nothing and has no frame: GCC must not have spilled to the stack."""
+    out = _run(["avr-objdump", "-d", "--no-show-raw-insn", elf.name], cwd, "avr-objdump").stdout
+    body = out.split(f"<{STEP_ISR}>:", 1)[1].split("\n\n", 1)[0] if f"<{STEP_ISR}>:" in out else ""
+    bad = [line.strip() for line in body.splitlines() if _STACK_USE.search(line)]
+    if not body or bad:
+        raise BuildError(f"the step interrupt {STEP_ISR} uses the stack, which it may not (it is naked): "
+                         f"{'; '.join(bad[:3]) or 'not found'}")
+
+
+def _link(arch: list[str], objects: list[str], elf: str, flash: int, ram: int,
+          cwd: Path) -> subprocess.CompletedProcess:
+    cmd = ["avr-gcc", *arch, f"-Wl,--defsym=__TEXT_REGION_LENGTH__={flash}",
+           f"-Wl,--defsym=__DATA_REGION_LENGTH__={ram}", "-o", elf, *objects]
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+
+
+def _link_unbounded(arch: list[str], objects: list[str], cwd: Path) -> str:
+    done = _link(arch, objects, "unbounded.elf", UNBOUNDED_FLASH, UNBOUNDED_FLASH, cwd)
+    if done.returncode != 0:
+        raise BuildError(f"the image does not fit in flash, and even an unbounded link fails:\n{done.stderr.strip()}")
+    return "unbounded.elf"
+
+
+def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Image:
+    """Write `sources` into out_dir and build firmware.elf and firmware.hex; BuildError leaves neither behind."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    hex_path, elf_path = out_dir / "firmware.hex", out_dir / "firmware.elf"
+    for stale in (hex_path, elf_path):
+        stale.unlink(missing_ok=True)
+    for name, text in sorted(sources.items()):
+        (out_dir / name).write_text(text, encoding="utf-8")
+    mcu = load_target("atmega2560")
+    flash, ram = int(mcu["flash"]), int(mcu["ram"])
+    arch = [f"-mmcu={mcu['name']}", f"-DF_CPU={int(mcu['f_cpu'])}UL"]
+    with tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp:
+        work = Path(tmp)
+        objects = []
+        for name, text in sorted(sources.items()):
+            (work / name).write_text(text, encoding="utf-8")
+        for name in sorted(n for n in sources if n.endswith(".c")):
+            objects.append(name[:-2] + ".o")
+            _run(["avr-gcc", *arch, *CFLAGS, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
+        done = _link(arch, objects, "firmware.elf", flash, ram, work)
+        if done.returncode != 0:
+            if _TEXT_FULL.search(done.stderr):
+                # Link again without the limit, only to measure what the job needs.
+                sizes = _section_sizes(work / _link_unbounded(arch, objects, work), work)
+                needed = sizes.get(".text", 0) + sizes.get(".data", 0)
+                raise BuildError(f"the image does not fit in flash: it needs {needed} bytes (table {table_bytes} "
+                                 f"bytes), {flash} available on the {mcu['name']}")
+            raise BuildError(f"linking firmware.elf failed:\n{done.stderr.strip()}")
+        elf = work / "firmware.elf"
+        _check_table_contiguous(elf, work)
+        _check_isr_stackless(elf, work)
+        sections = _section_sizes(elf, work)
+        _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
+        # Both files appear together, complete: the ELF first, the hex (what gets flashed) last.
+        (work / "firmware.elf").replace(elf_path)
+        (work / "firmware.hex").replace(hex_path)
+    text, data, bss = (sections.get(s, 0) for s in (".text", ".data", ".bss"))
+    return Image(hex_path=hex_path, elf_path=elf_path, flash_bytes=text + data, ram_bytes=data + bss,
+                 table_bytes=table_bytes, flash_capacity=flash, ram_capacity=ram, sections=sections)

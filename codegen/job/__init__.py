@@ -1,0 +1,126 @@
+"""The job file: load it, validate it, report every problem like a compiler.
+
+    from codegen.job import load_job
+    job = load_job(Path("shape.yaml"), target_override=None)   # a Job, or JobError with every diagnostic
+
+Nothing is written to disk. See /work/shared/JOB-FORMAT.md for the format and README for the added keys.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+from pydantic import ValidationError
+
+from codegen.errors import Diagnostic, JobError, SourceRef, suggest
+from codegen.job.expr import Expr, ExprError, parse
+from codegen.job.loader import Marks, cross_check, read_yaml, translate
+from codegen.job.schema import (
+    DEFAULT_BOARDS, KINEMATICS, MOTORS, SHAPES, TARGETS, Arc, Circle, Delta, Ellipse, Function, Job, Line,
+    Machine, Points, Polyline, Program, Shape, Sine, Stepper, Travel,
+)
+
+__all__ = [
+    "load_job", "board_targets", "Job", "Machine", "Stepper", "Delta", "Program", "Shape", "SHAPES",
+    "Line", "Polyline", "Points", "Arc", "Circle", "Ellipse", "Sine", "Function", "Travel",
+    "Expr", "ExprError", "parse", "TARGETS", "DEFAULT_BOARDS", "KINEMATICS", "MOTORS",
+]
+
+
+def board_targets() -> dict[str, str]:
+    """Every board file in targets/ that names its target: board name (the file's stem) -> target."""
+    from codegen.paths import targets_dir
+
+    boards = {}
+    for f in sorted(targets_dir().glob("*.yaml")):
+        try:
+            doc = yaml.safe_load(f.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue
+        if isinstance(doc, dict) and isinstance(doc.get("target"), str):
+            boards[f.stem] = doc["target"]
+    return boards
+
+
+def _check_board(data: dict, target: str, marks: Marks) -> list[Diagnostic]:
+    """`<board>.yaml` must exist in targets/ with `target: <target>`; skipped while targets/ has no board of
+    that target at all."""
+    boards = board_targets()
+    valid = sorted(b for b, t in boards.items() if t == target)
+    board = data.get("board", DEFAULT_BOARDS[target])
+    if not valid or not isinstance(board, str) or board in valid:
+        return []
+    listed = f"; {target} boards: {', '.join(valid)}"
+    if "board" not in data:
+        where = marks.value(("target",)) if "target" in data else SourceRef(marks.file)
+        return [Diagnostic(where, f"board: the default board '{board}' of target {target} is missing{listed}")]
+    if board in boards:
+        message = f"board: '{board}' is a board for target {boards[board]}, not {target}{listed}"
+    else:
+        message = f"board: unknown board '{board}' for target {target}{suggest(board, valid)}{listed}"
+    return [Diagnostic(marks.value(("board",)), message)]
+
+
+def _inline_gcode(gcode: str, marks: Marks) -> bool:
+    """G-code written in the job file (a block scalar, or several lines) rather than a file name."""
+    style = marks.styles.get(("program", "gcode"), (None, True))[0]
+    return style in ("|", ">") or "\n" in gcode.strip()
+
+
+def _check_gcode_file(job: Job, path: Path, marks: Marks) -> list[Diagnostic]:
+    gcode = job.program.gcode
+    if gcode is None or _inline_gcode(gcode, marks) or (path.parent / gcode).is_file():
+        return []
+    return [Diagnostic(marks.value(("program", "gcode")), f"program.gcode: no such file '{gcode}'")]
+
+
+def _validate(data: dict) -> Job:
+    """Job.model_validate by the file's key names only (`from`, not the attribute name `from_`)."""
+    try:
+        return Job.model_validate(data, by_name=False)
+    except TypeError:  # pydantic < 2.11 has no by_name: `from_` is then accepted too
+        return Job.model_validate(data)
+
+
+def load_job(path: Path, target_override: str | None = None) -> Job:
+    """Read and validate a job file.
+
+    Returns a `Job` with the defaults filled in (name: the file's stem; target: avr unless `target_override`;
+    board: per target), `job.path` absolute, every shape's `source` at its kind key, and `program.gcode_source`
+    at the G-code (its first line when inline). Raises `JobError` carrying every diagnostic of the file,
+    sorted by position: YAML syntax (one diagnostic), unknown and missing keys, wrong values, cross-key rules,
+    the board, a G-code file that does not exist.
+    """
+    path = Path(path)
+    if target_override is not None and target_override not in TARGETS:
+        message = f"'{target_override}' is not one of {', '.join(TARGETS)}{suggest(target_override, TARGETS)}"
+        raise JobError([Diagnostic(SourceRef("--target"), message)])
+    data, marks, diagnostics = read_yaml(path)
+    if not isinstance(data, dict):
+        message = "expected a mapping with the keys machine and program (and optionally name, target, board)"
+        raise JobError(diagnostics + [Diagnostic(marks.value(()), message)])
+    data = {"name": path.stem, **data}
+    if target_override is not None:
+        data["target"] = target_override
+    job = None
+    try:
+        job = _validate(data)
+    except ValidationError as e:
+        diagnostics += translate(e.errors(), marks)
+    diagnostics += cross_check(data, marks)
+    if data.get("target", "avr") in TARGETS:
+        diagnostics += _check_board(data, data.get("target", "avr"), marks)
+    if job is not None:
+        diagnostics += _check_gcode_file(job, path, marks)
+    if diagnostics or job is None:
+        unique = {(d.where.line, d.where.col, d.message): d for d in diagnostics}
+        raise JobError(sorted(unique.values(), key=lambda d: (d.where.line, d.where.col)))
+    job.path = path.resolve()
+    for i, shape in enumerate(job.program.shapes or ()):
+        shape.source = marks.key(("program", "shapes", i, shape.kind))
+    gcode = job.program.gcode
+    if gcode is not None:
+        where = ("program", "gcode")
+        job.program.gcode_source = marks.block(where) if _inline_gcode(gcode, marks) else marks.value(where)
+    return job

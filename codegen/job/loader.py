@@ -1,0 +1,332 @@
+"""Read a job file: YAML through PyYAML's composer, so every key and value keeps its line and column.
+
+`read_yaml` turns the node tree into plain Python data plus `Marks`, a map from paths (tuples of keys and
+list indexes, e.g. ("program", "shapes", 2, "circle", "radius")) to positions. `translate` turns pydantic's
+errors into diagnostics at those positions, in plain words; `cross_check` adds the checks that span several
+keys. `codegen.job.load_job` puts it together.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
+
+from codegen.errors import Diagnostic, JobError, SourceRef, closest, suggest
+from codegen.job.schema import MOTORS, REQUIRED_MOTORS, SHAPES, Delta, Job, Machine, Program, Stepper
+
+YPath = tuple  # of str (mapping keys) and int (list indexes)
+
+_FLOAT_12 = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+")  # YAML 1.2 floats such as 1e-3
+_MAX_NODES = 100_000
+
+
+def dotted(path: YPath) -> str:
+    """('program', 'shapes', 2, 'circle') -> 'program.shapes[2].circle'."""
+    out = ""
+    for p in path:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
+
+
+@dataclass
+class Marks:
+    """1-based (line, col) of every key and value of a job file, by path."""
+
+    file: str
+    lines: list[str] = field(default_factory=list)
+    keys: dict[YPath, tuple[int, int]] = field(default_factory=dict)
+    values: dict[YPath, tuple[int, int]] = field(default_factory=dict)
+    styles: dict[YPath, tuple[str | None, bool]] = field(default_factory=dict)  # scalar style, single line?
+
+    def _at(self, pos: tuple[int, int]) -> SourceRef:
+        return SourceRef(self.file, pos[0], pos[1])
+
+    def value(self, path: YPath) -> SourceRef:
+        """The value at path, else the nearest enclosing value that exists in the file."""
+        for n in range(len(path), -1, -1):
+            if path[:n] in self.values:
+                return self._at(self.values[path[:n]])
+        return SourceRef(self.file)
+
+    def key(self, path: YPath) -> SourceRef:
+        """The key of path (its value for list items and the root)."""
+        return self._at(self.keys[path]) if path in self.keys else self.value(path)
+
+    def mapping(self, path: YPath) -> SourceRef:
+        """For a key missing from the mapping at path: the mapping's own key, else its first key."""
+        if path in self.keys:
+            return self._at(self.keys[path])
+        firsts = [pos for p, pos in self.keys.items() if len(p) == len(path) + 1 and p[:-1] == path]
+        return self._at(min(firsts)) if firsts else self.value(path)
+
+    def inside(self, path: YPath, offset: int) -> SourceRef:
+        """The character at `offset` inside the single-line scalar at path (plain or quoted)."""
+        ref = self.value(path)
+        style, single = self.styles.get(path, ("|", False))
+        if path not in self.values or not single or style not in (None, "'", '"'):
+            return ref
+        start = ref.col - 1 + (1 if style else 0)
+        raw = self.lines[ref.line - 1][start:] if ref.line <= len(self.lines) else ""
+        i = n = 0
+        while n < offset and i < len(raw):
+            if style == "'" and raw.startswith("''", i):
+                i += 2
+            elif style == '"' and raw[i] == "\\":
+                i += {"x": 4, "u": 6, "U": 10}.get(raw[i + 1 : i + 2], 2)
+            else:
+                i += 1
+            n += 1
+        return SourceRef(self.file, ref.line, start + i + (offset - n) + 1)
+
+    def block(self, path: YPath) -> SourceRef:
+        """The first content line of a block scalar (`key: |`), else the value."""
+        ref = self.value(path)
+        if self.styles.get(path, (None, True))[0] not in ("|", ">"):
+            return ref
+        for n in range(ref.line, len(self.lines)):  # the lines after the indicator, 0-based index n
+            text = self.lines[n]
+            if text.strip():
+                return SourceRef(self.file, n + 1, len(text) - len(text.lstrip()) + 1)
+        return ref
+
+
+class _Builder:
+    """Plain data from composed nodes, recording marks and the problems the models cannot see."""
+
+    def __init__(self, loader: yaml.SafeLoader, marks: Marks):
+        self.loader, self.marks = loader, marks
+        self.diagnostics: list[Diagnostic] = []
+        self.stack: set[int] = set()
+        self.count = 0
+
+    def error(self, node: Node, message: str) -> None:
+        m = node.start_mark
+        self.diagnostics.append(Diagnostic(SourceRef(self.marks.file, m.line + 1, m.column + 1), message))
+
+    def build(self, node: Node, path: YPath) -> Any:
+        self.marks.values[path] = (node.start_mark.line + 1, node.start_mark.column + 1)
+        self.count += 1
+        if self.count > _MAX_NODES:
+            if self.count == _MAX_NODES + 1:
+                self.error(node, f"{dotted(path) or 'job'}: the document is too large (aliases?)")
+            return None
+        if isinstance(node, ScalarNode):
+            self.marks.styles[path] = (node.style, node.start_mark.line == node.end_mark.line)
+            return self.scalar(node, path)
+        if id(node) in self.stack:
+            self.error(node, f"{dotted(path)}: recursive alias")
+            return None
+        self.stack.add(id(node))
+        try:
+            if isinstance(node, SequenceNode):
+                return [self.build(child, path + (i,)) for i, child in enumerate(node.value)]
+            assert isinstance(node, MappingNode)
+            return self.mapping(node, path)
+        finally:
+            self.stack.discard(id(node))
+
+    def mapping(self, node: MappingNode, path: YPath) -> dict:
+        out: dict[str, Any] = {}
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, ScalarNode):
+                self.error(key_node, f"{dotted(path) or 'job'}: keys must be plain names")
+                continue
+            key = key_node.value
+            if key in out:
+                first = self.marks.keys[path + (key,)][0]
+                where = f"{dotted(path)}: " if path else ""
+                self.error(key_node, f"{where}duplicate key '{key}' (first given on line {first})")
+            self.marks.keys[path + (key,)] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
+            out[key] = self.build(value_node, path + (key,))
+            if isinstance(value_node, ScalarNode) and value_node.style is None and value_node.value == "":
+                self.marks.values[path + (key,)] = self.marks.keys[path + (key,)]  # `key:` alone: point at it
+        return out
+
+    def scalar(self, node: ScalarNode, path: YPath) -> Any:
+        if node.style is None and node.tag == "tag:yaml.org,2002:str" and _FLOAT_12.fullmatch(node.value):
+            return float(node.value)
+        try:
+            return self.loader.construct_object(node, deep=True)
+        except (yaml.YAMLError, ValueError, OverflowError) as e:
+            problem = getattr(e, "problem", None) or str(e)
+            self.error(node, f"{dotted(path) or 'job'}: {problem}")
+            return None
+
+
+def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Diagnostic]]:
+    """The plain data of a YAML file, its marks and the problems found while reading it (duplicate keys,
+    unknown tags). Raises JobError when there is no data at all: missing file, YAML syntax error, empty file."""
+    file = str(path) if file is None else file
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise JobError([Diagnostic(SourceRef(file), "no such file")]) from None
+    except IsADirectoryError:
+        raise JobError([Diagnostic(SourceRef(file), "is a directory, not a job file")]) from None
+    except OSError as e:
+        raise JobError([Diagnostic(SourceRef(file), f"cannot read: {e.strerror or e}")]) from None
+    except UnicodeDecodeError as e:
+        raise JobError([Diagnostic(SourceRef(file), f"not UTF-8 text (byte {e.start})")]) from None
+    marks = Marks(file, text.splitlines())
+    loader = yaml.SafeLoader(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            raise JobError([Diagnostic(SourceRef(file, 1, 1), "the job file is empty")])
+        builder = _Builder(loader, marks)
+        data = builder.build(root, ())
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        message = f"invalid YAML: {e.problem or e.context}"
+        if e.problem and e.context:
+            line = f" (line {e.context_mark.line + 1})" if e.context_mark is not None else ""
+            message += f"; {e.context}{line}"
+        where = SourceRef(file, mark.line + 1, mark.column + 1) if mark else SourceRef(file)
+        raise JobError([Diagnostic(where, message)]) from None
+    except yaml.YAMLError as e:
+        raise JobError([Diagnostic(SourceRef(file), f"invalid YAML: {e}")]) from None
+    finally:
+        loader.dispose()
+    return data, marks, builder.diagnostics
+
+
+# ---- validation: every problem of the file, as diagnostics ----
+
+_CUSTOM = {"number", "text", "flag", "enum", "point", "sweep", "range", "rod", "length", "expr", "interval",
+           "name", "shape"}
+_PLAIN = {
+    "model_type": "expected a mapping", "model_attributes_type": "expected a mapping",
+    "dict_type": "expected a mapping", "list_type": "expected a list", "tuple_type": "expected a list",
+    "string_type": "expected a string", "bool_type": "expected true or false",
+    "bool_parsing": "expected true or false", "float_type": "expected a number",
+    "float_parsing": "expected a number", "int_type": "expected a number", "finite_number": "expected a number",
+}
+_BOUNDS = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}
+
+
+def _prefix(path: YPath) -> str:
+    return f"{dotted(path)}: " if path else ""
+
+
+def _yaml_path(loc: tuple) -> YPath:
+    """A pydantic location as a YAML path (the list of a `points` shape is wrapped as {'points': [...]})."""
+    if len(loc) >= 5 and loc[:2] == ("program", "shapes") and loc[3:5] == ("points", "points"):
+        return loc[:4] + loc[5:]
+    return tuple(loc)
+
+
+def _message(err: dict, path: YPath) -> str:
+    kind, ctx = err["type"], err.get("ctx") or {}
+    if kind in _CUSTOM:
+        return err["msg"]
+    if kind in _PLAIN:
+        return _PLAIN[kind]
+    if kind in _BOUNDS:
+        limit = next(iter(ctx.values()), "")
+        return f"must be {_BOUNDS[kind]} {limit:g}" if isinstance(limit, (int, float)) else err["msg"]
+    if kind == "too_short":
+        n = ctx.get("min_length", 1)
+        what = "points" if path and path[-1] == "points" else "items"
+        return "must not be empty" if n == 1 else f"expected at least {n} {what}"
+    msg = err["msg"]
+    return msg[:1].lower() + msg[1:]
+
+
+def translate(errors: list[dict], marks: Marks) -> list[Diagnostic]:
+    """Pydantic's errors as diagnostics at the right key or value, in the house wording."""
+    out = []
+    located = [(err, _yaml_path(err["loc"]) + tuple((err.get("ctx") or {}).get("at", ()))) for err in errors]
+    # A misspelt required key is one mistake: "unknown key 'max_acel' (did you mean 'max_accel'?)" says it all.
+    misspelt = {path[:-1] + (closest(str(path[-1]), known_keys(path[:-1]) or ()),)
+                for err, path in located if err["type"] == "extra_forbidden"}
+    for err, path in located:
+        kind, ctx = err["type"], err.get("ctx") or {}
+        if kind == "missing":
+            if path not in misspelt:
+                out.append(Diagnostic(marks.mapping(path[:-1]), f"{_prefix(path[:-1])}missing key '{path[-1]}'"))
+        elif kind == "extra_forbidden":
+            keys = known_keys(path[:-1]) or ()
+            hint = suggest(str(path[-1]), keys) or (f"; expected {', '.join(keys)}" if keys else "")
+            out.append(Diagnostic(marks.key(path), f"{_prefix(path[:-1])}unknown key '{path[-1]}'{hint}"))
+        elif kind == "expr":
+            out.append(Diagnostic(marks.inside(path, int(ctx.get("offset", 0))), _prefix(path) + err["msg"]))
+        else:
+            if ctx.get("where") == "key":  # a problem with the key itself: reported against its mapping
+                out.append(Diagnostic(marks.key(path), _prefix(path[:-1]) + _message(err, path)))
+            else:
+                out.append(Diagnostic(marks.value(path), _prefix(path) + _message(err, path)))
+    return out
+
+
+# A problem found by a cross-key check, with paths relative to the checked mapping:
+# (path the message is about, message, path to point at, 'key' | 'value' | 'mapping' (a key missing there)).
+Issue = tuple[tuple, str, tuple, str]
+
+
+def machine_issues(m: dict) -> list[Issue]:
+    """Motors against the kinematics; `delta:` exactly when the kinematics is delta."""
+    kin = m.get("kinematics")
+    if kin not in MOTORS:
+        return []
+    issues: list[Issue] = []
+    steppers = m.get("steppers")
+    if isinstance(steppers, dict):
+        allowed = MOTORS[kin]
+        for name in steppers:
+            if name not in allowed:
+                hint = suggest(str(name), allowed) or f"; {kin} motors are {', '.join(allowed)}"
+                message = f"unknown motor '{name}' for {kin} kinematics{hint}"
+                issues.append((("steppers",), message, ("steppers", name), "key"))
+        for name in REQUIRED_MOTORS[kin]:
+            if name not in steppers:
+                message = f"missing motor '{name}' (required for {kin} kinematics)"
+                issues.append((("steppers",), message, ("steppers",), "key"))
+    if kin == "delta" and "delta" not in m:
+        issues.append(((), "missing key 'delta' (required for delta kinematics)", (), "mapping"))
+    elif kin == "delta" and m["delta"] is None:
+        issues.append((("delta",), "expected a mapping (required for delta kinematics)", ("delta",), "value"))
+    elif kin != "delta" and m.get("delta") is not None:
+        issues.append((("delta",), "only allowed with kinematics: delta", ("delta",), "key"))
+    return issues
+
+
+def program_issues(p: dict) -> list[Issue]:
+    """Exactly one of `shapes` and `gcode`."""
+    given = [k for k in ("shapes", "gcode") if k in p]
+    empty = {"shapes": "expected a list of shapes", "gcode": "expected a file name or G-code"}
+    issues: list[Issue] = [((k,), empty[k], (k,), "value") for k in given if p[k] is None]
+    if len(given) == 2:
+        issues.append(((), "give either 'shapes' or 'gcode', not both", ("gcode",), "key"))
+    elif not given:
+        issues.append(((), "missing key 'shapes' or 'gcode'", (), "mapping"))
+    return issues
+
+
+def known_keys(path: tuple) -> tuple[str, ...] | None:
+    """The keys allowed in the mapping at a YAML path (for "did you mean"); None when not a model."""
+    model = {
+        (): Job, ("machine",): Machine, ("machine", "delta"): Delta, ("program",): Program,
+    }.get(tuple(path))
+    if model is None and len(path) == 3 and path[:2] == ("machine", "steppers"):
+        model = Stepper
+    if model is None and len(path) == 4 and path[:2] == ("program", "shapes") and path[3] in SHAPES:
+        model = SHAPES[path[3]]
+    if model is None:
+        return None
+    return tuple(f.alias or name for name, f in model.model_fields.items())
+
+
+def cross_check(data: dict, marks: Marks) -> list[Diagnostic]:
+    """The checks that span several keys, over the YAML data (they run even when other values are wrong)."""
+    out = []
+    for key, check in (("machine", machine_issues), ("program", program_issues)):
+        if isinstance(data.get(key), dict):
+            for about, message, at, where in check(data[key]):
+                locate = {"mapping": marks.mapping, "key": marks.key, "value": marks.value}[where]
+                out.append(Diagnostic(locate((key,) + at), _prefix((key,) + about) + message))
+    return out

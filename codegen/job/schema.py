@@ -1,0 +1,376 @@
+"""The job file's models (pydantic v2): machine, steppers, delta geometry, program and its shapes.
+
+Every error a model raises is worded for people (the loader adds file:line:col and the dotted path). The
+checks that span several keys (the motors of a kinematics, `delta:` only with delta kinematics, exactly one of
+`shapes` and `gcode`) run in loader.py over the parsed YAML, so they are reported even when other values in
+the same mapping are wrong. `source`, `gcode_source` and `path` are set by the loader.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
+
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, PrivateAttr, Tag
+from pydantic import ValidationInfo, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from codegen.errors import SourceRef, suggest
+from codegen.job.expr import Expr, ExprError, parse
+
+TARGETS = ("avr", "mcs51")
+DEFAULT_BOARDS = {"avr": "ramps-1.4", "mcs51": "at89c52"}
+KINEMATICS = ("cartesian", "corexy", "delta")
+MOTORS = {"cartesian": ("x", "y", "z", "e"), "corexy": ("a", "b", "z", "e"), "delta": ("a", "b", "c", "e")}
+REQUIRED_MOTORS = {"cartesian": ("x", "y"), "corexy": ("a", "b"), "delta": ("a", "b", "c")}
+
+
+def _fail(kind: str, message: str, **ctx: Any) -> PydanticCustomError:
+    """A validation error whose message is final text; ctx may carry `offset`, `at` (a path below) and `where`."""
+    return PydanticCustomError(kind, message, ctx or None)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _number(v: Any) -> float:
+    if not _is_number(v):
+        raise _fail("number", "expected a number")
+    try:
+        f = float(v)
+    except OverflowError:
+        f = math.inf
+    if not math.isfinite(f):
+        raise _fail("number", "expected a finite number")
+    return f
+
+
+def _text(v: Any) -> str:
+    if not isinstance(v, str):
+        raise _fail("text", "expected a string")
+    if not v.strip():
+        raise _fail("text", "must not be empty")
+    return v
+
+
+def _expression(v: Any) -> str:
+    return repr(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else _text(v)  # `y: 2` is fine
+
+
+def _flag(v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise _fail("flag", "expected true or false")
+    return v
+
+
+def _choice(*values: str) -> Any:
+    def check(v: Any) -> str:
+        if isinstance(v, str) and v in values:
+            return v
+        listed = ", ".join(values)
+        if isinstance(v, str):
+            raise _fail("enum", f"'{v}' is not one of {listed}{suggest(v, values)}")
+        raise _fail("enum", f"expected one of {listed}")
+
+    return Annotated[Literal[values], BeforeValidator(check)]  # type: ignore[valid-type]
+
+
+def _numbers(counts: tuple[int, ...], what: str) -> Any:
+    def check(v: Any) -> tuple[float, ...]:
+        if isinstance(v, (list, tuple)) and len(v) in counts and all(_is_number(c) for c in v):
+            try:
+                out = tuple(float(c) for c in v)
+            except OverflowError:
+                out = (math.inf,)
+            if all(math.isfinite(c) for c in out):
+                return out
+        raise _fail("point", f"expected {what}")
+
+    return BeforeValidator(check)
+
+
+def _sweep(v: float) -> float:
+    if not 0.0 < abs(v) <= 360.0:
+        raise _fail("sweep", "must be non-zero and at most 360 in magnitude")
+    return v
+
+
+Number = Annotated[float, BeforeValidator(_number)]
+Positive = Annotated[float, BeforeValidator(_number), Field(gt=0)]
+Text = Annotated[str, BeforeValidator(_text)]
+Flag = Annotated[bool, BeforeValidator(_flag)]
+Point = Annotated[tuple[float, ...], _numbers((2, 3), "a list of 2 or 3 numbers")]
+XY = Annotated[tuple[float, float], _numbers((2,), "a list of 2 numbers")]
+Sweep = Annotated[float, BeforeValidator(_number), AfterValidator(_sweep)]
+Angles = Annotated[tuple[float, float, float], _numbers((3,), "a list of 3 numbers")]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+# ---- machine ----
+
+class Stepper(_Model):
+    steps_per_mm: Positive
+    max_velocity: Positive  # mm/s
+    max_accel: Positive  # mm/s^2
+    range: Optional[XY] = None  # (min, max) in mm
+    invert_dir: Flag = False  # the DIR pin is inverted on this motor
+
+    @field_validator("range")
+    @classmethod
+    def _ordered(cls, v: Optional[tuple[float, float]]) -> Optional[tuple[float, float]]:
+        if v is not None and not v[0] < v[1]:
+            raise _fail("range", "must be [min, max] with min < max")
+        return v
+
+
+class Delta(_Model):
+    radius: Positive
+    diagonal_rod: Positive
+    height: Positive
+    tower_angles: Angles = (210.0, 330.0, 90.0)  # deg
+
+    @field_validator("diagonal_rod")
+    @classmethod
+    def _longer_than_radius(cls, v: float, info: ValidationInfo) -> float:
+        radius = info.data.get("radius")
+        if radius is not None and not v > radius:
+            raise _fail("rod", f"must be > radius ({radius:g})")
+        return v
+
+
+class Machine(_Model):
+    kinematics: _choice(*KINEMATICS)  # type: ignore[valid-type]
+    steppers: dict[str, Stepper]
+    junction_deviation: Positive = 0.01  # mm, Grbl's $11
+    tolerance: Positive = 0.002  # mm, Grbl's $12
+    delta: Optional[Delta] = None
+
+    @property
+    def motor_names(self) -> tuple[str, ...]:
+        """The motors present, in the kinematics' canonical order (cartesian x, y, z, e; ...)."""
+        return tuple(n for n in MOTORS[self.kinematics] if n in self.steppers)
+
+
+# ---- shapes ----
+
+class _Shape(_Model):
+    kind: ClassVar[str]
+    _source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<shape>"))
+
+    @property
+    def source(self) -> SourceRef:
+        """Where the shape's kind key is in the job file (set by the loader; not a key of the file)."""
+        return self._source
+
+    @source.setter
+    def source(self, value: SourceRef) -> None:
+        self._source = value
+
+
+class _Fed(_Shape):
+    feed: Optional[Positive] = None  # mm/min
+
+
+class _Flat(_Fed):
+    z: Optional[Number] = None  # draw height for a 2-D shape
+
+
+class Line(_Fed):
+    kind: ClassVar[str] = "line"
+    z: ClassVar[None] = None
+    to: Point
+    from_: Optional[Point] = Field(default=None, alias="from")
+
+
+class Polyline(_Fed):
+    kind: ClassVar[str] = "polyline"
+    z: ClassVar[None] = None
+    points: Annotated[list[Point], Field(min_length=2)]
+
+
+class Points(_Shape):
+    kind: ClassVar[str] = "points"
+    feed: ClassVar[None] = None
+    z: ClassVar[None] = None
+    points: Annotated[list[Point], Field(min_length=1)]
+
+
+class Arc(_Flat):
+    kind: ClassVar[str] = "arc"
+    center: XY
+    radius: Positive
+    start: Number  # deg
+    sweep: Sweep  # deg, positive counter-clockwise
+
+
+class Circle(_Flat):
+    kind: ClassVar[str] = "circle"
+    center: XY
+    radius: Positive
+    start: Number = 0.0  # deg
+    direction: _choice("ccw", "cw") = "ccw"  # type: ignore[valid-type]
+
+    @property
+    def sweep(self) -> float:
+        return 360.0 if self.direction == "ccw" else -360.0
+
+
+class Ellipse(_Flat):
+    kind: ClassVar[str] = "ellipse"
+    center: XY
+    a: Positive
+    b: Positive
+    rotation: Number = 0.0  # deg
+    start: Number = 0.0  # deg
+    sweep: Sweep = 360.0  # deg
+
+
+class Sine(_Flat):
+    kind: ClassVar[str] = "sine"
+    origin: XY
+    amplitude: Number
+    omega: Number  # rad/mm
+    phase: Number = 0.0  # deg
+    length: Number  # mm, may be negative
+
+    @field_validator("length")
+    @classmethod
+    def _nonzero(cls, v: float) -> float:
+        if v == 0.0:
+            raise _fail("length", "must not be 0")
+        return v
+
+
+class Function(_Flat):
+    kind: ClassVar[str] = "function"
+    y: Annotated[str, BeforeValidator(_expression)]  # an expression in x
+    x: XY  # [from, to]
+    origin: XY = (0.0, 0.0)
+
+    @field_validator("y")
+    @classmethod
+    def _parses(cls, v: str) -> str:
+        try:
+            parse(v)
+        except ExprError as e:
+            raise _fail("expr", e.message, offset=e.offset) from None
+        return v
+
+    @field_validator("x")
+    @classmethod
+    def _interval(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if v[0] == v[1]:
+            raise _fail("interval", "must be [from, to] with from != to")
+        return v
+
+    @cached_property
+    def expr(self) -> Expr:
+        """The parsed expression of y."""
+        return parse(self.y)
+
+
+class Travel(_Fed):
+    kind: ClassVar[str] = "travel"
+    z: ClassVar[None] = None
+    to: Point
+
+
+SHAPES: dict[str, type[_Shape]] = {
+    cls.kind: cls for cls in (Line, Polyline, Points, Arc, Circle, Ellipse, Sine, Function, Travel)
+}
+Shape = Union[Line, Polyline, Points, Arc, Circle, Ellipse, Sine, Function, Travel]
+
+
+class _Body(dict):
+    """A shape's mapping, tagged with its kind for the discriminated union."""
+
+    kind = ""
+
+
+def _shape_item(v: Any) -> Any:
+    if isinstance(v, _Shape):
+        return v
+    example = "a one-key mapping such as `line: {to: [10, 0]}`"
+    if not isinstance(v, dict) or not v:
+        raise _fail("shape", f"expected a shape, {example}")
+    if len(v) > 1:
+        keys = ", ".join(f"'{k}'" for k in v)
+        kinds = [k for k in v if k in SHAPES]
+        hint = f" (indent the other keys under '{kinds[0]}')" if len(kinds) == 1 else ""
+        raise _fail("shape", f"a shape is a one-key mapping, its kind; found keys {keys}{hint}")
+    ((kind, body),) = v.items()
+    if kind not in SHAPES:
+        hint = suggest(str(kind), SHAPES) or f"; shapes are {', '.join(SHAPES)}"
+        raise _fail("shape", f"unknown shape '{kind}'{hint}", at=(kind,), where="key")
+    if kind == "points":
+        body = {"points": body}
+    if not isinstance(body, dict):
+        raise _fail("shape", f"expected the {kind}'s keys (a mapping)", at=(kind,), where="value")
+    tagged = _Body(body)
+    tagged.kind = kind
+    return tagged
+
+
+ShapeItem = Annotated[
+    Union[tuple(Annotated[cls, Tag(kind)] for kind, cls in SHAPES.items())],  # type: ignore[misc]
+    Discriminator(lambda v: getattr(v, "kind", None)),
+    BeforeValidator(_shape_item),
+]
+
+
+# ---- program and job ----
+
+class Program(_Model):
+    start: Point = (0.0, 0.0)
+    feed: Positive = 1200.0  # mm/min
+    travel_feed: Optional[Positive] = None  # mm/min; None: as fast as the machine allows
+    shapes: Optional[Annotated[list[ShapeItem], Field(min_length=1)]] = None
+    gcode: Optional[Text] = None  # a path relative to the job file, or the G-code itself
+    _gcode_source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<gcode>"))
+
+    @property
+    def gcode_source(self) -> SourceRef:
+        """Where the G-code starts: its first line for inline G-code, else the path's value in the job file."""
+        return self._gcode_source
+
+    @gcode_source.setter
+    def gcode_source(self, value: SourceRef) -> None:
+        self._gcode_source = value
+
+
+class Job(_Model):
+    name: Text = "job"  # the loader defaults it to the file's stem
+    target: _choice(*TARGETS) = "avr"  # type: ignore[valid-type]
+    board: Text = DEFAULT_BOARDS["avr"]  # default: per target
+    machine: Machine
+    program: Program
+    _path: Path = PrivateAttr(default_factory=Path)
+
+    @property
+    def path(self) -> Path:
+        """The job file's absolute path."""
+        return self._path
+
+    @path.setter
+    def path(self, value: Path) -> None:
+        self._path = value
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_board(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "board" not in data and data.get("target", "avr") in DEFAULT_BOARDS:
+            data = {**data, "board": DEFAULT_BOARDS[data.get("target", "avr")]}
+        return data
+
+    @field_validator("name")
+    @classmethod
+    def _file_name(cls, v: str) -> str:
+        if any(c in v for c in "/\\\0") or v in (".", ".."):
+            raise _fail("name", "must be usable as a folder name (no '/' or '\\')")
+        return v

@@ -1,0 +1,85 @@
+"""The interface every kinematics variant implements, and the linear case shared by cartesian and corexy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MotorLimits:
+    names: tuple[str, ...]
+    steps_per_mm: np.ndarray  # (M,)
+    max_velocity: np.ndarray  # (M,) mm/s of motor travel
+    max_accel: np.ndarray  # (M,) mm/s^2 of motor travel
+    invert_dir: tuple[bool, ...]
+
+    @classmethod
+    def from_steppers(cls, names, steppers) -> "MotorLimits":
+        get = lambda attr: np.array([float(getattr(steppers[n], attr)) for n in names])  # noqa: E731
+        return cls(
+            names=tuple(names),
+            steps_per_mm=get("steps_per_mm"),
+            max_velocity=get("max_velocity"),
+            max_accel=get("max_accel"),
+            invert_dir=tuple(bool(getattr(steppers[n], "invert_dir", False)) for n in names),
+        )
+
+    @property
+    def max_rate(self) -> np.ndarray:
+        """Steps per second each motor may make."""
+        return self.max_velocity * self.steps_per_mm
+
+
+class Kinematics:
+    """Maps axis positions to motor positions. Linear variants give `matrix` (motors x 4 axes)."""
+
+    name = "abstract"
+    sockets: dict[str, str] = {}  # motor name -> board stepper socket
+
+    def __init__(self, limits: MotorLimits):
+        self.limits = limits
+
+    @property
+    def motors(self) -> tuple[str, ...]:
+        return self.limits.names
+
+    def socket(self, motor: str) -> str:
+        return self.sockets[motor]
+
+    def to_motor(self, axes: np.ndarray) -> np.ndarray:
+        """(N, 4) axis mm -> (N, M) motor mm."""
+        raise NotImplementedError
+
+    def to_axes(self, motor_mm: np.ndarray, like: np.ndarray) -> np.ndarray:
+        """(N, M) motor mm -> (N, 4) axis mm; axes no motor drives are taken from `like` (N, 4)."""
+        raise NotImplementedError
+
+    def to_steps(self, axes: np.ndarray) -> np.ndarray:
+        """Motor positions in whole steps: round once from the exact coordinates (JOB-FORMAT.md)."""
+        return np.round(self.to_motor(axes) * self.limits.steps_per_mm).astype(np.int64)
+
+
+class LinearKinematics(Kinematics):
+    """Motor positions are a fixed linear map of the axes: motor = matrix @ axes."""
+
+    axis_rows: dict[str, tuple[float, float, float, float]] = {}
+
+    def __init__(self, limits: MotorLimits):
+        super().__init__(limits)
+        self.matrix = np.array([self.axis_rows[n] for n in limits.names], dtype=float)
+        self.driven_axes = np.flatnonzero(np.any(self.matrix != 0.0, axis=0))
+        self._inverse = np.linalg.pinv(self.matrix[:, self.driven_axes])
+
+    def to_motor(self, axes: np.ndarray) -> np.ndarray:
+        return np.asarray(axes, dtype=float) @ self.matrix.T
+
+    def to_axes(self, motor_mm: np.ndarray, like: np.ndarray) -> np.ndarray:
+        out = np.array(like, dtype=float, copy=True)
+        out[:, self.driven_axes] = np.asarray(motor_mm, dtype=float) @ self._inverse.T
+        return out
+
+    def motor_factors(self, directions: np.ndarray) -> np.ndarray:
+        """|d motor / d path| for unit direction vectors (N, 4) -> (N, M)."""
+        return np.abs(directions @ self.matrix.T)

@@ -1,0 +1,121 @@
+"""The host side of a build, stage by stage: job -> toolpath -> segments -> plan -> events -> schedule -> twin.
+
+Each stage is a function with a typed result; this module only composes them (and knows no CLI).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.checks import Findings, MotorTrain, check, step_length_mm
+from codegen.compress import Compressed, compress
+from codegen.errors import JobError
+from codegen.firmware import FirmwareConfig, MotorPins
+from codegen.kinematics import make_kinematics
+from codegen.kinematics.base import LinearKinematics
+from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
+from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
+                             staircase_error)
+from codegen.targets import TargetInfo, target_info
+from codegen.toolpath import Segments, Toolpath, flatten
+from codegen.twin import Pulses, predict
+
+STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
+REFINE_ROUNDS = 4
+
+
+@dataclass
+class HostBuild:
+    job: object
+    target: TargetInfo
+    kin: LinearKinematics
+    toolpath: Toolpath
+    segments: Segments
+    plan: Plan
+    events: Events
+    compressed: Compressed
+    pulses: Pulses
+    findings: Findings
+    start_steps: np.ndarray
+    expected_final: np.ndarray
+
+    @property
+    def schedule(self):
+        return self.compressed.schedule
+
+    def firmware_config(self) -> FirmwareConfig:
+        steppers = self.job.machine.steppers
+        return FirmwareConfig(
+            job_name=self.job.name,
+            job_file=self.job.path.name,
+            target=self.target.target,
+            board=self.target.board,
+            motors=tuple(MotorPins(m, self.kin.socket(m), bool(steppers[m].invert_dir)) for m in self.kin.motors),
+        )
+
+    def event_segments(self) -> np.ndarray:
+        """The segment every event belongs to."""
+        block = np.searchsorted(self.events.block_first, np.arange(len(self.events.time)), side="right") - 1
+        return self.events.block_segment[block]
+
+
+def build_toolpath(job) -> Toolpath:
+    if getattr(job.program, "shapes", None):
+        from codegen.shapes import build_toolpath as from_shapes
+        return from_shapes(job)
+    where = getattr(job.program, "gcode_source", None)
+    from codegen.errors import Diagnostic, SourceRef
+    raise JobError([Diagnostic(where or SourceRef(str(job.path)), "G-code programs are not supported yet")])
+
+
+def drop_empty(segments: Segments) -> Segments:
+    """Remove moves of zero length (nothing to plan, nothing to step)."""
+    length, _ = segment_lengths(segments)
+    keep = (length > 0) | (segments.dwell > 0)
+    if np.all(keep):
+        return segments
+    return segments.take(np.flatnonzero(keep))
+
+
+def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray, motors: int) -> list[MotorTrain]:
+    return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
+
+
+def refine(segments: Segments, kin: LinearKinematics) -> Segments:
+    """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
+    two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
+    limit = STAIRCASE_LIMIT * step_length_mm(kin)
+    look = np.arange(len(segments))
+    for _ in range(REFINE_ROUNDS):
+        bad = look[staircase_error(segments, kin, look) > limit]
+        if len(bad) == 0:
+            break
+        segments = split_at(segments, bad, quantisation_split(segments, kin, bad))
+        pieces = bad + np.arange(len(bad))  # where the cut segments' first halves now stand
+        look = np.concatenate([pieces, pieces + 1])
+    return segments
+
+
+def host_build(job) -> HostBuild:
+    """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
+    target = target_info(job.board)
+    kin = make_kinematics(job.machine)
+    toolpath = build_toolpath(job)
+    start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
+    expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
+    segments = refine(split_long(drop_empty(flatten(toolpath, job.machine.tolerance)), kin), kin)
+    steps = segment_steps(segments, kin)
+    limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(len(kin.motors)))
+    motion = plan(segments, kin, steps, limits)
+    events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
+    compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(len(kin.motors)),
+                          target.min_event_ticks)
+    pulses = predict(compressed.schedule)
+    result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
+                       None, start_steps, expected_final)  # type: ignore[arg-type]
+    trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
+    result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
+                            expected_final, start_steps, job.machine.tolerance)
+    return result

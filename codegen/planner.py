@@ -1,0 +1,170 @@
+"""Lookahead planner: constant-acceleration trapezoids over the whole program, vectorised.
+
+Speeds are limited per segment by the feed, every motor's velocity (projected on the motor, with Bresenham's
+step quantisation taken into account), the player's event rate, and on curves by the centripetal acceleration
+each motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
+backward and forward passes are exact recurrences on v^2 written as running minima (numpy, no Python loop).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.kinematics.base import LinearKinematics
+from codegen.toolpath import Segments
+
+SMOOTH_TURN = 0.5  # rad: junctions turning less than this are part of a curve, not corners
+RATE_WINDOW = 7  # step intervals over which motor rates are held (8 consecutive steps)
+
+
+@dataclass(frozen=True)
+class PlannerLimits:
+    junction_deviation: float  # mm
+    max_event_rate: float = np.inf  # events/s the player sustains
+    margin: float = 0.02  # headroom kept below every motor limit, for step and tick quantisation
+    centripetal_share: float = 0.8  # largest share of a motor's acceleration a curve may use sideways
+
+
+@dataclass
+class Plan:
+    length: np.ndarray  # (n,) mm of path
+    direction: np.ndarray  # (n, 4) unit vectors (zero for dwells)
+    v_entry: np.ndarray
+    v_peak: np.ndarray
+    v_exit: np.ndarray
+    accel: np.ndarray  # mm/s^2 along the path
+    s_acc: np.ndarray  # mm accelerating
+    s_cruise: np.ndarray  # mm at v_peak
+    t_acc: np.ndarray
+    t_cruise: np.ndarray
+    t_start: np.ndarray  # s
+    duration: np.ndarray  # s, dwell included
+    corner: np.ndarray  # (n + 1,) bool: junction j (before segment j) is a corner, not a curve
+
+    @property
+    def total(self) -> float:
+        return float(self.t_start[-1] + self.duration[-1]) if len(self.duration) else 0.0
+
+    def time_at(self, seg: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Time (s since the start) when the tool is `s` mm into segment `seg` (arrays)."""
+        v0, vp, a = self.v_entry[seg], self.v_peak[seg], self.accel[seg]
+        s_acc, s_cr = self.s_acc[seg], self.s_cruise[seg]
+        in_acc = np.minimum(s, s_acc)
+        t = 2.0 * in_acc / np.maximum(v0 + np.sqrt(v0 * v0 + 2.0 * a * in_acc), 1e-300)
+        in_cruise = np.clip(s - s_acc, 0.0, s_cr)
+        t = t + np.where(in_cruise > 0, in_cruise / np.maximum(vp, 1e-300), 0.0)
+        in_dec = np.maximum(s - s_acc - s_cr, 0.0)
+        root = np.sqrt(np.maximum(vp * vp - 2.0 * a * in_dec, 0.0))
+        t = t + 2.0 * in_dec / np.maximum(vp + root, 1e-300)
+        return self.t_start[seg] + t
+
+
+def segment_lengths(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """Path length (xyz, or |e| for extruder-only moves) and unit direction of every segment."""
+    delta = segments.end - segments.start
+    length = np.linalg.norm(delta[:, :3], axis=1)
+    length = np.where(length > 0, length, np.abs(delta[:, 3]))
+    direction = np.divide(delta, length[:, None], out=np.zeros_like(delta), where=length[:, None] > 0)
+    return length, direction
+
+
+def quantisation_factor(steps: np.ndarray) -> np.ndarray:
+    """Per motor, how far below its limit a Bresenham slave must run so that any 8 consecutive steps stay
+    within the limit: slaves step on master events, so 7 of their intervals can span floor(7 N / d) events."""
+    d = np.abs(steps).astype(float)
+    n = d.max(axis=1, keepdims=True)
+    ratio = np.divide(RATE_WINDOW * n, d, out=np.ones_like(d), where=d > 0)
+    return np.where((d > 0) & (d < n), np.floor(ratio) / np.maximum(ratio, 1e-300), 1.0)
+
+
+def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
+    """`steps` (n, M): signed motor steps of every segment (from positions rounded once)."""
+    n = len(segments)
+    length, u = segment_lengths(segments)
+    moving = length > 0
+    motor = kin.limits
+    keep = 1.0 - limits.margin
+    vmax, amax = motor.max_velocity * keep, motor.max_accel * keep
+
+    factors = kin.motor_factors(u)  # (n, M) motor mm per path mm
+    q = quantisation_factor(steps)
+    v_motor = np.min(np.divide(vmax * q, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
+    master = np.abs(steps).max(axis=1) if steps.size else np.zeros(n)
+    v_events = np.divide(limits.max_event_rate * keep * length, master,
+                         out=np.full(n, np.inf), where=master > 0)
+
+    # Junctions j = 1 .. n-1 between segment j-1 and j.
+    u_prev, u_next = u[:-1], u[1:]
+    cos_turn = np.clip(np.sum(u_prev * u_next, axis=1), -1.0, 1.0)
+    turn = np.arccos(cos_turn)
+    normal = u_next - u_prev
+    norm = np.linalg.norm(normal, axis=1)
+    normal = np.divide(normal, norm[:, None], out=np.zeros_like(normal), where=norm[:, None] > 0)
+    normal_factors = kin.motor_factors(normal)  # (n-1, M)
+    a_normal = np.min(np.divide(amax, normal_factors, out=np.full_like(normal_factors, np.inf),
+                                where=normal_factors > 0), axis=1)
+    sin_half = np.sqrt(0.5 * (1.0 + cos_turn))  # Grbl's sin(theta/2), theta = angle to the reversed incoming
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w_jd = np.where(sin_half < 1.0 - 1e-9,
+                        a_normal * limits.junction_deviation * sin_half / (1.0 - sin_half), np.inf)
+    w_jd = np.where(cos_turn < -1.0 + 1e-9, 0.0, w_jd)  # a full reversal stops
+    smooth = (turn < SMOOTH_TURN) & moving[:-1] & moving[1:]
+    short = np.minimum(length[:-1], length[1:])
+    curvature = np.where(smooth, np.divide(2.0 * np.sin(0.5 * turn), short, out=np.zeros(n - 1),
+                                           where=short > 0), 0.0)
+    with np.errstate(divide="ignore"):
+        w_curve_j = np.where(curvature > 0, limits.centripetal_share * a_normal / curvature, np.inf)
+
+    # Each segment takes the larger curvature of its two ends (smooth ends only).
+    kappa = np.zeros(n)
+    side = np.zeros((n, len(motor.names)))
+    kappa[:-1] = np.maximum(kappa[:-1], curvature)
+    kappa[1:] = np.maximum(kappa[1:], curvature)
+    curved_normals = normal_factors * (curvature > 0)[:, None]
+    side[:-1] = np.maximum(side[:-1], curved_normals)
+    side[1:] = np.maximum(side[1:], curved_normals)
+    sideways = kappa[:, None] * side  # centripetal motor accel per (mm/s)^2
+    w_curve = np.min(np.divide(limits.centripetal_share * amax, sideways, out=np.full_like(sideways, np.inf),
+                               where=sideways > 0), axis=1)
+    v_nominal = np.minimum.reduce([segments.feed, v_motor, v_events, np.sqrt(w_curve)])
+    v_nominal = np.where(moving, v_nominal, 0.0)
+    if np.any(~np.isfinite(v_nominal)):
+        raise ValueError("a segment moves no motor: its speed is unbounded")
+    spare = amax[None, :] - v_nominal[:, None] ** 2 * sideways
+    accel = np.min(np.divide(spare, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
+    accel = np.where(moving, accel, 1.0)
+
+    # Largest v^2 at each junction; 0 at the ends, around dwells and where the tool switches.
+    w_nom = v_nominal ** 2
+    w_max = np.zeros(n + 1)
+    inner = np.minimum.reduce([w_nom[:-1], w_nom[1:], w_jd, w_curve_j])
+    stops = (~moving[:-1]) | (~moving[1:]) | (segments.tool[:-1] != segments.tool[1:])
+    w_max[1:-1] = np.where(stops, 0.0, inner)
+
+    gain = 2.0 * accel * length  # v^2 gained over each segment at full acceleration
+    # Backward pass: w[j] = min(w_max[j], w[j+1] + gain[j])  <=>  w[j] - D[j] = min_{k>=j} (w_max[k] - D[k]).
+    suffix = np.concatenate([np.cumsum(gain[::-1])[::-1], [0.0]])
+    w_back = np.minimum.accumulate((w_max - suffix)[::-1])[::-1] + suffix
+    # Forward pass: w[j] = min(w_back[j], w[j-1] + gain[j-1]).
+    prefix = np.concatenate([[0.0], np.cumsum(gain)])
+    w = np.minimum.accumulate(w_back - prefix) + prefix
+    w = np.clip(np.minimum(w, w_back), 0.0, None)
+    w[0] = w[-1] = 0.0
+
+    w0, w1 = w[:-1], w[1:]
+    w_peak = np.minimum(w_nom, 0.5 * (gain + w0 + w1))
+    w_peak = np.maximum(w_peak, np.maximum(w0, w1))
+    s_acc = np.where(moving, (w_peak - w0) / (2.0 * accel), 0.0)
+    s_dec = np.where(moving, (w_peak - w1) / (2.0 * accel), 0.0)
+    s_cruise = np.maximum(length - s_acc - s_dec, 0.0)
+    v0, vp, v1 = np.sqrt(w0), np.sqrt(w_peak), np.sqrt(w1)
+    t_acc = np.where(moving, (vp - v0) / accel, 0.0)
+    t_dec = np.where(moving, (vp - v1) / accel, 0.0)
+    t_cruise = np.divide(s_cruise, vp, out=np.zeros(n), where=vp > 0)
+    duration = t_acc + t_cruise + t_dec + segments.dwell
+    t_start = np.concatenate([[0.0], np.cumsum(duration)[:-1]])
+    corner = np.ones(n + 1, dtype=bool)
+    corner[1:-1] = ~smooth
+    return Plan(length, u, v0, vp, v1, accel, s_acc, s_cruise, t_acc, t_cruise, t_start, duration, corner)

@@ -1,0 +1,126 @@
+"""Reports: report.json of a build, the JSON of `plan` and `verify`, the trace CSV, and human summaries."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from codegen import __version__
+from codegen.pipeline import HostBuild
+
+
+def _round(value: float, digits: int = 6) -> float:
+    return float(round(value, digits))
+
+
+def plan_summary(host: HostBuild) -> dict:
+    f = host.findings
+    sched = host.schedule
+    return {
+        "job": host.job.name,
+        "duration_s": _round(host.plan.total),
+        "table_bytes": sched.table_bytes(),
+        "segments": len(host.segments),
+        "blocks": sched.n_blocks,
+        "runs": sched.n_runs,
+        "events": int(len(host.events.time)),
+        "motors": {
+            name: {"steps": f.steps[name], "final": f.final[name], "expected_final": f.expected_final[name],
+                   "max_rate_ratio": _round(f.rate_ratio[name], 4), "max_accel_ratio": _round(f.accel_ratio[name], 4)}
+            for name in host.kin.motors
+        },
+        "max_path_error_mm": _round(f.max_path_error_mm),
+        "path_limit_mm": _round(f.path_limit_mm),
+        "max_timing_error_us": _round(float(np.max(np.abs(
+            host.compressed.emitted_ticks - host.events.time * host.target.tick_hz), initial=0.0))
+            / host.target.tick_hz * 1e6, 3),
+        "pass": f.ok,
+        "problems": list(f.problems),
+    }
+
+
+def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, str]) -> dict:
+    table = host.schedule.table_bytes()
+    sections = dict(image.sections)
+    return {
+        "printer_codegen": __version__,
+        "job": host.job.name,
+        "job_file": str(host.job.path),
+        "target": host.target.target,
+        "board": host.target.board,
+        "mcu": host.target.mcu,
+        "fingerprint": fingerprint,
+        "image": {
+            "hex": image.hex_path.name,
+            "elf": image.elf_path.name if image.elf_path else None,
+            "flash_bytes": image.flash_bytes,
+            "flash_capacity": image.flash_capacity,
+            "ram_bytes": image.ram_bytes,
+            "ram_capacity": image.ram_capacity,
+            "table_bytes": table,
+            "code_and_constants_bytes": image.flash_bytes - table,
+            "sections": sections,
+        },
+        "sources": sorted(sources),
+        "plan": plan_summary(host),
+    }
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+
+
+def verify_json(host: HostBuild, verdict, image) -> dict:
+    f = verdict.findings
+    return {
+        "pass": verdict.ok,
+        "duration_s": _round(verdict.duration_s),
+        "planned_duration_s": _round(verdict.planned_duration_s),
+        "max_path_error_mm": _round(f.max_path_error_mm),
+        "path_limit_mm": _round(f.path_limit_mm),
+        "motors": {
+            name: {
+                "steps": f.steps[name],
+                "final": f.final[name],
+                "expected_final": f.expected_final[name],
+                "max_timing_error_us": _round(verdict.timing_error_us.get(name, float("nan")), 3),
+                "max_rate_ratio": _round(f.rate_ratio[name], 4),
+                "max_accel_ratio": _round(f.accel_ratio[name], 4),
+                "min_pulse_us": _round(verdict.pulse_width_us.get(name, 0.0), 3),
+                "min_dir_setup_us": (None if verdict.dir_setup_us.get(name) is None
+                                     else _round(verdict.dir_setup_us[name], 3)),
+            }
+            for name in host.kin.motors
+        },
+        "start_offset_us": _round(verdict.latency_us, 3),
+        "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
+                  "table_bytes": host.schedule.table_bytes()},
+        "problems": verdict.problems + f.problems,
+    }
+
+
+def write_trace(path: Path, host: HostBuild, trace) -> None:
+    """One row per simulated step pulse: time_s,motor,dir,phase (CLI.md)."""
+    order = np.argsort(trace.step_cycle, kind="stable")
+    names = host.kin.motors
+    with path.open("w", newline="", encoding="utf-8") as out:
+        writer = csv.writer(out)
+        writer.writerow(["time_s", "motor", "dir", "phase"])
+        for c, m, d in zip(trace.step_cycle[order].tolist(), trace.step_motor[order].tolist(),
+                           trace.step_dir[order].tolist()):
+            writer.writerow([f"{c / trace.f_cpu:.9f}", names[m], d, "run"])
+
+
+def human_plan(summary: dict) -> str:
+    lines = [f"{summary['job']}: {summary['duration_s']:.3f} s planned, {summary['segments']} segments, "
+             f"{summary['blocks']} blocks, {summary['runs']} runs, {summary['table_bytes']} table bytes"]
+    for name, m in summary["motors"].items():
+        lines.append(f"  {name}: {m['steps']} steps, ends at {m['final']} (job: {m['expected_final']}), "
+                     f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
+    lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
+                 f"timing within {summary['max_timing_error_us']:.2f} us of the plan")
+    lines.extend(f"  problem: {p}" for p in summary["problems"])
+    return "\n".join(lines)

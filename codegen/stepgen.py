@@ -1,0 +1,171 @@
+"""Step generation: the ideal time of every master event of every block.
+
+Each moving segment is one block: its motors move by the differences of their positions rounded once at the
+segment's ends. The master (the motor with most steps) steps when its ideal position along the segment
+crosses a half-step point, as Klipper does; the other motors follow by Bresenham on the MCU. A dwell becomes a
+block of step-less events that carry its time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.kinematics.base import LinearKinematics
+from codegen.checks import chord_distance
+from codegen.planner import Plan
+from codegen.schedule import MAX_MODULUS
+from codegen.toolpath import Segments
+from codegen.twin import bresenham
+
+
+@dataclass
+class Events:
+    """Blocks and the ideal time (s) of each of their events, in program order."""
+
+    block_segment: np.ndarray  # (B,) segment index
+    block_steps: np.ndarray  # (B, M) signed steps
+    block_modulus: np.ndarray  # (B,)
+    block_init: np.ndarray  # (B, M) Bresenham accumulator starts
+    block_tool: np.ndarray  # (B,) bool
+    block_first: np.ndarray  # (B + 1,) index of each block's first event
+    time: np.ndarray  # (E,) s
+    phase: np.ndarray  # (E,) 0 accelerating, 1 cruising, 2 decelerating, 3 dwell
+
+
+def split_long(segments: Segments, kin: LinearKinematics) -> Segments:
+    """Cut segments whose master motor would make more steps than a block holds into equal parts."""
+    steps = np.abs(kin.to_steps(segments.end) - kin.to_steps(segments.start)).max(axis=1, initial=0)
+    parts = np.maximum(1, -(-steps // (MAX_MODULUS - 1)))
+    if np.all(parts == 1):
+        return segments
+    owner = np.repeat(np.arange(len(parts)), parts)
+    rank = np.arange(len(owner)) - np.repeat(np.cumsum(parts) - parts, parts)
+    return _cut(segments, owner, rank / parts[owner], (rank + 1) / parts[owner])
+
+
+def split_at(segments: Segments, which: np.ndarray, fraction: np.ndarray) -> Segments:
+    """Cut segments `which` in two at `fraction` of their length (straight, so the path is unchanged)."""
+    parts = np.ones(len(segments), dtype=np.int64)
+    parts[which] = 2
+    owner = np.repeat(np.arange(len(segments)), parts)
+    second = np.zeros(len(owner), dtype=bool)
+    second[np.cumsum(parts)[which] - 1] = True
+    cut = np.ones(len(segments))
+    cut[which] = fraction
+    f0 = np.where(second, cut[owner], 0.0)
+    f1 = np.where(second | (parts[owner] == 1), 1.0, cut[owner])
+    return _cut(segments, owner, f0, f1)
+
+
+def _cut(segments: Segments, owner: np.ndarray, f0: np.ndarray, f1: np.ndarray) -> Segments:
+    span = segments.end[owner] - segments.start[owner]
+    start = np.where((f0 == 0.0)[:, None], segments.start[owner], segments.start[owner] + f0[:, None] * span)
+    end = np.where((f1 == 1.0)[:, None], segments.end[owner], segments.start[owner] + f1[:, None] * span)
+    return segments.take(owner, start=start, end=end)
+
+
+def quantisation_split(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
+    """Where to cut segments whose Bresenham staircase strays too far: at the point where the slave with the
+    largest rounding mismatch sits exactly on a whole step nearest the middle (its rounding error is zero
+    there), or at the middle when no slave crosses a whole step inside."""
+    x0 = kin.to_motor(segments.start[which]) * kin.limits.steps_per_mm
+    x1 = kin.to_motor(segments.end[which]) * kin.limits.steps_per_mm
+    d = np.round(x1) - np.round(x0)
+    n = np.abs(d).max(axis=1, keepdims=True)
+    exact = x1 - x0
+    master_span = np.take_along_axis(np.abs(exact), np.argmax(np.abs(d), axis=1)[:, None], axis=1)
+    mismatch = np.abs(np.abs(d) - n * np.divide(np.abs(exact), master_span, out=np.zeros_like(exact),
+                                                   where=master_span > 0))
+    mismatch[np.abs(d) == n] = -1.0  # masters are never the culprit
+    worst = np.argmax(mismatch, axis=1)
+    rows = np.arange(len(which))
+    a, b = x0[rows, worst], x1[rows, worst]
+    k = np.round(0.5 * (a + b))
+    inside = (k - np.minimum(a, b) > 1e-9) & (np.maximum(a, b) - k > 1e-9)
+    return np.where(inside, np.divide(k - a, b - a, out=np.full(len(a), 0.5), where=b != a), 0.5)
+
+
+def segment_steps(segments: Segments, kin: LinearKinematics) -> np.ndarray:
+    return kin.to_steps(segments.end) - kin.to_steps(segments.start)
+
+
+def generate(segments: Segments, plan: Plan, kin: LinearKinematics, steps: np.ndarray,
+             max_gap: float) -> Events:
+    """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events."""
+    n_master = np.abs(steps).max(axis=1, initial=0)
+    dwell = segments.dwell > 0
+    events_per = np.where(dwell, np.ceil(segments.dwell / max_gap).astype(np.int64), n_master)
+    blocks = np.flatnonzero(events_per > 0)
+    count = events_per[blocks]
+    first = np.concatenate([[0], np.cumsum(count)])
+    seg = np.repeat(blocks, count)
+    k = np.arange(first[-1]) - np.repeat(first[:-1], count) + 1  # 1-based event number within its block
+
+    # Master crossings of half-step points, as distances along the (exact) segment.
+    exact = kin.to_motor(segments.start) * kin.limits.steps_per_mm
+    exact_end = kin.to_motor(segments.end) * kin.limits.steps_per_mm
+    master = np.argmax(np.abs(steps), axis=1)
+    rows = np.arange(len(segments))
+    x0 = exact[rows, master]
+    x1 = exact_end[rows, master]
+    p0 = np.round(x0)
+    sign = np.sign(steps[rows, master])
+    crossing = p0[seg] + sign[seg] * (k - 0.5)
+    span = (x1 - x0)[seg]
+    frac = np.divide(crossing - x0[seg], span, out=np.zeros_like(span), where=span != 0)
+    s = np.clip(frac, 0.0, 1.0) * plan.length[seg]
+    time = plan.time_at(seg, s)
+    phase = np.where(s < plan.s_acc[seg], 0, np.where(s <= plan.s_acc[seg] + plan.s_cruise[seg], 1, 2))
+
+    is_dwell = dwell[seg]
+    if np.any(is_dwell):
+        # Step-less events spread evenly over the dwell, the last one at its end.
+        dwell_time = plan.t_start[seg] + segments.dwell[seg] * k / count[np.searchsorted(blocks, seg)]
+        time = np.where(is_dwell, dwell_time, time)
+        phase = np.where(is_dwell, 3, phase)
+    block_steps = np.where(dwell[blocks][:, None], 0, steps[blocks])
+    modulus = np.where(dwell[blocks], 1, n_master[blocks])
+    init = bresenham_init(exact[blocks], exact_end[blocks], master[blocks], block_steps, modulus)
+    return Events(blocks, block_steps, modulus, init, segments.tool[blocks], first, time, phase)
+
+
+def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
+    """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment: the tool's
+    distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
+    part = segments.take(which)
+    steps = segment_steps(part, kin)
+    exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
+    exact_end = kin.to_motor(part.end) * kin.limits.steps_per_mm
+    master = np.argmax(np.abs(steps), axis=1)
+    modulus = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
+    init = bresenham_init(exact, exact_end, master, steps, modulus)
+    events = np.abs(steps).max(axis=1, initial=0)
+    block, _, position = bresenham(steps, modulus, init, events)
+    before = np.cumsum(steps, axis=0) - steps  # positions add up over the blocks: count each from its start
+    motor_mm = (position - before[block] + np.round(exact)[block]) / kin.limits.steps_per_mm
+    axes = kin.to_axes(motor_mm, part.start[block])[:, :3]
+    dist, _ = chord_distance(axes, block, part)
+    worst = np.zeros(len(which))
+    np.maximum.at(worst, block, dist)
+    return worst
+
+
+def bresenham_init(x0: np.ndarray, x1: np.ndarray, master: np.ndarray, steps: np.ndarray,
+                   modulus: np.ndarray) -> np.ndarray:
+    """Accumulator starts that keep each slave near the exact line, not the line between rounded ends.
+
+    When the master reaches step P0 + i, the slave's exact count is i * |slope| + beta (its position minus
+    its rounded start). The player makes ceil((i * d - init) / N) steps, about i * d / N - init / N + 1/2.
+    The rounded total d differs from N * |slope|, so init centres the difference at the block's middle.
+    """
+    rows = np.arange(len(master))
+    mx0, mx1 = x0[rows, master], x1[rows, master]
+    span = (mx1 - mx0)[:, None]
+    slope = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
+    beta = ((x0 - np.round(x0)) + (np.round(mx0)[:, None] - mx0[:, None]) * slope) * np.sign(steps)
+    n = modulus[:, None].astype(float)
+    init = np.round(n * (0.5 - beta) + 0.5 * (np.abs(steps) - n * np.abs(slope)))
+    init = np.where(steps != 0, init, modulus[:, None] >> 1)
+    return np.clip(init, 0, modulus[:, None] - 1).astype(np.int64)

@@ -1,0 +1,68 @@
+"""Board and MCU data from targets/*.yaml, and what the host needs to know about the player on each MCU."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import yaml
+
+from codegen.paths import targets_dir
+
+
+@dataclass(frozen=True)
+class TargetInfo:
+    board: str
+    mcu: str
+    target: str
+    f_cpu: int
+    tick_hz: int  # the player's timer tick
+    flash_bytes: int
+    ram_bytes: int
+    min_event_ticks: int  # the closest two events may be when the second starts a block (the worst case)
+    board_data: dict
+    mcu_data: dict
+
+    def run_gap_ticks(self, motors: int) -> int:
+        """The closest two events may be when the second starts a new rate run, for this many motors
+        (measured for 1, 3 and 5 motors; linear in between)."""
+        known = sorted((int(k.split("_")[3]), v) for k, v in self.mcu_data.items()
+                       if k.startswith("run_event_cycles_"))
+        cycles = np.interp(motors, [m for m, _ in known], [c for _, c in known])
+        return int(np.ceil(cycles * self.tick_hz / self.f_cpu))
+
+    def max_event_rate(self, motors: int) -> float:
+        """Events per second the planner may ask for: a fifth below what the player sustains with a new
+        run at every event, so that pushing events apart stays the exception."""
+        return self.tick_hz / (1.25 * self.run_gap_ticks(motors))
+
+    @property
+    def max_gap_s(self) -> float:
+        """Longest wait between two events the player's 24.8 fixed-point interval can express."""
+        return ((1 << 24) - 1) / self.tick_hz
+
+
+@lru_cache(maxsize=None)
+def _load(name: str) -> dict:
+    return yaml.safe_load((targets_dir() / f"{name}.yaml").read_text(encoding="utf-8"))
+
+
+def target_info(board: str) -> TargetInfo:
+    board_data = _load(board)
+    mcu = board_data["mcu"]
+    mcu_data = _load(mcu)
+    f_cpu = int(mcu_data["f_cpu"])
+    tick_hz = int(mcu_data.get("tick_hz", f_cpu))
+    return TargetInfo(
+        board=board,
+        mcu=mcu,
+        target=board_data["target"],
+        f_cpu=f_cpu,
+        tick_hz=tick_hz,
+        flash_bytes=int(mcu_data["flash"]),
+        ram_bytes=int(mcu_data["ram"]),
+        min_event_ticks=int(mcu_data["min_event_cycles"]) * tick_hz // f_cpu,
+        board_data=board_data,
+        mcu_data=mcu_data,
+    )

@@ -1,0 +1,83 @@
+"""The twin: a numpy model of the player's integer arithmetic that predicts every pulse of the image.
+
+It reads only the Schedule (what the tables say), never the plan, and follows the semantics documented in
+codegen/schedule.py to the bit: 24.8 fixed-point event times, `interval += add`, Bresenham with
+per-block accumulator starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.schedule import FRAC_BITS, Schedule
+
+
+@dataclass
+class Pulses:
+    """Step pulses in time order (events in order, motors in table order within an event)."""
+
+    tick: np.ndarray  # (P,) int64 timer ticks since the timer started
+    motor: np.ndarray  # (P,) int index into the schedule's motors
+    dir: np.ndarray  # (P,) +1 / -1
+    event: np.ndarray  # (P,) index of the event that made the pulse
+    event_tick: np.ndarray  # (E,) tick of every event
+    event_block: np.ndarray  # (E,) block of every event
+    event_position: np.ndarray  # (E, M) motor positions in steps after each event (relative to the start)
+
+    def of_motor(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        sel = self.motor == m
+        return self.tick[sel], self.dir[sel]
+
+    def final_positions(self) -> np.ndarray:
+        if len(self.event_position):
+            return self.event_position[-1].copy()
+        return np.zeros(self.event_position.shape[1], dtype=np.int64)
+
+
+def event_ticks(schedule: Schedule) -> np.ndarray:
+    """Tick of every event: floor(pos / 256) with pos the running 24.8 sum of the intervals."""
+    n, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
+    span = interval * n + add * (n * (n - 1) // 2)
+    origin = np.concatenate([[0], np.cumsum(span)[:-1]]).astype(np.int64)
+    run = np.repeat(np.arange(len(n)), n)
+    k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n) + 1
+    pos = origin[run] + k * interval[run] + add[run] * (k * (k - 1) // 2)
+    return pos >> FRAC_BITS
+
+
+def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
+              events_per_block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per event: its block, which motors step (E, M) bool, and positions after it (E, M).
+
+    `block_steps` is signed. After i events of a block motor m has stepped ceil((i*d - init) / N) times."""
+    block = np.repeat(np.arange(len(modulus)), events_per_block)
+    first = np.concatenate([[0], np.cumsum(events_per_block)[:-1]]).astype(np.int64)
+    i = (np.arange(len(block), dtype=np.int64) - first[block] + 1)[:, None]
+    n = modulus[block][:, None]
+    d = np.abs(block_steps[block])
+    start = init[block]
+    stepped = (-((start - i * d) // n)) != (-((start - (i - 1) * d) // n))
+    position = np.cumsum(stepped * np.sign(block_steps[block]), axis=0)
+    return block, stepped, position
+
+
+def predict(schedule: Schedule) -> Pulses:
+    ticks = event_ticks(schedule)
+    counts = np.zeros(schedule.n_blocks, dtype=np.int64)
+    if schedule.n_runs:
+        run_block = np.repeat(np.arange(schedule.n_blocks), np.diff(schedule.block_runs))
+        np.add.at(counts, run_block, schedule.run_count)
+    signed = schedule.block_steps * schedule.block_dirs.astype(np.int64)
+    block, stepped, position = bresenham(signed, schedule.block_modulus, schedule.block_init, counts)
+    event_idx, motor = np.nonzero(stepped)
+    return Pulses(
+        tick=ticks[event_idx],
+        motor=motor,
+        dir=schedule.block_dirs[block[event_idx], motor].astype(np.int64),
+        event=event_idx,
+        event_tick=ticks,
+        event_block=block,
+        event_position=position.reshape(len(block), len(schedule.motors)),
+    )

@@ -1,0 +1,107 @@
+"""Simulator against twin: does the firmware do what the tables say, and does the motion it makes hold up?
+
+Pulses are matched per motor in order (the k-th pulse of motor x in the simulator against the k-th the twin
+predicted). Times are compared after aligning the first pulse: the constant interrupt latency is reported
+separately, every other difference is a timing error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from codegen.checks import Findings, check
+from codegen.pipeline import HostBuild, trains_from
+
+MAX_TIMING_ERROR_US = 5.0
+DURATION_AGREEMENT = 0.01
+
+
+@dataclass
+class Verdict:
+    findings: Findings
+    duration_s: float
+    planned_duration_s: float
+    latency_us: float
+    timing_error_us: dict[str, float]
+    pulse_width_us: dict[str, float]
+    dir_setup_us: dict[str, float | None]
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems and self.findings.ok
+
+
+def compare(host: HostBuild, trace) -> Verdict:
+    names = host.kin.motors
+    f_cpu, tick_hz = trace.f_cpu, host.target.tick_hz
+    twin = host.pulses
+    problems: list[str] = []
+    if trace.state != "done":
+        problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
+    order = np.argsort(trace.step_cycle, kind="stable")
+    cycle, motor, direction = trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order]
+
+    twin_s = twin.tick / tick_hz
+    latency = (cycle[0] / f_cpu - twin_s[0]) if len(cycle) and len(twin_s) else 0.0
+    sim_s = cycle / f_cpu - latency
+    timing: dict[str, float] = {}
+    matched = True
+    for m, name in enumerate(names):
+        mine, theirs = motor == m, twin.motor == m
+        got, want = int(mine.sum()), int(theirs.sum())
+        if got != want:
+            problems.append(f"motor {name}: the simulator made {got} steps, the twin predicted {want}")
+            matched = False
+            continue
+        wrong_dir = np.flatnonzero(direction[mine] != twin.dir[theirs])
+        if len(wrong_dir):
+            problems.append(f"motor {name}: step {wrong_dir[0]} goes the wrong way ({len(wrong_dir)} steps differ)")
+            matched = False
+        err = np.abs(sim_s[mine] - twin_s[theirs]) * 1e6
+        timing[name] = float(err.max()) if len(err) else 0.0
+        if timing[name] > MAX_TIMING_ERROR_US:
+            problems.append(f"motor {name}: a step comes {timing[name]:.2f} us away from its predicted time "
+                            f"(limit {MAX_TIMING_ERROR_US} us)")
+
+    # Group simultaneous pulses (one interrupt) into events; a new event starts after a gap.
+    gap = np.diff(cycle)
+    new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names)) * f_cpu // tick_hz // 2])
+    group = np.cumsum(new_event) - 1
+    signed = np.zeros((len(cycle), len(names)), dtype=np.int64)
+    signed[np.arange(len(cycle)), motor] = direction
+    per_event = np.zeros((int(group[-1]) + 1 if len(group) else 0, len(names)), dtype=np.int64)
+    np.add.at(per_event, group, signed)
+    positions = np.cumsum(per_event, axis=0)
+    if matched:
+        # Each simulated event belongs to the segment of the twin event its first pulse matched.
+        rank = np.empty(len(cycle), dtype=np.int64)
+        for m in range(len(names)):
+            rank[motor == m] = np.flatnonzero(twin.motor == m)
+        twin_event = twin.event[rank[new_event]]
+        segment = host.event_segments()[twin_event]
+    else:
+        segment = np.zeros(len(positions), dtype=np.int64)
+    trains = trains_from(sim_s, motor, direction, len(names))
+    findings = check(trains, positions if matched else positions[:0], segment, host.segments, host.plan,
+                     host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance)
+
+    duration = float(sim_s[-1] - sim_s[0]) if len(sim_s) else 0.0
+    stepping = np.unique(twin.event)
+    planned = float(host.events.time[stepping[-1]] - host.events.time[stepping[0]]) if len(stepping) else 0.0
+    if planned > 0 and abs(duration - planned) > DURATION_AGREEMENT * planned:
+        problems.append(f"simulated duration {duration:.4f} s differs from the planned {planned:.4f} s by more "
+                        f"than {100 * DURATION_AGREEMENT:.0f} %")
+
+    cfg = host.firmware_config()
+    width = {n: c / f_cpu * 1e6 for n, c in zip(names, trace.pulse_high_min_cycles) if c is not None}
+    setup = {n: (None if c is None else c / f_cpu * 1e6) for n, c in zip(names, trace.dir_setup_min_cycles)}
+    for name, us in width.items():
+        if us < cfg.step_pulse_us:
+            problems.append(f"motor {name}: a STEP pulse is {us:.2f} us high (needs {cfg.step_pulse_us} us)")
+    for name, us in setup.items():
+        if us is not None and us < cfg.dir_setup_us:
+            problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
+    return Verdict(findings, duration, planned, latency * 1e6, timing, width, setup, problems)

@@ -1,0 +1,109 @@
+"""End to end: the real avr-gcc and the real simavr, through the command line users run."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from codegen.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = sorted((ROOT / "examples").glob("*.yaml"))
+
+pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
+                                reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("example", EXAMPLES, ids=lambda p: p.stem)
+def test_every_example_verifies_in_simavr(example, tmp_path, capsys):
+    code, out, err = run(capsys, "verify", example, "--out", tmp_path, "--json")
+    result = json.loads(out)
+    assert code == 0, result["problems"]
+    assert result["pass"] is True
+    for name, motor in result["motors"].items():
+        assert motor["final"] == motor["expected_final"], name
+        assert motor["max_timing_error_us"] <= 5.0
+        assert motor["max_rate_ratio"] <= 1.0
+        assert motor["max_accel_ratio"] <= 1.0
+        assert motor["min_pulse_us"] >= 2.0
+    assert result["max_path_error_mm"] <= result["path_limit_mm"]
+    assert abs(result["duration_s"] - result["planned_duration_s"]) <= 0.01 * result["planned_duration_s"]
+    assert (tmp_path / "firmware.hex").is_file() and (tmp_path / "report.json").is_file()
+
+
+def test_build_is_deterministic_and_reports_every_byte(tmp_path, capsys):
+    job = ROOT / "examples" / "arc.yaml"
+    first, second = tmp_path / "one", tmp_path / "two"
+    assert run(capsys, "build", job, "--out", first)[0] == 0
+    assert run(capsys, "build", job, "--out", second)[0] == 0
+    names = sorted(p.name for p in first.iterdir() if p.name != "report.json")
+    assert "firmware.hex" in names and "firmware.elf" in names
+    for name in names:
+        assert (first / name).read_bytes() == (second / name).read_bytes(), name
+    report = json.loads((first / "report.json").read_text())
+    image = report["image"]
+    assert image["flash_bytes"] == image["table_bytes"] + image["code_and_constants_bytes"]
+    assert 0 < image["table_bytes"] < image["flash_bytes"] <= image["flash_capacity"] == 262144
+    assert report["plan"]["pass"] is True
+
+
+def test_trace_csv_has_one_row_per_step(tmp_path, capsys):
+    trace = tmp_path / "steps.csv"
+    code, out, _ = run(capsys, "verify", ROOT / "examples" / "line.yaml", "--out", tmp_path / "b",
+                       "--json", "--trace", trace)
+    assert code == 0
+    result = json.loads(out)
+    rows = trace.read_text().splitlines()
+    assert rows[0] == "time_s,motor,dir,phase"
+    assert len(rows) - 1 == sum(m["steps"] for m in result["motors"].values())
+    t, motor, direction, phase = rows[1].split(",")
+    assert motor in ("x", "y") and direction in ("1", "-1") and phase == "run" and float(t) > 0
+
+
+def test_misspelt_key_is_exit_2_with_position_and_no_image(tmp_path, capsys):
+    job = tmp_path / "bad.yaml"
+    job.write_text((ROOT / "examples" / "line.yaml").read_text().replace("max_accel: 2000, range",
+                                                                          "max_acel: 2000, range", 1))
+    code, _, err = run(capsys, "build", job, "--out", tmp_path / "out")
+    assert code == 2
+    assert "bad.yaml:8:" in err and "max_acel" in err and "max_accel" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_expression_points_at_its_column(tmp_path, capsys):
+    job = tmp_path / "bad.yaml"
+    text = (ROOT / "examples" / "function.yaml").read_text()
+    job.write_text(text.replace("exp(-x / 30)", "exq(-x / 30)"))
+    code, _, err = run(capsys, "plan", job)
+    assert code == 2
+    line = next(i for i, l in enumerate(job.read_text().splitlines(), 1) if "exq" in l)
+    col = job.read_text().splitlines()[line - 1].index("exq") + 1
+    assert f"bad.yaml:{line}:{col}: error:" in err
+    assert "exp" in err
+
+
+def test_job_too_big_for_flash_is_exit_1_with_sizes_and_no_image(tmp_path, capsys):
+    job = tmp_path / "big.yaml"
+    job.write_text("""
+name: big
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {steps_per_mm: 80, max_velocity: 150, max_accel: 2000}
+    y: {steps_per_mm: 80, max_velocity: 150, max_accel: 2000}
+program:
+  feed: 3000
+  shapes:
+    - sine: {origin: [0, 100], amplitude: 60, omega: 1.3, phase: 0, length: 190}
+""")
+    code, _, err = run(capsys, "build", job, "--out", tmp_path / "out")
+    assert code == 1
+    assert "262144" in err and "bytes" in err
+    assert not (tmp_path / "out" / "firmware.hex").exists()

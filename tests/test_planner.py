@@ -1,0 +1,97 @@
+"""Planner invariants against hand-computed cases."""
+
+import math
+
+import numpy as np
+import pytest
+
+from codegen.toolpath import Arc, Line, Toolpath
+from tests.helpers import SRC, machine, planned, point, polyline
+
+KEEP = 0.98  # the planner's headroom below every limit
+
+
+def test_long_line_is_a_trapezoid_with_hand_computed_duration():
+    _, _, _, p = planned(polyline([(0, 0), (100, 0)], feed=50), machine(x={"amax": 1000}))
+    a = 1000 * KEEP
+    assert p.v_peak[0] == pytest.approx(50)
+    assert p.accel[0] == pytest.approx(a)
+    assert p.s_acc[0] == pytest.approx(50 ** 2 / (2 * a))
+    assert p.total == pytest.approx(100 / 50 + 50 / a)
+
+
+def test_short_move_is_a_triangle():
+    _, _, _, p = planned(polyline([(0, 0), (1, 0)], feed=100), machine(x={"amax": 1000}))
+    a = 1000 * KEEP
+    assert p.s_cruise[0] == pytest.approx(0, abs=1e-12)
+    assert p.v_peak[0] == pytest.approx(math.sqrt(a * 1.0))
+    assert p.total == pytest.approx(2 * math.sqrt(1.0 / a))
+
+
+def test_right_angle_corner_uses_grbl_junction_deviation():
+    _, _, _, p = planned(polyline([(0, 0), (50, 0), (50, 50)], feed=100), jd=0.01)
+    a_normal = 3000 * KEEP / math.sqrt(0.5)  # the junction vector (-1, 1)/sqrt(2) loads each motor by 0.707
+    sin_half = math.sin(math.radians(45))
+    assert p.v_exit[0] == pytest.approx(math.sqrt(a_normal * 0.01 * sin_half / (1 - sin_half)))
+    assert p.v_entry[1] == p.v_exit[0]
+
+
+def test_collinear_segments_do_not_slow_down_and_reversal_stops():
+    _, _, _, p = planned(polyline([(0, 0), (50, 0), (100, 0)], feed=40))
+    assert p.v_exit[0] == pytest.approx(40)
+    _, _, _, back = planned(polyline([(0, 0), (50, 0), (10, 0)], feed=40))
+    assert back.v_exit[0] == 0.0
+
+
+def test_motor_velocity_limits_project_onto_corexy_belts():
+    mach = machine("corexy", ("a", "b"), a={"vmax": 100}, b={"vmax": 100})
+    _, _, _, p = planned(polyline([(0, 0), (300, 0)], feed=1e9), mach)
+    assert p.v_peak[0] == pytest.approx(100 * KEEP)  # an x move turns both belts at full speed
+    _, _, _, diag = planned(polyline([(0, 0), (200, 200)], feed=1e9), mach)
+    assert diag.v_peak[0] == pytest.approx(100 * KEEP / math.sqrt(2))  # a diagonal turns belt a sqrt(2) as fast
+
+
+def test_slave_speed_allows_for_bresenham_quantisation():
+    # z is the slave (9 steps per 10 of x); z's limit binds. 8 consecutive z steps may span only 7 master events.
+    mach = machine("cartesian", ("x", "z"), x={"spm": 100}, z={"spm": 100, "vmax": 10})
+    tp = Toolpath(point(0, 0), [Line(point(0, 0, 0), point(10, 0, 9), 1e9, True, SRC)])
+    _, _, steps, p = planned(tp, mach)
+    assert list(steps[0]) == [1000, 900]
+    u_z = 9 / math.hypot(10, 9)
+    worst = 7 / math.floor(7 * 1000 / 900)  # slave rate over 8 steps / nominal rate
+    assert p.v_peak[0] * u_z * worst <= 10 * KEEP * (1 + 1e-9)
+    assert p.v_peak[0] * u_z > 10 * KEEP * 0.8
+
+
+def test_circle_speed_keeps_centripetal_acceleration_within_motor_limits():
+    r = 5.0
+    arc = Arc(point(r, 0), point(r, 0), (0.0, 0.0), r, 0.0, 2 * math.pi, 1e9, True, SRC)
+    _, _, _, p = planned(Toolpath(point(r, 0), [arc]))
+    middle = p.v_peak[len(p.v_peak) // 2]
+    a = 3000 * KEEP
+    assert middle ** 2 / r <= 0.8 * a * math.sqrt(2) * 1.001
+    assert middle ** 2 / r >= 0.8 * a * 0.99
+
+
+def test_passes_respect_acceleration_between_every_junction():
+    rng = np.random.default_rng(7)
+    pts = np.cumsum(rng.uniform(-3, 3, size=(300, 2)), axis=0)
+    _, _, _, p = planned(polyline(pts, feed=150))
+    gain = 2 * p.accel * p.length
+    assert np.all(p.v_exit ** 2 <= p.v_entry ** 2 + gain + 1e-6)
+    assert np.all(p.v_entry ** 2 <= p.v_exit ** 2 + gain + 1e-6)
+    assert np.all(p.v_peak <= 150 + 1e-9)
+    assert p.v_entry[0] == 0 and p.v_exit[-1] == 0
+    assert np.all(p.v_entry[1:] == p.v_exit[:-1])
+    assert np.all(p.s_acc + p.s_cruise <= p.length + 1e-9)
+
+
+def test_time_at_matches_segment_ends():
+    _, _, _, p = planned(polyline([(0, 0), (30, 0), (30, 30)], feed=80))
+    seg = np.array([0, 0, 1, 1])
+    s = np.array([0.0, p.length[0], 0.0, p.length[1]])
+    t = p.time_at(seg, s)
+    assert t[0] == 0.0
+    assert t[1] == pytest.approx(p.t_start[1])
+    assert t[2] == pytest.approx(p.t_start[1])
+    assert t[3] == pytest.approx(p.total)
