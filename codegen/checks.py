@@ -55,13 +55,15 @@ def step_length_mm(kin: LinearKinematics) -> float:
     return float(np.linalg.norm(moved[:, :3], axis=1).max())
 
 
-def chord_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.ndarray]:
-    """Distance (xyz) from points p (N, 3) to their straight segments s (N,), and the nearest points."""
+def chord_distance(p: np.ndarray, s: np.ndarray, segments: Segments,
+                   clamp: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (xyz) from points p (N, 3) to their straight segments s (N,) (to their lines when not
+    `clamp`), and the nearest points."""
     a, b = segments.start[s, :3], segments.end[s, :3]
     ab = b - a
     denom = np.einsum("ij,ij->i", ab, ab)
-    t = np.clip(np.divide(np.einsum("ij,ij->i", p - a, ab), denom, out=np.zeros(len(s)), where=denom > 0), 0, 1)
-    nearest = a + t[:, None] * ab
+    t = np.divide(np.einsum("ij,ij->i", p - a, ab), denom, out=np.zeros(len(s)), where=denom > 0)
+    nearest = a + (np.clip(t, 0.0, 1.0) if clamp else t)[:, None] * ab
     return np.linalg.norm(p - nearest, axis=1), nearest
 
 
@@ -75,27 +77,36 @@ def fine_distance(p: np.ndarray, fine: np.ndarray) -> np.ndarray:
     return np.linalg.norm(p[:, None, :] - (a + t[..., None] * ab), axis=2).min(axis=1)
 
 
+def reference_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> np.ndarray:
+    """Distance (mm, xyz) from points p (N, 3) to the job's path along segments s: lines exactly, arcs by
+    their radius, other curves by their samples."""
+    dist, on_chord = chord_distance(p, s, segments)
+    curve = np.flatnonzero(segments.ref_fine[s] >= 0)
+    if len(curve):
+        dist[curve] = fine_distance(p[curve], segments.fine[segments.ref_fine[s[curve]]])
+    arc = np.flatnonzero(segments.ref_kind[s] == REF_ARC)
+    if len(arc):
+        plane = segments.ref_plane[s[arc]]
+        rows = np.arange(len(arc))
+        pu = p[arc, plane[:, 0]] - segments.ref_center[s[arc], 0]
+        pv = p[arc, plane[:, 1]] - segments.ref_center[s[arc], 1]
+        radial = np.abs(np.hypot(pu, pv) - segments.ref_radius[s[arc]])
+        off_plane = p[arc] - on_chord[arc]
+        off_plane[rows, plane[:, 0]] = 0.0
+        off_plane[rows, plane[:, 1]] = 0.0
+        dist[arc] = np.hypot(radial, np.linalg.norm(off_plane, axis=1))
+    return dist
+
+
 def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments) -> np.ndarray:
-    """Distance (mm, xyz) from each position to the job's path near its segment."""
+    """Distance (mm, xyz) from each position to the job's path: its own segment or either neighbour (a step
+    just past a corner is measured against the path it is on)."""
     out = np.empty(len(axes))
+    last = len(segments) - 1
     for lo in range(0, len(axes), CHUNK):
         p, s = axes[lo:lo + CHUNK, :3], seg[lo:lo + CHUNK]
-        dist, on_chord = chord_distance(p, s, segments)
-        curve = np.flatnonzero(segments.ref_fine[s] >= 0)
-        if len(curve):
-            dist[curve] = fine_distance(p[curve], segments.fine[segments.ref_fine[s[curve]]])
-        arc = segments.ref_kind[s] == REF_ARC
-        if np.any(arc):
-            rows = np.flatnonzero(arc)
-            plane = segments.ref_plane[s[rows]]
-            pu = p[rows, plane[:, 0]] - segments.ref_center[s[rows], 0]
-            pv = p[rows, plane[:, 1]] - segments.ref_center[s[rows], 1]
-            radial = np.abs(np.hypot(pu, pv) - segments.ref_radius[s[rows]])
-            off_plane = p[rows] - on_chord[rows]
-            off_plane[np.arange(len(rows)), plane[:, 0]] = 0.0
-            off_plane[np.arange(len(rows)), plane[:, 1]] = 0.0
-            dist[rows] = np.hypot(radial, np.linalg.norm(off_plane, axis=1))
-        out[lo:lo + CHUNK] = dist
+        out[lo:lo + CHUNK] = np.minimum.reduce([reference_distance(p, np.clip(s + k, 0, last), segments)
+                                                for k in (-1, 0, 1)])
     return out
 
 

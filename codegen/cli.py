@@ -40,7 +40,7 @@ def _fingerprint(sources: dict[str, str]) -> str:
 def _image_from_report(out_dir: Path, data: dict) -> Image:
     elf = out_dir / data["elf"] if data.get("elf") else None
     return Image(out_dir / data["hex"], elf, data["flash_bytes"], data["ram_bytes"], data["table_bytes"],
-                 data["flash_capacity"], data["ram_capacity"], dict(data.get("sections", {})))
+                 data["flash_capacity"], data["ram_capacity"], dict(data["sections"]), dict(data["flash_parts"]))
 
 
 def _checked_host(job) -> HostBuild:
@@ -61,11 +61,17 @@ def _build(job, out: str | None, reuse: bool) -> tuple[HostBuild, object, Path]:
     if reuse and report_path.is_file() and (out_dir / "firmware.hex").is_file():
         previous = json.loads(report_path.read_text(encoding="utf-8"))
         if previous.get("fingerprint") == fingerprint:
-            return host, _image_from_report(out_dir, previous["image"]), out_dir
+            try:
+                return host, _image_from_report(out_dir, previous["image"]), out_dir
+            except KeyError:  # a report from an older printer-codegen: build again
+                pass
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in IMAGE_FILES:  # never leave an older image next to a failed build
         (out_dir / name).unlink(missing_ok=True)
-    image = firmware.build_image(sources, out_dir, host.schedule.table_bytes())
+    try:
+        image = firmware.build_image(sources, out_dir, host.schedule.table_bytes())
+    except BuildError as error:
+        raise BuildError(f"job {job.name}: {error}") from None
     write_json(report_path, build_report(host, image, fingerprint, sources))
     return host, image, out_dir
 

@@ -108,6 +108,23 @@ def emitted(starts: np.ndarray, interval: np.ndarray, add: np.ndarray, n: np.nda
     return origin[run] + k * interval[run] + add[run] * (k * (k - 1) // 2)
 
 
+def _fit_within(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray):
+    """Fit the runs, halve those that miss the window or the player's gaps, until none does."""
+    if len(ideal) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return starts, empty, empty, empty, empty
+    for _ in range(64):
+        interval, add, n = fit(starts, ideal * FRAC_ONE)
+        out = emitted(starts, interval, add, n) >> 8
+        bad = (np.abs(out - ideal) > window) | (np.diff(np.concatenate([[0], out])) < needed)
+        bad_runs = np.unique(np.searchsorted(starts, np.flatnonzero(bad), side="right") - 1)
+        bad_runs = bad_runs[n[bad_runs] > 1]
+        if len(bad_runs) == 0:
+            return starts, interval, add, n, out
+        starts = np.sort(np.concatenate([starts, starts[bad_runs] + n[bad_runs] // 2]))
+    raise RuntimeError("rate runs did not converge to the timing window")
+
+
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
              window: TimingWindow = TimingWindow(), final_tool: bool = False) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
@@ -125,19 +142,7 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
     breaks[1:] |= events.phase[1:] != events.phase[:-1]
     limit = run_limits(ideal, win, events.phase)
     starts = segment_runs(breaks, limit)
-    ticks_fx = ideal * FRAC_ONE
-    for _ in range(64):
-        interval, add, n = fit(starts, ticks_fx)
-        times = emitted(starts, interval, add, n)
-        out = times >> 8
-        bad = (np.abs(out - ideal) > win) | (np.diff(np.concatenate([[0], out])) < needed)
-        bad_runs = np.unique(np.searchsorted(starts, np.flatnonzero(bad), side="right") - 1)
-        bad_runs = bad_runs[n[bad_runs] > 1]
-        if len(bad_runs) == 0:
-            break
-        starts = np.sort(np.concatenate([starts, starts[bad_runs] + n[bad_runs] // 2]))
-    else:
-        raise RuntimeError("rate runs did not converge to the timing window")
+    starts, interval, add, n, out = _fit_within(starts, ideal, win, needed)
     block_runs = np.searchsorted(starts, events.block_first)
     schedule = Schedule(
         motors=motors,

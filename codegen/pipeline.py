@@ -17,7 +17,7 @@ from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import LinearKinematics
 from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
-                             staircase_error)
+                             staircase_bound, staircase_error)
 from codegen.targets import TargetInfo, target_info
 from codegen.toolpath import Segments, Toolpath, flatten
 from codegen.twin import Pulses, predict
@@ -87,7 +87,7 @@ def refine(segments: Segments, kin: LinearKinematics) -> Segments:
     """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
     two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
     limit = STAIRCASE_LIMIT * step_length_mm(kin)
-    look = np.arange(len(segments))
+    look = np.flatnonzero(staircase_bound(segments, kin) > limit)  # the others provably stay close
     for _ in range(REFINE_ROUNDS):
         bad = look[staircase_error(segments, kin, look) > limit]
         if len(bad) == 0:

@@ -82,6 +82,10 @@ def quantisation_factor(steps: np.ndarray) -> np.ndarray:
 def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
     """`steps` (n, M): signed motor steps of every segment (from positions rounded once)."""
     n = len(segments)
+    if n == 0:
+        empty = np.zeros(0)
+        return Plan(empty, np.zeros((0, 4)), empty, empty, empty, empty, empty, empty, empty, empty, empty,
+                    empty, np.ones(1, dtype=bool))
     length, u = segment_lengths(segments)
     moving = length > 0
     motor = kin.limits

@@ -61,7 +61,7 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
             "ram_bytes": image.ram_bytes,
             "ram_capacity": image.ram_capacity,
             "table_bytes": table,
-            "code_and_constants_bytes": image.flash_bytes - table,
+            "flash_parts": dict(image.flash_parts),
             "sections": sections,
         },
         "sources": sorted(sources),

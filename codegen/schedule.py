@@ -122,11 +122,11 @@ class Schedule:
         # Interleave: block b's header is followed by its runs.
         sizes = self.header_bytes() + RUN_BYTES * n_runs
         out = np.zeros(int(sizes.sum()) + 3, dtype=np.uint8)
-        block_at = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        block_at = (np.cumsum(sizes) - sizes).astype(np.int64)
         out[block_at[:, None] + np.arange(self.header_bytes())[None, :]] = header
         run_block = np.repeat(np.arange(self.n_blocks), n_runs)
         run_rank = np.arange(self.n_runs) - self.block_runs[run_block]
-        run_at = block_at[run_block] + self.header_bytes() + RUN_BYTES * run_rank
+        run_at = (block_at[run_block] + self.header_bytes() + RUN_BYTES * run_rank).astype(np.int64)
         out[run_at[:, None] + np.arange(RUN_BYTES)[None, :]] = runs
         out[-3] = TOOL_BIT if self.final_tool else 0
         return out.tobytes()
@@ -134,7 +134,7 @@ class Schedule:
     def block_offsets(self) -> np.ndarray:
         """Byte offset of every block in the stream (for comments in generated sources)."""
         sizes = self.header_bytes() + RUN_BYTES * np.diff(self.block_runs)
-        return np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        return (np.cumsum(sizes) - sizes).astype(np.int64)
 
 
 def _le(values: np.ndarray, width: int) -> np.ndarray:

@@ -131,9 +131,40 @@ def generate(segments: Segments, plan: Plan, kin: LinearKinematics, steps: np.nd
     return Events(blocks, block_steps, modulus, init, segments.tool[blocks], first, time, phase)
 
 
+def staircase_bound(segments: Segments, kin: LinearKinematics) -> np.ndarray:
+    """An upper bound (mm) of `staircase_error` for every segment, without enumerating events.
+
+    After i master events a slave has made c(i) = (i d - init) / N + theta steps, 0 <= theta <= (N - 1) / N,
+    while its exact count at that master position is i |slope| + beta (see bresenham_init): the difference
+    lies between the extremes of the linear part over 0 <= i <= N, plus theta. The tool is then at most
+    that far (in each slave's own direction) from the segment's line."""
+    spm = kin.limits.steps_per_mm
+    x0, x1 = kin.to_motor(segments.start) * spm, kin.to_motor(segments.end) * spm
+    steps = np.round(x1) - np.round(x0)
+    master = np.argmax(np.abs(steps), axis=1)
+    n = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
+    init = bresenham_init(x0, x1, master, steps.astype(np.int64), n.astype(np.int64))
+    rows = np.arange(len(master))
+    span = (x1 - x0)[rows, master][:, None]
+    slope = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
+    mx0 = x0[rows, master][:, None]
+    sigma = np.where(steps != 0, np.sign(steps), 1.0)  # the direction counted as + for each slave
+    beta = ((x0 - np.round(x0)) + (np.round(mx0) - mx0) * slope) * sigma
+    rate = slope * np.sign(steps[rows, master])[:, None] * sigma  # exact slave steps per master step
+    nn = n[:, None].astype(float)
+    drift = np.abs(steps) - nn * rate  # the linear part's change over the block
+    base = -init / nn - beta
+    high = (nn - 1) / nn + np.maximum(drift, 0.0) + base
+    low = np.minimum(drift, 0.0) + base
+    slave = np.arange(steps.shape[1])[None, :] != master[:, None]
+    deviation = np.where(slave, np.maximum(np.abs(high), np.abs(low)), 0.0)
+    reach = np.linalg.norm(kin.to_axes(np.diag(1.0 / spm), np.zeros((len(spm), 4)))[:, :3], axis=1)
+    return deviation @ reach
+
+
 def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
-    """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment: the tool's
-    distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
+    """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment's line: the
+    tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
     part = segments.take(which)
     steps = segment_steps(part, kin)
     exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
@@ -146,7 +177,7 @@ def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray
     before = np.cumsum(steps, axis=0) - steps  # positions add up over the blocks: count each from its start
     motor_mm = (position - before[block] + np.round(exact)[block]) / kin.limits.steps_per_mm
     axes = kin.to_axes(motor_mm, part.start[block])[:, :3]
-    dist, _ = chord_distance(axes, block, part)
+    dist, _ = chord_distance(axes, block, part, clamp=False)
     worst = np.zeros(len(which))
     np.maximum.at(worst, block, dist)
     return worst
@@ -166,6 +197,6 @@ def bresenham_init(x0: np.ndarray, x1: np.ndarray, master: np.ndarray, steps: np
     slope = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
     beta = ((x0 - np.round(x0)) + (np.round(mx0)[:, None] - mx0[:, None]) * slope) * np.sign(steps)
     n = modulus[:, None].astype(float)
-    init = np.round(n * (0.5 - beta) + 0.5 * (np.abs(steps) - n * np.abs(slope)))
+    init = np.round(n * (0.5 - beta) + 0.5 * n * (np.abs(steps) - n * np.abs(slope)))
     init = np.where(steps != 0, init, modulus[:, None] >> 1)
     return np.clip(init, 0, modulus[:, None] - 1).astype(np.int64)

@@ -1,8 +1,9 @@
 """Simulator against twin: does the firmware do what the tables say, and does the motion it makes hold up?
 
 Pulses are matched per motor in order (the k-th pulse of motor x in the simulator against the k-th the twin
-predicted). Times are compared after aligning the first pulse: the constant interrupt latency is reported
-separately, every other difference is a timing error.
+predicted). The twin's ticks count from the moment the firmware started its timer, which the simulator
+reports; every difference in time, the interrupt's latency included, is a timing error. The tool pin must be
+at the level of each pulse's block, and off at the end.
 """
 
 from __future__ import annotations
@@ -45,8 +46,8 @@ def compare(host: HostBuild, trace) -> Verdict:
     cycle, motor, direction = trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order]
 
     twin_s = twin.tick / tick_hz
-    latency = (cycle[0] / f_cpu - twin_s[0]) if len(cycle) and len(twin_s) else 0.0
-    sim_s = cycle / f_cpu - latency
+    start = trace.timer_start_cycle or 0
+    sim_s = (cycle - start) / f_cpu  # on the twin's clock
     timing: dict[str, float] = {}
     matched = True
     for m, name in enumerate(names):
@@ -69,6 +70,7 @@ def compare(host: HostBuild, trace) -> Verdict:
     # Group simultaneous pulses (one interrupt) into events; a new event starts after a gap.
     gap = np.diff(cycle)
     new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names)) * f_cpu // tick_hz // 2])
+    new_event = new_event[:len(cycle)]
     group = np.cumsum(new_event) - 1
     signed = np.zeros((len(cycle), len(names)), dtype=np.int64)
     signed[np.arange(len(cycle)), motor] = direction
@@ -104,4 +106,23 @@ def compare(host: HostBuild, trace) -> Verdict:
     for name, us in setup.items():
         if us is not None and us < cfg.dir_setup_us:
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
-    return Verdict(findings, duration, planned, latency * 1e6, timing, width, setup, problems)
+    problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
+    return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup, problems)
+
+
+def tool_problems(host: HostBuild, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None) -> list[str]:
+    """The tool pin's level at every simulated event (its first pulse) against its block's tool flag; off at
+    the end."""
+    edges = np.array(trace.tool_edges, dtype=np.int64).reshape(-1, 2)
+    levels = np.concatenate([[0], edges[:, 1]])
+    problems = []
+    if twin_event is not None and len(event_cycle):
+        at = levels[np.searchsorted(edges[:, 0], event_cycle, side="right")]
+        want = host.schedule.block_tool[host.pulses.event_block[twin_event]].astype(np.int64)
+        wrong = np.flatnonzero(at != want)
+        if len(wrong):
+            problems.append(f"the tool pin is {'on' if at[wrong[0]] else 'off'} at simulated event {wrong[0]} "
+                            f"({len(wrong)} events differ from the tables)")
+    if levels[-1] != int(host.schedule.final_tool):
+        problems.append("the tool pin is still on when the program ends")
+    return problems

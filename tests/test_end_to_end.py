@@ -49,7 +49,8 @@ def test_build_is_deterministic_and_reports_every_byte(tmp_path, capsys):
         assert (first / name).read_bytes() == (second / name).read_bytes(), name
     report = json.loads((first / "report.json").read_text())
     image = report["image"]
-    assert image["flash_bytes"] == image["table_bytes"] + image["code_and_constants_bytes"]
+    assert sum(image["flash_parts"].values()) == image["flash_bytes"]  # every byte accounted for
+    assert image["flash_parts"]["table"] == image["table_bytes"]
     assert 0 < image["table_bytes"] < image["flash_bytes"] <= image["flash_capacity"] == 262144
     assert report["plan"]["pass"] is True
 
@@ -107,3 +108,29 @@ program:
     assert code == 1
     assert "262144" in err and "bytes" in err
     assert not (tmp_path / "out" / "firmware.hex").exists()
+
+
+def test_tool_pin_follows_draw_and_travel(tmp_path, capsys):
+    from codegen.job import load_job
+    from codegen.pipeline import host_build
+    from codegen.sim.avr import simulate
+
+    job = load_job(ROOT / "examples" / "plotter-set.yaml")
+    assert run(capsys, "build", job.path, "--out", tmp_path)[0] == 0
+    host = host_build(job)
+    trace = simulate(tmp_path / "firmware.hex", host.firmware_config(), 10 * 16_000_000 * 60)
+    levels = [level for _, level in trace.tool_edges]
+    tool = host.schedule.block_tool.astype(int).tolist()
+    changes = [b for a, b in zip([0] + tool, tool + [0]) if a != b]
+    assert levels == changes  # on for each of the 5 shapes, off for each travel between them and at the end
+    assert levels.count(1) == 5
+
+
+def test_a_program_that_moves_nothing_plays_nothing(tmp_path, capsys):
+    job = tmp_path / "still.yaml"
+    job.write_text((ROOT / "examples" / "line.yaml").read_text().replace(
+        "- line: {from: [10, 10], to: [90, 55]}", "- travel: {to: [0, 0]}"))
+    code, out, _ = run(capsys, "verify", job, "--out", tmp_path / "out", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["pass"]
+    assert all(m["steps"] == 0 and m["final"] == 0 for m in result["motors"].values())

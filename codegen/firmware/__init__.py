@@ -37,4 +37,5 @@ class Image:
     table_bytes: int
     flash_capacity: int
     ram_capacity: int
-    sections: dict[str, int] = field(default_factory=dict)
+    sections: dict[str, int] = field(default_factory=dict)  # loadable sections: name -> bytes
+    flash_parts: dict[str, int] = field(default_factory=dict)  # every flash byte by what it holds

@@ -205,6 +205,26 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
             raise BuildError(f"table chunks {k - 1} and {k} are not contiguous in flash ({elf.name})")
 
 
+def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
+    """Every byte of flash by what it is: the step table, the player's own code (the functions player.o
+    defines), the initial values of RAM variables, and the rest (interrupt vectors, C start-up, libgcc)."""
+    own = {line.split()[-1] for line in _run(["avr-nm", "--defined-only", "player.o"], cwd, "avr-nm").stdout
+           .splitlines() if line.split()[-2] in "Tt"}
+    table = player = 0
+    for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
+        parts = line.split()
+        if len(parts) != 4 or parts[2] not in "Tt":
+            continue
+        size = int(parts[1], 16)
+        if parts[3].startswith("table_chunk_"):
+            table += size
+        elif parts[3] in own:
+            player += size
+    text = sections.get(".text", 0)
+    return {"table": table, "player": player, "ram_initial_values": sections.get(".data", 0),
+            "vectors_startup_libgcc": text - table - player}
+
+
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:
     """The naked step interrupt saves nothing and has no frame: GCC must not have spilled to the stack."""
     out = _run(["avr-objdump", "-d", "--no-show-raw-insn", elf.name], cwd, "avr-objdump").stdout
@@ -261,11 +281,13 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
         elf = work / "firmware.elf"
         _check_table_contiguous(elf, work)
         _check_isr_stackless(elf, work)
-        sections = _section_sizes(elf, work)
+        sections = {k: v for k, v in _section_sizes(elf, work).items() if k in (".text", ".data", ".bss")}
+        flash_parts = _flash_parts(elf, work, sections)
         _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
         # Both files appear together, complete: the ELF first, the hex (what gets flashed) last.
         (work / "firmware.elf").replace(elf_path)
         (work / "firmware.hex").replace(hex_path)
     text, data, bss = (sections.get(s, 0) for s in (".text", ".data", ".bss"))
     return Image(hex_path=hex_path, elf_path=elf_path, flash_bytes=text + data, ram_bytes=data + bss,
-                 table_bytes=table_bytes, flash_capacity=flash, ram_capacity=ram, sections=sections)
+                 table_bytes=table_bytes, flash_capacity=flash, ram_capacity=ram, sections=sections,
+                 flash_parts=flash_parts)
