@@ -64,7 +64,7 @@ def main() -> None:
     events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
     stages["step times"] = time.perf_counter() - t
     t = time.perf_counter()
-    packed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(2), target.min_event_ticks)
+    packed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(2), target.block_gap_ticks())
     stages["rate runs"] = time.perf_counter() - t
     t = time.perf_counter()
     from codegen.twin import predict

@@ -14,6 +14,7 @@ from codegen.errors import BuildError, JobError
 from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build
+from codegen.verify import compare
 from codegen.report import build_report, human_plan, plan_summary, verify_json, write_json, write_trace
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
@@ -91,7 +92,6 @@ def cmd_verify(args) -> int:
     simulator = _target_module("sim", host.target.target)
     budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
     trace = simulator.simulate(image.hex_path, host.firmware_config(), budget)
-    from codegen.verify import compare
     verdict = compare(host, trace)
     result = verify_json(host, verdict, image)
     if args.trace:

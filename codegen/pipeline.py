@@ -11,13 +11,14 @@ import numpy as np
 
 from codegen.checks import Findings, MotorTrain, check, step_length_mm
 from codegen.compress import Compressed, compress
-from codegen.errors import JobError
+from codegen.errors import BuildError, Diagnostic, JobError, SourceRef
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import LinearKinematics
 from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
                              staircase_bound, staircase_error)
+from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.targets import TargetInfo, target_info
 from codegen.toolpath import Segments, Toolpath, flatten
 from codegen.twin import Pulses, predict
@@ -53,6 +54,8 @@ class HostBuild:
             target=self.target.target,
             board=self.target.board,
             motors=tuple(MotorPins(m, self.kin.socket(m), bool(steppers[m].invert_dir)) for m in self.kin.motors),
+            step_pulse_us=self.job.machine.step_pulse_us,
+            dir_setup_us=self.job.machine.dir_setup_us,
         )
 
     def event_segments(self) -> np.ndarray:
@@ -62,11 +65,9 @@ class HostBuild:
 
 
 def build_toolpath(job) -> Toolpath:
-    if getattr(job.program, "shapes", None):
-        from codegen.shapes import build_toolpath as from_shapes
-        return from_shapes(job)
-    where = getattr(job.program, "gcode_source", None)
-    from codegen.errors import Diagnostic, SourceRef
+    if job.program.shapes:
+        return toolpath_from_shapes(job)
+    where = job.program.gcode_source
     raise JobError([Diagnostic(where or SourceRef(str(job.path)), "G-code programs are not supported yet")])
 
 
@@ -100,18 +101,23 @@ def refine(segments: Segments, kin: LinearKinematics) -> Segments:
 
 def host_build(job) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
-    target = target_info(job.board)
+    try:
+        target = target_info(job.board)
+    except FileNotFoundError:
+        raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
+            from None
     kin = make_kinematics(job.machine)
     toolpath = build_toolpath(job)
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     segments = refine(split_long(drop_empty(flatten(toolpath, job.machine.tolerance)), kin), kin)
     steps = segment_steps(segments, kin)
-    limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(len(kin.motors)))
+    pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
+    limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us))
     motion = plan(segments, kin, steps, limits)
     events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
-    compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(len(kin.motors)),
-                          target.min_event_ticks)
+    compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
+                          target.block_gap_ticks(pulse_us, setup_us))
     pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
                        None, start_steps, expected_final)  # type: ignore[arg-type]

@@ -20,22 +20,36 @@ class TargetInfo:
     tick_hz: int  # the player's timer tick
     flash_bytes: int
     ram_bytes: int
-    min_event_ticks: int  # the closest two events may be when the second starts a block (the worst case)
     board_data: dict
     mcu_data: dict
 
-    def run_gap_ticks(self, motors: int) -> int:
+    def _cycles(self, us: float) -> int:
+        return int(np.ceil(us * self.f_cpu / 1e6))
+
+    def _pad(self, step_pulse_us: float) -> int:
+        """Cycles the interrupt waits to hold STEP high longer than its own code does."""
+        return max(0, self._cycles(step_pulse_us) - int(self.mcu_data["step_high_min_cycles"]))
+
+    def run_gap_ticks(self, motors: int, step_pulse_us: float = 2.0) -> int:
         """The closest two events may be when the second starts a new rate run, for this many motors
         (measured for 1, 3 and 5 motors; linear in between)."""
         known = sorted((int(k.split("_")[3]), v) for k, v in self.mcu_data.items()
                        if k.startswith("run_event_cycles_"))
-        cycles = np.interp(motors, [m for m, _ in known], [c for _, c in known])
+        cycles = np.interp(motors, [m for m, _ in known], [c for _, c in known]) + self._pad(step_pulse_us)
         return int(np.ceil(cycles * self.tick_hz / self.f_cpu))
 
-    def max_event_rate(self, motors: int) -> float:
+    def block_gap_ticks(self, step_pulse_us: float = 2.0, dir_setup_us: float = 1.0) -> int:
+        """The closest two events may be when the second starts a block: the worst-case block load, and the
+        new DIR levels must stand `dir_setup_us` before the block's first STEP edge."""
+        dir_ready = (int(self.mcu_data["block_dir_write_cycles"]) - int(self.mcu_data["isr_latency_cycles"])
+                     + self._cycles(dir_setup_us))
+        cycles = max(int(self.mcu_data["min_event_cycles"]), dir_ready) + self._pad(step_pulse_us)
+        return int(np.ceil(cycles * self.tick_hz / self.f_cpu))
+
+    def max_event_rate(self, motors: int, step_pulse_us: float = 2.0) -> float:
         """Events per second the planner may ask for: a fifth below what the player sustains with a new
         run at every event, so that pushing events apart stays the exception."""
-        return self.tick_hz / (1.25 * self.run_gap_ticks(motors))
+        return self.tick_hz / (1.25 * self.run_gap_ticks(motors, step_pulse_us))
 
     @property
     def max_gap_s(self) -> float:
@@ -62,7 +76,6 @@ def target_info(board: str) -> TargetInfo:
         tick_hz=tick_hz,
         flash_bytes=int(mcu_data["flash"]),
         ram_bytes=int(mcu_data["ram"]),
-        min_event_ticks=int(mcu_data["min_event_cycles"]) * tick_hz // f_cpu,
         board_data=board_data,
         mcu_data=mcu_data,
     )

@@ -69,7 +69,7 @@ def compare(host: HostBuild, trace) -> Verdict:
 
     # Group simultaneous pulses (one interrupt) into events; a new event starts after a gap.
     gap = np.diff(cycle)
-    new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names)) * f_cpu // tick_hz // 2])
+    new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names), host.job.machine.step_pulse_us) * f_cpu // tick_hz // 2])
     new_event = new_event[:len(cycle)]
     group = np.cumsum(new_event) - 1
     signed = np.zeros((len(cycle), len(names)), dtype=np.int64)

@@ -134,3 +134,23 @@ def test_a_program_that_moves_nothing_plays_nothing(tmp_path, capsys):
     result = json.loads(out)
     assert code == 0 and result["pass"]
     assert all(m["steps"] == 0 and m["final"] == 0 for m in result["motors"].values())
+
+
+def test_target_override_never_builds_for_the_wrong_chip(tmp_path, capsys):
+    code, _, err = run(capsys, "build", ROOT / "examples" / "line.yaml", "--target", "mcs51", "--out", tmp_path)
+    assert code == 2 and "line.yaml:4:8: error: board: 'ramps-1.4' is a board for target avr, not mcs51" in err
+    code, _, err = run(capsys, "build", ROOT / "examples" / "arc.yaml", "--target", "mcs51", "--out", tmp_path)
+    assert code == 1 and "the mcs51 target is not supported yet" in err
+    assert not (tmp_path / "firmware.hex").exists()
+
+
+def test_driver_timing_from_the_job_holds_in_the_simulator(tmp_path, capsys):
+    job = tmp_path / "slow-drivers.yaml"
+    job.write_text((ROOT / "examples" / "star.yaml").read_text().replace(
+        "junction_deviation: 0.02", "junction_deviation: 0.02\n  step_pulse_us: 6\n  dir_setup_us: 4"))
+    code, out, _ = run(capsys, "verify", job, "--out", tmp_path / "out", "--json")
+    result = json.loads(out)
+    assert code == 0, result["problems"]
+    for motor in result["motors"].values():
+        assert motor["min_pulse_us"] >= 6.0
+        assert motor["min_dir_setup_us"] >= 4.0

@@ -44,14 +44,14 @@ def board_targets() -> dict[str, str]:
 
 
 def _check_board(data: dict, target: str, marks: Marks) -> list[Diagnostic]:
-    """`<board>.yaml` must exist in targets/ with `target: <target>`; skipped while targets/ has no board of
-    that target at all."""
+    """`<board>.yaml` must exist in targets/ with `target: <target>`. While targets/ has no board of that
+    target at all, only a board of another target is an error (the build says the target is missing)."""
     boards = board_targets()
     valid = sorted(b for b, t in boards.items() if t == target)
     board = data.get("board", DEFAULT_BOARDS[target])
-    if not valid or not isinstance(board, str) or board in valid:
+    if not isinstance(board, str) or board in valid or (not valid and board not in boards):
         return []
-    listed = f"; {target} boards: {', '.join(valid)}"
+    listed = f"; {target} boards: {', '.join(valid)}" if valid else f"; there is no {target} board yet"
     if "board" not in data:
         where = marks.value(("target",)) if "target" in data else SourceRef(marks.file)
         return [Diagnostic(where, f"board: the default board '{board}' of target {target} is missing{listed}")]

@@ -149,6 +149,8 @@ class Machine(_Model):
     steppers: dict[str, Stepper]
     junction_deviation: Positive = 0.01  # mm, Grbl's $11
     tolerance: Positive = 0.002  # mm, Grbl's $12
+    step_pulse_us: Annotated[float, BeforeValidator(_number), Field(gt=0, le=100)] = 2.0  # STEP high time
+    dir_setup_us: Annotated[float, BeforeValidator(_number), Field(ge=0, le=100)] = 1.0  # DIR before STEP
     delta: Optional[Delta] = None
 
     @property
