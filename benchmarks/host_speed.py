@@ -21,7 +21,8 @@ from codegen.pipeline import refine
 from codegen.planner import PlannerLimits, plan
 from codegen.stepgen import generate, segment_steps, split_long
 from codegen.targets import target_info
-from codegen.toolpath import FINE_STEPS, REF_LINE, Segments
+from codegen.segments import REF_LINE, Segments
+from codegen.toolpath import FINE_STEPS
 
 
 def random_segments(n: int, seed: int = 1) -> Segments:
@@ -36,9 +37,11 @@ def random_segments(n: int, seed: int = 1) -> Segments:
     pts[0, :2] = xy[0]
     z = np.zeros(n)
     return Segments(start=pts[:-1], end=pts[1:], feed=np.full(n, 150.0), tool=np.ones(n, bool), dwell=z,
-                    item=np.zeros(n, int), ref_kind=np.full(n, REF_LINE), ref_center=np.zeros((n, 2)),
-                    ref_radius=z, ref_plane=np.tile([0, 1], (n, 1)), ref_deviation=z, ref_fine=np.full(n, -1),
-                    fine=np.zeros((0, FINE_STEPS + 1, 3)))
+                    item=np.arange(n), accel=np.full(n, np.inf), axis_velocity=np.full((n, 4), np.inf),
+                    axis_accel=np.full((n, 4), np.inf), jerk=np.full((n, 4), np.nan),
+                    junction_deviation=np.full(n, np.nan), ref_kind=np.full(n, REF_LINE),
+                    ref_center=np.zeros((n, 2)), ref_radius=z, ref_plane=np.tile([0, 1], (n, 1)),
+                    ref_fine=np.full(n, -1), fine=np.zeros((0, FINE_STEPS + 1, 3)))
 
 
 def main() -> None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from codegen.kinematics.base import LinearKinematics
 from codegen.planner import RATE_WINDOW, Plan
-from codegen.toolpath import REF_ARC, Segments
+from codegen.segments import REF_ARC, Segments
 
 ACCEL_WINDOW_S = 0.020
 CHUNK = 1 << 20
@@ -98,15 +98,19 @@ def reference_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> np.n
     return dist
 
 
-def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments) -> np.ndarray:
-    """Distance (mm, xyz) from each position to the job's path: its own segment or either neighbour (a step
-    just past a corner is measured against the path it is on)."""
+def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments, near: float = 0.0) -> np.ndarray:
+    """Distance (mm, xyz) from each position to the job's path: its own segment, or for positions further
+    than `near` from it, either neighbour too (a step just past a corner is measured against the path it is
+    on)."""
     out = np.empty(len(axes))
     last = len(segments) - 1
     for lo in range(0, len(axes), CHUNK):
         p, s = axes[lo:lo + CHUNK, :3], seg[lo:lo + CHUNK]
-        out[lo:lo + CHUNK] = np.minimum.reduce([reference_distance(p, np.clip(s + k, 0, last), segments)
-                                                for k in (-1, 0, 1)])
+        dist = reference_distance(p, s, segments)
+        far = np.flatnonzero(dist > near)
+        for k in (-1, 1):
+            dist[far] = np.minimum(dist[far], reference_distance(p[far], np.clip(s[far] + k, 0, last), segments))
+        out[lo:lo + CHUNK] = dist
     return out
 
 
@@ -166,7 +170,7 @@ def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.
     if len(positions):
         like = segments.start[position_segment]
         axes = kin.to_axes((positions + start_steps[None, :]) / spm[None, :], like)
-        errors = path_errors(axes, position_segment, segments)
+        errors = path_errors(axes, position_segment, segments, near=0.5 * findings.path_limit_mm)
         worst = int(np.argmax(errors))
         findings.max_path_error_mm = float(errors[worst])
         if errors[worst] > findings.path_limit_mm + 1e-9:

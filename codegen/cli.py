@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from codegen import __version__
-from codegen.errors import BuildError, JobError
+from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build
@@ -44,16 +44,28 @@ def _image_from_report(out_dir: Path, data: dict) -> Image:
                  data["flash_capacity"], data["ram_capacity"], dict(data["sections"]), dict(data["flash_parts"]))
 
 
-def _checked_host(job) -> HostBuild:
-    host = host_build(job)
+def _host(job, strict: bool) -> HostBuild:
+    """The host side of the build; the front end's warnings go to stderr."""
+    host = host_build(job, strict)
+    if host.warnings:
+        print(render_all(host.warnings), file=sys.stderr)
+    return host
+
+
+def _checked_host(job, strict: bool) -> HostBuild:
+    host = _host(job, strict)
     if not host.findings.ok:
         raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
                          + "\n  ".join(host.findings.problems))
     return host
 
 
-def _build(job, out: str | None, reuse: bool) -> tuple[HostBuild, object, Path]:
-    host = _checked_host(job)
+def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, object, Path]:
+    host = _checked_host(job, strict)
+    table = host.schedule.table_bytes()
+    if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
+        raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
+                         f"{host.target.mcu} has {host.target.flash_bytes}")
     firmware = _target_module("firmware", host.target.target)
     sources = firmware.render_sources(host.schedule, host.firmware_config())
     fingerprint = _fingerprint(sources)
@@ -79,7 +91,7 @@ def _build(job, out: str | None, reuse: bool) -> tuple[HostBuild, object, Path]:
 
 def cmd_build(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host, image, out_dir = _build(job, args.out, reuse=False)
+    host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
     print(f"built {out_dir / image.hex_path.name}: flash {image.flash_bytes} of {image.flash_capacity} bytes "
           f"(tables {host.schedule.table_bytes()}), RAM {image.ram_bytes} of {image.ram_capacity} bytes")
     print(human_plan(plan_summary(host)))
@@ -88,7 +100,7 @@ def cmd_build(args) -> int:
 
 def cmd_verify(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host, image, out_dir = _build(job, args.out, reuse=True)
+    host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     simulator = _target_module("sim", host.target.target)
     budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
     trace = simulator.simulate(image.hex_path, host.firmware_config(), budget)
@@ -114,7 +126,7 @@ def cmd_verify(args) -> int:
 
 def cmd_plan(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host = host_build(job)
+    host = _host(job, args.strict)
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
     return 0 if summary["pass"] else 1
@@ -133,6 +145,7 @@ def parser() -> argparse.ArgumentParser:
         v.set_defaults(handler=handler)
         v.add_argument("job", help="the job file (YAML)")
         v.add_argument("--target", choices=("avr", "mcs51"), help="override the job's target")
+        v.add_argument("--strict", action="store_true", help="G-code codes skipped with a warning are errors")
         if name != "plan":
             v.add_argument("--out", help="output folder (default build/<name>/)")
         if name != "build":

@@ -49,6 +49,16 @@ def _read_lines(file: str) -> list[str]:
         return []
 
 
+def render_all(diagnostics: Iterable[Diagnostic]) -> str:
+    """Every diagnostic with its source line and caret, each file read once."""
+    cache: dict[str, list[str]] = {}
+    parts = []
+    for d in diagnostics:
+        lines = cache.setdefault(d.where.file, _read_lines(d.where.file))
+        parts.append(d.render(lines))
+    return "\n".join(parts)
+
+
 class JobError(Exception):
     """Bad input (job file, G-code, shape). Carries every diagnostic found; exit code 2."""
 
@@ -59,12 +69,7 @@ class JobError(Exception):
         super().__init__(self.render())
 
     def render(self) -> str:
-        cache: dict[str, list[str]] = {}
-        parts = []
-        for d in self.diagnostics:
-            lines = cache.setdefault(d.where.file, _read_lines(d.where.file))
-            parts.append(d.render(lines))
-        return "\n".join(parts)
+        return render_all(self.diagnostics)
 
 
 class BuildError(Exception):

@@ -5,22 +5,26 @@ Each stage is a function with a typed result; this module only composes them (an
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
 
 from codegen.checks import Findings, MotorTrain, check, step_length_mm
 from codegen.compress import Compressed, compress
-from codegen.errors import BuildError, Diagnostic, JobError, SourceRef
+from codegen.errors import BuildError, Diagnostic
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import LinearKinematics
 from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
                              staircase_bound, staircase_error)
+from codegen.gcode import toolpath_from_gcode
 from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.targets import TargetInfo, target_info
-from codegen.toolpath import Segments, Toolpath, flatten
+from codegen.segments import Segments, flatten
+from codegen.toolpath import Arc, Curve, Home, Line, Toolpath
 from codegen.twin import Pulses, predict
 
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
@@ -41,6 +45,7 @@ class HostBuild:
     findings: Findings
     start_steps: np.ndarray
     expected_final: np.ndarray
+    warnings: list[Diagnostic]
 
     @property
     def schedule(self):
@@ -64,11 +69,29 @@ class HostBuild:
         return self.events.block_segment[block]
 
 
-def build_toolpath(job) -> Toolpath:
+def build_toolpath(job, strict: bool = False) -> tuple[Toolpath, list[Diagnostic]]:
+    """The program's toolpath and the warnings its front end gave."""
     if job.program.shapes:
-        return toolpath_from_shapes(job)
-    where = job.program.gcode_source
-    raise JobError([Diagnostic(where or SourceRef(str(job.path)), "G-code programs are not supported yet")])
+        return toolpath_from_shapes(job), []
+    toolpath, warnings = toolpath_from_gcode(job, strict)
+    return settle_homes(toolpath), warnings
+
+
+def settle_homes(toolpath: Toolpath) -> Toolpath:
+    """Homing before the first move says where the program starts. A later one becomes a straight tool-off
+    move to the home position: where the machine is afterwards (the endstop search itself is the firmware's,
+    and comes with the homing issue)."""
+    start, items, here = toolpath.start, [], None
+    for item in toolpath.items:
+        if isinstance(item, Home):
+            if here is None:
+                start = item.position
+                continue
+            item = Line(here, item.position, math.inf, False, item.source, "home")
+        if isinstance(item, (Line, Arc, Curve)):
+            here = item.end
+        items.append(item)
+    return Toolpath(np.asarray(start, dtype=float), items)
 
 
 def drop_empty(segments: Segments) -> Segments:
@@ -99,7 +122,7 @@ def refine(segments: Segments, kin: LinearKinematics) -> Segments:
     return segments
 
 
-def host_build(job) -> HostBuild:
+def host_build(job, strict: bool = False) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
     try:
         target = target_info(job.board)
@@ -107,7 +130,7 @@ def host_build(job) -> HostBuild:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
     kin = make_kinematics(job.machine)
-    toolpath = build_toolpath(job)
+    toolpath, warnings = build_toolpath(job, strict)
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     segments = refine(split_long(drop_empty(flatten(toolpath, job.machine.tolerance)), kin), kin)
@@ -120,7 +143,7 @@ def host_build(job) -> HostBuild:
                           target.block_gap_ticks(pulse_us, setup_us))
     pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
-                       None, start_steps, expected_final)  # type: ignore[arg-type]
+                       None, start_steps, expected_final, warnings)  # type: ignore[arg-type]
     trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
     result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
                             expected_final, start_steps, job.machine.tolerance)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.kinematics.base import LinearKinematics
-from codegen.toolpath import Segments
+from codegen.segments import Segments
 
 SMOOTH_TURN = 0.5  # rad: junctions turning less than this are part of a curve, not corners
 RATE_WINDOW = 7  # step intervals over which motor rates are held (8 consecutive steps)
@@ -79,6 +79,12 @@ def quantisation_factor(steps: np.ndarray) -> np.ndarray:
     return np.where((d > 0) & (d < n), np.floor(ratio) / np.maximum(ratio, 1e-300), 1.0)
 
 
+def _axis_cap(per_axis: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The largest path rate (velocity or acceleration) whose share on every axis stays within `per_axis`."""
+    share = np.abs(u)
+    return np.min(np.divide(per_axis, share, out=np.full_like(share, np.inf), where=share > 0), axis=1)
+
+
 def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
     """`steps` (n, M): signed motor steps of every segment (from positions rounded once)."""
     n = len(segments)
@@ -110,9 +116,16 @@ def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: P
     a_normal = np.min(np.divide(amax, normal_factors, out=np.full_like(normal_factors, np.inf),
                                 where=normal_factors > 0), axis=1)
     sin_half = np.sqrt(0.5 * (1.0 + cos_turn))  # Grbl's sin(theta/2), theta = angle to the reversed incoming
+    deviation = np.where(np.isnan(segments.junction_deviation[1:]), limits.junction_deviation,
+                         segments.junction_deviation[1:])
     with np.errstate(divide="ignore", invalid="ignore"):
-        w_jd = np.where(sin_half < 1.0 - 1e-9,
-                        a_normal * limits.junction_deviation * sin_half / (1.0 - sin_half), np.inf)
+        w_jd = np.where(sin_half < 1.0 - 1e-9, a_normal * deviation * sin_half / (1.0 - sin_half), np.inf)
+    # Where the program set Marlin's classic jerk, no axis may change its speed by more than its jerk.
+    jerk = segments.jerk[1:]
+    change = np.abs(u_next - u_prev)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_jerk = np.min(np.where((change > 1e-12) & ~np.isnan(jerk), jerk / change, np.inf), axis=1)
+    w_jd = np.where(np.any(~np.isnan(jerk), axis=1), v_jerk ** 2, w_jd)
     w_jd = np.where(cos_turn < -1.0 + 1e-9, 0.0, w_jd)  # a full reversal stops
     smooth = (turn < SMOOTH_TURN) & moving[:-1] & moving[1:]
     short = np.minimum(length[:-1], length[1:])
@@ -132,12 +145,14 @@ def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: P
     sideways = kappa[:, None] * side  # centripetal motor accel per (mm/s)^2
     w_curve = np.min(np.divide(limits.centripetal_share * amax, sideways, out=np.full_like(sideways, np.inf),
                                where=sideways > 0), axis=1)
-    v_nominal = np.minimum.reduce([segments.feed, v_motor, v_events, np.sqrt(w_curve)])
+    v_program = _axis_cap(segments.axis_velocity, u)
+    v_nominal = np.minimum.reduce([segments.feed, v_motor, v_events, np.sqrt(w_curve), v_program])
     v_nominal = np.where(moving, v_nominal, 0.0)
     if np.any(~np.isfinite(v_nominal)):
         raise ValueError("a segment moves no motor: its speed is unbounded")
     spare = amax[None, :] - v_nominal[:, None] ** 2 * sideways
     accel = np.min(np.divide(spare, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
+    accel = np.minimum.reduce([accel, segments.accel, _axis_cap(segments.axis_accel, u)])
     accel = np.where(moving, accel, 1.0)
 
     # Largest v^2 at each junction; 0 at the ends, around dwells and where the tool switches.

@@ -16,7 +16,7 @@ from codegen.kinematics.base import LinearKinematics
 from codegen.checks import chord_distance
 from codegen.planner import Plan
 from codegen.schedule import MAX_MODULUS
-from codegen.toolpath import Segments
+from codegen.segments import Segments
 from codegen.twin import bresenham
 
 

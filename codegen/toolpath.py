@@ -1,8 +1,7 @@
-"""Toolpath: ordered primitives in machine millimetres, and their flattening into straight segments.
+"""Toolpath: ordered primitives in machine millimetres (the front ends' output: shapes, G-code).
 
 Coordinates are 4-vectors of axis positions [x, y, z, e] in mm. Feeds are mm/s (math.inf: as fast as the
-machine allows). Curves keep their exact geometry here; `flatten` turns them into chords within the machine's
-tolerance and remembers, per chord, the exact reference the checks measure against.
+machine allows). Curves keep their exact geometry here; codegen/segments.py cuts them into chords.
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ from codegen.errors import SourceRef
 
 AXES = ("x", "y", "z", "e")
 
-REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 FINE_STEPS = 16  # samples of the true curve per chord, for measuring the distance to it
 
 
@@ -28,6 +26,8 @@ class Line:
     tool: bool
     source: SourceRef
     label: str = "line"
+    accel: float = math.inf  # mm/s^2: the program's own cap on this move's acceleration (G-code M204)
+    power: float = 1.0  # tool power while the tool is on, 0..1 (G-code S over its full scale)
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,8 @@ class Arc:
     source: SourceRef
     plane: tuple[int, int] = (0, 1)
     label: str = "arc"
+    accel: float = math.inf
+    power: float = 1.0
 
     def points(self, angles: np.ndarray) -> np.ndarray:
         """Points at the given angles; the axes outside the plane move linearly with the angle."""
@@ -87,8 +89,40 @@ class Dwell:
     label: str = "dwell"
 
 
+@dataclass(frozen=True)
+class Limits:
+    """Machine limits the program sets from here on (G-code M201/M203/M205); the planner keeps the smaller
+    of these and the machine's own. Axis names x, y, z, e; None: unchanged."""
+
+    source: SourceRef
+    max_velocity: dict[str, float] | None = None  # mm/s per axis (M203)
+    max_accel: dict[str, float] | None = None  # mm/s^2 per axis (M201)
+    jerk: dict[str, float] | None = None  # mm/s per axis, Marlin's classic jerk (M205 X Y Z E)
+    junction_deviation: float | None = None  # mm (M205 J)
+
+
+@dataclass(frozen=True)
+class Home:
+    """The named axes go to their home position (G28); the motion is the firmware's homing."""
+
+    axes: tuple[str, ...]
+    position: np.ndarray  # where the tool is afterwards (4-vector)
+    source: SourceRef
+
+
+@dataclass(frozen=True)
+class Output:
+    """A setting of an auxiliary output: fan speed 0..1 (M106/M107), or a heater's target in degrees C
+    (M104/M109 hot end, M140/M190 bed; `wait`: the program waits until it is reached)."""
+
+    name: str  # fan | hotend | bed
+    value: float
+    wait: bool
+    source: SourceRef
+
+
 Move = Line | Arc | Curve
-Item = Line | Arc | Curve | Dwell
+Item = Line | Arc | Curve | Dwell | Limits | Home | Output
 
 
 @dataclass
@@ -98,111 +132,6 @@ class Toolpath:
 
     def end(self) -> np.ndarray:
         for item in reversed(self.items):
-            if not isinstance(item, Dwell):
+            if isinstance(item, (Line, Arc, Curve)):
                 return item.end
         return self.start
-
-
-@dataclass
-class Segments:
-    """Straight pieces (or dwells) in program order, as arrays; the planner's and the checks' input."""
-
-    start: np.ndarray  # (n, 4) mm
-    end: np.ndarray  # (n, 4) mm
-    feed: np.ndarray  # (n,) mm/s, inf = unlimited
-    tool: np.ndarray  # (n,) bool
-    dwell: np.ndarray  # (n,) s; > 0 marks a dwell (start == end)
-    item: np.ndarray  # (n,) index of the toolpath item the piece comes from
-    ref_kind: np.ndarray  # (n,) REF_LINE | REF_ARC | REF_CURVE
-    ref_center: np.ndarray  # (n, 2) arc centre in its plane
-    ref_radius: np.ndarray  # (n,)
-    ref_plane: np.ndarray  # (n, 2) int axes of the arc plane
-    ref_deviation: np.ndarray  # (n,) mm, largest chord deviation from the true curve (REF_CURVE)
-    ref_fine: np.ndarray  # (n,) row of `fine` holding the true curve along the chord, -1 for none
-    fine: np.ndarray  # (k, FINE_STEPS + 1, 3) true-curve samples
-
-    def __len__(self) -> int:
-        return len(self.feed)
-
-    def take(self, index: np.ndarray, **replace) -> "Segments":
-        """The segments at `index` (the shared `fine` samples stay as they are), with fields replaced."""
-        fields = {name: getattr(self, name)[index] for name in self.__dataclass_fields__ if name != "fine"}
-        fields.update(fine=self.fine, **replace)
-        return Segments(**fields)
-
-
-def arc_chord_count(radius: float, sweep: float, tolerance: float) -> int:
-    """Fewest equal chords whose sagitta stays within `tolerance`."""
-    if radius <= tolerance:
-        return max(1, math.ceil(abs(sweep) / (math.pi / 2)))
-    max_angle = 2.0 * math.acos(1.0 - tolerance / radius)
-    return max(1, math.ceil(abs(sweep) / max_angle - 1e-9))
-
-
-def flatten(toolpath: Toolpath, tolerance: float) -> Segments:
-    starts, ends, feeds, tools, dwells, items = [], [], [], [], [], []
-    kinds, centers, radii, planes, devs, fine_rows, fines = [], [], [], [], [], [], []
-    fine_count = 0
-    position = np.asarray(toolpath.start, dtype=float)
-    for index, item in enumerate(toolpath.items):
-        if isinstance(item, Dwell):
-            starts.append(position[None, :])
-            ends.append(position[None, :])
-            pieces = 1
-            feeds.append([math.inf])
-            tools.append([False])
-            dwells.append([item.seconds])
-            fine_rows.append([-1])
-            kind, center, radius, plane, dev = REF_LINE, (0.0, 0.0), 0.0, (0, 1), 0.0
-        else:
-            if isinstance(item, Line):
-                pts = np.stack([item.start, item.end])
-                kind, center, radius, plane, dev = REF_LINE, (0.0, 0.0), 0.0, (0, 1), 0.0
-            elif isinstance(item, Arc):
-                n = arc_chord_count(item.radius, item.sweep, tolerance)
-                angles = item.start_angle + item.sweep * np.arange(n + 1) / n
-                pts = item.points(angles)
-                pts[0], pts[-1] = item.start, item.end
-                kind, center, radius, plane, dev = REF_ARC, item.center, item.radius, item.plane, 0.0
-            else:
-                pts = item.points
-                kind, center, radius, plane, dev = REF_CURVE, (0.0, 0.0), 0.0, (0, 1), item.deviation
-            pieces = len(pts) - 1
-            if kind == REF_CURVE:
-                fines.append(item.fine)
-                fine_rows.append(fine_count + np.arange(pieces))
-                fine_count += pieces
-            else:
-                fine_rows.append(np.full(pieces, -1))
-            starts.append(pts[:-1])
-            ends.append(pts[1:])
-            feeds.append(np.full(pieces, item.feed))
-            tools.append(np.full(pieces, item.tool))
-            dwells.append(np.zeros(pieces))
-            position = item.end
-        items.append(np.full(pieces, index))
-        kinds.append(np.full(pieces, kind))
-        centers.append(np.tile(np.asarray(center, float), (pieces, 1)))
-        radii.append(np.full(pieces, radius))
-        planes.append(np.tile(np.asarray(plane, int), (pieces, 1)))
-        devs.append(np.full(pieces, dev))
-    if not starts:
-        empty = np.zeros((0, 4))
-        return Segments(empty, empty, np.zeros(0), np.zeros(0, bool), np.zeros(0), np.zeros(0, int),
-                        np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2), int), np.zeros(0),
-                        np.zeros(0, int), np.zeros((0, FINE_STEPS + 1, 3)))
-    return Segments(
-        start=np.concatenate(starts).astype(float),
-        end=np.concatenate(ends).astype(float),
-        feed=np.concatenate(feeds).astype(float),
-        tool=np.concatenate(tools).astype(bool),
-        dwell=np.concatenate(dwells).astype(float),
-        item=np.concatenate(items).astype(int),
-        ref_kind=np.concatenate(kinds).astype(int),
-        ref_center=np.concatenate(centers).astype(float),
-        ref_radius=np.concatenate(radii).astype(float),
-        ref_plane=np.concatenate(planes).astype(int),
-        ref_deviation=np.concatenate(devs).astype(float),
-        ref_fine=np.concatenate(fine_rows).astype(int),
-        fine=np.concatenate(fines) if fines else np.zeros((0, FINE_STEPS + 1, 3)),
-    )

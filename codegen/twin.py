@@ -49,17 +49,23 @@ def event_ticks(schedule: Schedule) -> np.ndarray:
 
 def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
               events_per_block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per event: its block, which motors step (E, M) bool, and positions after it (E, M).
+    """Per event: its block, which motors step (E, M) bool, and positions after it (E, M), counted from
+    the first block's start.
 
-    `block_steps` is signed. After i events of a block motor m has stepped ceil((i*d - init) / N) times."""
-    block = np.repeat(np.arange(len(modulus)), events_per_block)
-    first = np.concatenate([[0], np.cumsum(events_per_block)[:-1]]).astype(np.int64)
-    i = (np.arange(len(block), dtype=np.int64) - first[block] + 1)[:, None]
-    n = modulus[block][:, None]
-    d = np.abs(block_steps[block])
-    start = init[block]
-    stepped = (-((start - i * d) // n)) != (-((start - (i - 1) * d) // n))
-    position = np.cumsum(stepped * np.sign(block_steps[block]), axis=0)
+    `block_steps` is signed. After i events of a block motor m has stepped ceil((i*d - init) / N) times;
+    in float64 that is exact (i*d < 2**31, and a non-integer quotient is at least 1/N from the next one)."""
+    block = np.repeat(np.arange(len(modulus), dtype=np.int64), events_per_block)
+    first = np.cumsum(events_per_block) - events_per_block
+    i = np.arange(len(block), dtype=np.float64) - first[block] + 1.0
+    d = np.abs(block_steps).astype(np.float64)
+    done = np.ceil((i[:, None] * d[block] - init[block]) / modulus[block][:, None].astype(np.float64))
+    done = done.astype(np.int32)
+    before = np.empty_like(done)  # steps done after the previous event of the same block
+    before[1:] = done[:-1]
+    before[first[events_per_block > 0]] = 0
+    stepped = done != before
+    base = (np.cumsum(block_steps, axis=0) - block_steps)[block]  # where each block starts
+    position = base + done * np.sign(block_steps)[block]
     return block, stepped, position
 
 

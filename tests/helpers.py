@@ -10,7 +10,8 @@ from codegen.errors import SourceRef
 from codegen.kinematics import make_kinematics
 from codegen.planner import PlannerLimits, plan
 from codegen.stepgen import segment_steps, split_long
-from codegen.toolpath import Line, Toolpath, flatten
+from codegen.segments import flatten
+from codegen.toolpath import Line, Toolpath
 
 SRC = SourceRef("test.yaml", 1, 1)
 

@@ -154,3 +154,17 @@ def test_driver_timing_from_the_job_holds_in_the_simulator(tmp_path, capsys):
     for motor in result["motors"].values():
         assert motor["min_pulse_us"] >= 6.0
         assert motor["min_dir_setup_us"] >= 4.0
+
+
+def test_sliced_benchy_plans_near_the_slicer_estimate_and_does_not_fit(tmp_path, capsys):
+    job = ROOT / "examples" / "printers" / "benchy-mini.yaml"
+    code, out, err = run(capsys, "plan", job, "--json")
+    assert code == 0
+    result = json.loads(out)
+    slicer = 38 * 60 + 43  # "; estimated printing time (normal mode) = 38m 43s"
+    assert abs(result["duration_s"] - slicer) <= 0.10 * slicer
+    assert "warning: 'M73' ignored" in err
+    code, _, err = run(capsys, "build", job, "--out", tmp_path)
+    assert code == 1
+    assert "does not fit in flash" in err and "262144" in err and str(result["table_bytes"]) in err
+    assert not (tmp_path / "firmware.hex").exists()

@@ -95,3 +95,30 @@ def test_time_at_matches_segment_ends():
     assert t[1] == pytest.approx(p.t_start[1])
     assert t[2] == pytest.approx(p.t_start[1])
     assert t[3] == pytest.approx(p.total)
+
+
+def _with_program_limits(toolpath, mach=None, **items):
+    from codegen.toolpath import Limits
+    toolpath.items.insert(0, Limits(SRC, **items))
+    return planned(toolpath, mach)
+
+
+def test_program_limits_cap_the_machine_ones():
+    _, _, _, p = _with_program_limits(polyline([(0, 0), (100, 0)], feed=1e9), max_velocity={"x": 50.0},
+                                      max_accel={"x": 500.0})
+    assert p.v_peak[0] == pytest.approx(50.0)
+    assert p.accel[0] == pytest.approx(500.0)
+    _, _, _, fast = _with_program_limits(polyline([(0, 0), (100, 0)], feed=1e9), max_velocity={"x": 1000.0})
+    assert fast.v_peak[0] == pytest.approx(200 * KEEP)  # never above the machine's own limit
+
+
+def test_classic_jerk_sets_corner_speed_when_the_program_asks_for_it():
+    _, _, _, p = _with_program_limits(polyline([(0, 0), (50, 0), (50, 50)], feed=100), jerk={"x": 8.0, "y": 8.0})
+    assert p.v_exit[0] == pytest.approx(8.0)  # x drops from v to 0 and y rises from 0 to v: 8 mm/s each
+
+
+def test_move_acceleration_cap_from_the_program():
+    tp = polyline([(0, 0), (100, 0)], feed=100)
+    tp.items[0] = Line(tp.items[0].start, tp.items[0].end, 100, True, SRC, accel=400.0)
+    _, _, _, p = planned(tp)
+    assert p.accel[0] == pytest.approx(400.0)

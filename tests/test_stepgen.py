@@ -7,7 +7,7 @@ from codegen.kinematics import make_kinematics
 from codegen.pipeline import STAIRCASE_LIMIT, refine
 from codegen.schedule import MAX_MODULUS
 from codegen.stepgen import generate, segment_steps, split_long, staircase_bound, staircase_error
-from codegen.toolpath import flatten
+from codegen.segments import flatten
 from tests.helpers import machine, planned, polyline
 
 

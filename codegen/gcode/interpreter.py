@@ -1,0 +1,386 @@
+"""Blocks -> Toolpath: a modal interpreter (Grbl's modal groups and order of execution, Marlin's printer codes).
+
+State: the machine position (mm, [x, y, z, e]), the G92 offsets (machine = program + offset), units (G20/G21),
+distance mode (G90/G91; E follows the last of G90, G91, M82, M83, as in Marlin 2), motion mode (G0 at the
+start, as Grbl), arc plane, feed (mm/s), tool (M3/M4 on, M5 off) and power, and the M204 accelerations.
+Within a line: units first, then F, S, the M-codes, G4, plane and distance modes, G28/G92, the motion, and
+M2/M30 (after which nothing is read). A line with an error does nothing; up to MAX_ERRORS are collected.
+
+Moves are kept as point indices while reading; at the end every point becomes a row of one read-only array
+and each Line/Arc/Home holds views of its rows (a move's start is the previous move's end).
+"""
+
+from __future__ import annotations
+
+import math
+
+from codegen.errors import Diagnostic, SourceRef
+from codegen.gcode import mcodes
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, SUPPORTED,
+                                 code_name, group_of, harmless_reason)
+from codegen.gcode.moves import LINE, Moves
+from codegen.gcode.reader import Block, Origin, columns
+
+MAX_ERRORS = 20
+S_FULL_SCALE = 255.0  # the S of full tool power (Marlin's laser scale), unless the job gives `s_max`
+_ORDER = ("M3", "M4", "M5", *mcodes.HANDLERS, "G4", *PLANES, "G90", "G91", "M82", "M83", "G28", "G92")
+_MOTION_CODES = {("G", n): "G" + n.lstrip("0") if n.strip("0") else "G0"
+                 for n in ("0", "1", "2", "3", "00", "01", "02", "03")}
+_LINEAR = {key: name for key, name in _MOTION_CODES.items() if name in ("G0", "G1")}
+_ARC_CODES = {key: name for key, name in _MOTION_CODES.items() if name in ("G2", "G3")}
+_ARC_LETTERS = frozenset("XYZEFSIJKR")
+_FAST_INDEX = {letter: i for i, letter in enumerate("XYZEFS")}
+
+
+class _Stop(Exception):
+    """The program ends here (M2/M30), or there are too many errors."""
+
+
+class Interpreter(Moves):
+    def __init__(self, job, origin: Origin, strict: bool = False):
+        machine, program = job.machine, job.program
+        self.motors = tuple(machine.motor_names)
+        self.kinematics = getattr(machine, "kinematics", "cartesian")
+        has_z = "z" in self.motors or self.kinematics == "delta"
+        self.movable = (True, True, has_z, "e" in self.motors)
+        self.fixed = tuple(i for i in range(4) if not self.movable[i])
+        self.home_z = float(machine.delta.height) if self.kinematics == "delta" else 0.0
+        start = [0.0] * 4
+        start[: len(program.start)] = [float(v) for v in program.start]
+        self.pos = start
+        self.off = [0.0] * 4
+        self.unit = 1.0
+        self.relative = self.e_relative = False
+        self.mode = "G0"
+        self.plane = (0, 1)
+        self.feed: float | None = None  # mm/s; None: no F so far
+        self.draw_feed = float(program.feed) / 60.0
+        travel = getattr(program, "travel_feed", None)
+        self.rapid = math.inf if travel is None else float(travel) / 60.0
+        self.spindle = False
+        self.power = 1.0
+        scale = getattr(program, "s_max", None)
+        self.s_full = float(scale) if scale else S_FULL_SCALE
+        self.accel_print = self.accel_travel = self.accel_retract = math.inf
+        self.origin, self.strict = origin, strict
+        self.flat = list(start)
+        self.count, self.cur = 1, 0
+        self.items: list = []
+        self.errors: list[Diagnostic] = []
+        self.warned: dict[str, list] = {}
+
+    # ---- results ----
+
+    def run(self, blocks) -> None:
+        try:
+            for block in blocks:
+                if type(block) is Block:
+                    self.line(block)
+                else:
+                    self._error(block.where, block.message)
+        except _Stop:
+            pass
+
+    def warnings(self) -> list[Diagnostic]:
+        return [Diagnostic(where, f"'{key}' ignored ({reason})" + (f"; {n} times" if n > 1 else ""), "warning")
+                for key, (where, n, reason) in self.warned.items()]
+
+    # ---- diagnostics ----
+
+    @staticmethod
+    def word_index(block: Block, what: str | None) -> int | None:
+        """The first word with this letter (`X`) or code (`G92`); None: the block itself."""
+        if what is None:
+            return None
+        for k, (letter, number) in enumerate(block.words):
+            if letter == what or (len(what) > 1 and letter == what[0] and code_name(letter, number) == what):
+                return k
+        return None
+
+    @staticmethod
+    def word(block: Block, letter: str) -> str:
+        """The word of this letter as written (`E.5`)."""
+        for word_letter, number in block.words:
+            if word_letter == letter:
+                return letter + number
+        return letter
+
+    def where(self, block: Block, k: int | None = None) -> SourceRef:
+        return self.origin.at(block.index, block.indent if k is None else columns(block)[k])
+
+    def source(self, block: Block) -> SourceRef:
+        return self.origin.at(block.index, block.indent)
+
+    def _error(self, where: SourceRef, message: str) -> None:
+        if len(self.errors) >= MAX_ERRORS:
+            self.errors.append(Diagnostic(where, f"too many errors ({MAX_ERRORS} reported), stopping here"))
+            raise _Stop
+        self.errors.append(Diagnostic(where, message))
+
+    def fail(self, block: Block, what: str | int | None, message: str) -> None:
+        """An error at a word: its index, its letter, or its code (None: the line)."""
+        k = what if isinstance(what, int) else self.word_index(block, what)
+        self._error(self.where(block, k), message)
+
+    def skip(self, block: Block, k: int, key: str, reason: str) -> bool:
+        """A harmless code (or parameter): one warning per key, or an error with --strict. True if allowed."""
+        if self.strict:
+            self.fail(block, k, f"'{key}' is not accepted with --strict ({reason})")
+            return False
+        seen = self.warned.get(key)
+        if seen is None:
+            self.warned[key] = [self.where(block, k), 1, reason]
+        else:
+            seen[1] += 1
+        return True
+
+    # ---- one line ----
+
+    def line(self, block: Block) -> None:
+        """One line. The G0/G1 lines that make up most files take this short way; others go through
+        `_common` (any single motion code) and `_general` (everything)."""
+        words = block.words
+        mode = _LINEAR.get(words[0])
+        if mode is None:
+            return self._common(block)
+        values = [None] * 6  # X Y Z E F S
+        index = _FAST_INDEX.get
+        try:
+            for letter, number in words[1:]:
+                i = index(letter)
+                if i is None:
+                    return self._common(block)
+                if values[i] is not None:
+                    return self._general(block)  # a letter twice
+                values[i] = float(number)
+        except ValueError:  # a letter without a number
+            return self._general(block)
+        x, y, z, e, feed, power = values
+        pos, unit, off = self.pos, self.unit, self.off
+        tgt = pos[:]
+        if self.relative:
+            if x is not None:
+                tgt[0] = pos[0] + x * unit
+            if y is not None:
+                tgt[1] = pos[1] + y * unit
+            if z is not None:
+                tgt[2] = pos[2] + z * unit
+        else:
+            if x is not None:
+                tgt[0] = x * unit + off[0]
+            if y is not None:
+                tgt[1] = y * unit + off[1]
+            if z is not None:
+                tgt[2] = z * unit + off[2]
+        if e is not None:
+            tgt[3] = pos[3] + e * unit if self.e_relative else e * unit + off[3]
+        if feed is not None:
+            if feed <= 0.0:
+                return self.fail(block, "F", f"feed rate '{self.word(block, 'F')}' must be > 0")
+            self.feed = feed * unit / 60.0
+        if power is not None and self._power(block, {"S": power}) is False:
+            return
+        self.mode = mode
+        if tgt == pos or (self.fixed and self.axis_missing(block, tgt)):
+            return
+        if mode == "G0":
+            feed, tool = self.rapid, False
+        else:
+            feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+        if tgt[3] == pos[3]:
+            accel = self.accel_travel
+        elif tgt[0] == pos[0] and tgt[1] == pos[1] and tgt[2] == pos[2]:
+            accel = self.accel_retract
+        else:
+            accel = self.accel_print
+        self.flat.extend(tgt)
+        start, self.cur = self.cur, self.count
+        self.count += 1
+        self.pos = tgt
+        self.items.append((LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode,
+                           accel, self.power))
+
+    def _common(self, block: Block) -> None:
+        """A G2/G3 line of plain words (most of an arc file); anything else goes to `_general`."""
+        words = block.words
+        motion = _ARC_CODES.get(words[0])
+        if motion is None:
+            return self._general(block)
+        params: dict[str, float] = {}
+        for letter, number in words[1:]:
+            if letter in params or letter not in _ARC_LETTERS or not number:
+                return self._general(block)
+            params[letter] = float(number)
+        if "F" in params and self._feed(block, params) is False:
+            return
+        if "S" in params and self._power(block, params) is False:
+            return
+        self.mode = motion
+        self.arc_move(block, motion, params)
+
+    def _feed(self, block: Block, params) -> bool | None:
+        value = params["F"]
+        if value <= 0.0:
+            self.fail(block, "F", f"feed rate '{self.word(block, 'F')}' must be > 0")
+            return False
+        self.feed = value * self.unit / 60.0
+        return None
+
+    def _power(self, block: Block, params) -> bool | None:
+        value = params["S"]
+        if value < 0.0:
+            self.fail(block, "S", f"power '{self.word(block, 'S')}' must be >= 0")
+            return False
+        self.power = min(value / self.s_full, 1.0)
+        return None
+
+    def _general(self, block: Block) -> None:
+        """Any line: codes by name and group, parameters by owner, every problem reported, then the codes."""
+        words = block.words
+        codes: list[tuple[str, int]] = []
+        params: dict[str, float] = {}
+        problems: list[tuple[int, str]] = []
+        tool, bare = None, []
+        for k, (letter, number) in enumerate(words):
+            if not number:
+                if letter in params or letter in bare:
+                    problems.append((k, f"'{letter}' appears twice on this line"))
+                else:
+                    bare.append(letter)
+                    params[letter] = 0.0
+                continue
+            if letter == "G" or letter == "M":
+                name = code_name(letter, number)
+                if name is None:
+                    problems.append((k, f"'{letter}{number}' is not a code"))
+                else:
+                    codes.append((name, k))
+            elif letter == "N":
+                continue
+            elif letter in params:
+                problems.append((k, f"'{letter}' appears twice on this line"))
+            else:
+                params[letter] = float(number)
+                if letter == "T":
+                    tool = k
+        if tool is not None and not any(name[0] == "M" for name, _ in codes):  # T is a code, not M204's T
+            del params["T"]
+            name = code_name("T", words[tool][1])
+            if name is None:
+                problems.append((tool, f"'T{words[tool][1]}' is not a tool number"))
+            else:
+                codes.append((name, tool))
+        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin)
+            if letter not in "XYZ" or not any(name == "G28" for name, _ in codes):
+                problems.append((self.word_index(block, letter), f"expected a number after '{letter}'"))
+                del params[letter]
+        motion, names = self._classify(block, codes, params, problems)
+        for k, message in problems:
+            self.fail(block, k, message)
+        if problems or names is None:
+            return
+        if "G20" in names:
+            self.unit = 25.4
+        elif "G21" in names:
+            self.unit = 1.0
+        if "F" in params and self._feed(block, params) is False:
+            return
+        if "S" in params and not any("S" in PARAMS[n] for n in names) and self._power(block, params) is False:
+            return
+        for name in _ORDER:
+            if name in names and self._code(block, name, params) is False:
+                return
+        if motion is not None:
+            self.mode = motion
+            if motion == "G0" or motion == "G1":
+                self.line_move(block, motion, params)
+            else:
+                self.arc_move(block, motion, params)
+        if "M2" in names or "M30" in names:
+            raise _Stop
+
+    def _classify(self, block: Block, codes, params, problems):
+        """Modal groups, supported and harmless codes, and which code takes each parameter. Returns the motion
+        (explicit or modal) and the supported codes by name (None: the line does nothing more)."""
+        names: dict[str, int] = {}
+        groups: dict[str, str] = {}
+        motion, taker, harmless = None, None, []
+        for name, k in codes:
+            group = group_of(name)
+            if group in groups:
+                first = groups[group]
+                problems.append((k, f"'{name}' twice on one line" if first == name else
+                                 f"'{name}' and '{first}' on one line: both are in the {group} group"))
+                continue
+            groups[group] = name
+            if name in SUPPORTED:
+                names[name] = k
+                if name in MOTION:
+                    motion = name
+                elif name in AXIS_TAKERS:
+                    taker = name
+            elif (reason := harmless_reason(name)) is not None:
+                harmless.append((name, k, reason))
+            elif name[0] == "T":
+                problems.append((k, f"tool '{name}': the machine has one tool (T0)"))
+            else:
+                problems.append((k, f"unsupported G-code '{name}'"))
+        if motion is not None and taker is not None:
+            problems.append((max(names[motion], names[taker]),
+                             f"'{motion}' and '{taker}' on one line: both take the axis words"))
+        if harmless:  # they take every word of the line
+            if any(h[0] == "M220" for h in harmless) and params.get("S", 100.0) != 100.0:
+                problems.append((self.word_index(block, "S"), f"'M220 {self.word(block, 'S')}': feed rate "
+                                                              f"overrides are not supported (only S100)"))
+            if problems:
+                return None, None
+            allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])
+            return (motion, names) if allowed and names else (None, None)
+        if motion is None and taker is None:
+            if any(a in params for a in AXIS_LETTERS) or (self.mode in ("G2", "G3") and
+                                                          any(a in params for a in "IJKR")):
+                motion = self.mode
+        used = set("FS")
+        for name in names:
+            used.update(PARAMS[name])
+        if motion is not None:
+            used.update(PARAMS[motion])
+        for letter in params:
+            if letter not in used:
+                k = self.word_index(block, letter)
+                word = self.word(block, letter)
+                problems.append((k, f"'{word}' is not a parameter of {' or '.join(names)}" if names else
+                                 f"'{word}' needs a code that takes it"))
+        if problems:
+            return None, None
+        for (code, letter), reason in HARMLESS_PARAMS.items():
+            if code in names and letter in params:
+                if not self.skip(block, self.word_index(block, letter), f"{code} {letter}", reason):
+                    return None, None
+        return motion, names
+
+    def _code(self, block: Block, name: str, params) -> bool | None:
+        """Run one non-motion code; False when it failed (the rest of the line is dropped)."""
+        if name == "M3" or name == "M4":
+            self.spindle = True
+        elif name == "M5":
+            self.spindle = False
+        elif name == "M82":
+            self.e_relative = False
+        elif name == "M83":
+            self.e_relative = True
+        elif name == "G90":
+            self.relative = self.e_relative = False
+        elif name == "G91":
+            self.relative = self.e_relative = True
+        elif name in PLANES:
+            self.plane = PLANES[name]
+        elif name == "G92":
+            return self.set_position(block, params)
+        elif name == "G28":
+            return self.home(block, params)
+        elif name == "G4":
+            return mcodes.dwell(self, block, params)
+        else:
+            return mcodes.HANDLERS[name](self, block, params)
+        return None

@@ -1,0 +1,154 @@
+"""The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, G4.
+
+Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
+when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
+M204 mm/s^2, M205 X/Y/Z/E mm/s and J mm, all in the current units (G20 scales them like lengths); heater
+targets in degrees C; fan S over 0..255.
+"""
+
+from __future__ import annotations
+
+from codegen.toolpath import Dwell, Limits, Output
+
+FAN_FULL_SCALE = 255.0
+
+
+def _number(it, block, params, letter: str, minimum: float = 0.0, strict: bool = True) -> float:
+    """The value of `letter`; an error (the handler then returns False) when it is out of range."""
+    value = params[letter]
+    if value < minimum or (strict and value == minimum):
+        relation = ">" if strict else ">="
+        it.fail(block, letter, f"'{it.word(block, letter)}' must be {relation} {minimum:g}")
+        raise _Bad
+    return value
+
+
+class _Bad(Exception):
+    pass
+
+
+def _guarded(handler):
+    def run(it, block, params):
+        try:
+            return handler(it, block, params)
+        except _Bad:
+            return False
+
+    run.__name__ = handler.__name__
+    run.__doc__ = handler.__doc__
+    return run
+
+
+def _only_zero(it, block, params, letter: str, what: str) -> None:
+    """A tool or fan index: only 0 exists here."""
+    if letter in params and params[letter] != 0.0:
+        it.fail(block, letter, f"'{it.word(block, letter)}': the machine has one {what} ({letter}0)")
+        raise _Bad
+
+
+def _heater(name: str, wait: bool, tool_letter: str | None):
+    @_guarded
+    def heater(it, block, params):
+        if tool_letter is not None:
+            _only_zero(it, block, params, tool_letter, "hot end")
+        letter = "S" if "S" in params else ("R" if wait and "R" in params else None)
+        if letter is not None:
+            value = _number(it, block, params, letter, strict=False)
+            it.items.append(Output(name, value, wait, it.source(block)))
+        return None
+
+    return heater
+
+
+@_guarded
+def fan(it, block, params):
+    """M106 [S0..255]: the fan at S/255 (full without S)."""
+    _only_zero(it, block, params, "P", "fan")
+    value = _number(it, block, params, "S", strict=False) / FAN_FULL_SCALE if "S" in params else 1.0
+    it.items.append(Output("fan", min(value, 1.0), False, it.source(block)))
+    return None
+
+
+@_guarded
+def fan_off(it, block, params):
+    """M107: the fan off."""
+    _only_zero(it, block, params, "P", "fan")
+    it.items.append(Output("fan", 0.0, False, it.source(block)))
+    return None
+
+
+def _per_axis(it, block, params, strict: bool = True) -> dict[str, float] | None:
+    values = {letter.lower(): _number(it, block, params, letter, strict=strict) * it.unit
+              for letter in "XYZE" if letter in params}
+    return values or None
+
+
+@_guarded
+def max_accel(it, block, params):
+    """M201 X Y Z E: largest acceleration per axis (mm/s^2)."""
+    values = _per_axis(it, block, params)
+    if values:
+        it.items.append(Limits(it.source(block), max_accel=values))
+    return None
+
+
+@_guarded
+def max_velocity(it, block, params):
+    """M203 X Y Z E: largest velocity per axis (mm/s, Marlin's unit)."""
+    values = _per_axis(it, block, params)
+    if values:
+        it.items.append(Limits(it.source(block), max_velocity=values))
+    return None
+
+
+@_guarded
+def accelerations(it, block, params):
+    """M204 P (moves that extrude) T (travel) R (E-only) S (P and T): the moves' acceleration caps."""
+    values = {letter: _number(it, block, params, letter) * it.unit for letter in "SPTR" if letter in params}
+    if "S" in values:
+        it.accel_print = it.accel_travel = values["S"]
+    if "P" in values:
+        it.accel_print = values["P"]
+    if "T" in values:
+        it.accel_travel = values["T"]
+    if "R" in values:
+        it.accel_retract = values["R"]
+    return None
+
+
+@_guarded
+def jerk(it, block, params):
+    """M205 X Y Z E (jerk, mm/s) and J (junction deviation, mm); S T B are skipped by the interpreter."""
+    values = _per_axis(it, block, params, strict=False)
+    deviation = _number(it, block, params, "J") * it.unit if "J" in params else None
+    if values or deviation is not None:
+        it.items.append(Limits(it.source(block), jerk=values, junction_deviation=deviation))
+    return None
+
+
+@_guarded
+def dwell(it, block, params):
+    """G4 P (ms) or S (s; S wins when both are given); no wait without either."""
+    if "S" in params:
+        seconds = _number(it, block, params, "S", strict=False)
+    elif "P" in params:
+        seconds = _number(it, block, params, "P", strict=False) / 1000.0
+    else:
+        return None
+    if seconds > 0.0:
+        it.items.append(Dwell(seconds, it.source(block)))
+    return None
+
+
+HANDLERS = {
+    "M104": _heater("hotend", False, "T"),
+    "M109": _heater("hotend", True, "T"),
+    "M140": _heater("bed", False, None),
+    "M190": _heater("bed", True, None),
+    "M106": fan,
+    "M107": fan_off,
+    "M201": max_accel,
+    "M203": max_velocity,
+    "M204": accelerations,
+    "M205": jerk,
+}

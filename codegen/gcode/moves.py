@@ -1,0 +1,169 @@
+"""The interpreter's positions and moves: targets in machine mm, G0/G1 lines, G2/G3 arcs, G28 and G92.
+
+Machine position = program position + G92 offset. Moves are recorded as indices into one list of points
+(`flat`, 4 numbers a point); the interpreter turns them into Line/Arc/Home items at the end.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codegen.gcode import arcs
+from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
+from codegen.toolpath import Arc, Home, Line, Toolpath
+
+LINE, ARC, HOME = 0, 1, 2
+AXIS_INDEX = {letter: i for i, letter in enumerate(AXIS_LETTERS)}
+OFFSET_LETTERS = {(0, 1): "IJ", (2, 0): "KI", (1, 2): "JK"}  # the I/J/K of the plane's (u, v) axes
+
+
+class Moves:
+    """Mixed into the Interpreter: uses its state (pos, off, unit, modes, feeds, tool) and diagnostics."""
+
+    def toolpath(self) -> Toolpath:
+        """The items: every point a row of one read-only array, each Line/Arc/Home holding views of its rows."""
+        array = np.array(self.flat, dtype=float).reshape(-1, 4)
+        array.flags.writeable = False
+        rows = list(array)
+        items = []
+        for it in self.items:
+            if type(it) is not tuple:
+                items.append(it)
+            elif it[0] == LINE:
+                _, a, b, feed, tool, src, label, accel, power = it
+                items.append(Line(rows[a], rows[b], feed, tool, src, label, accel, power))
+            elif it[0] == ARC:
+                _, a, b, c, plane, feed, tool, src, label, accel, power = it
+                items.append(Arc(rows[a], rows[b], c.center, c.radius, c.start_angle, c.sweep, feed, tool, src,
+                                 plane, label, accel, power))
+            else:
+                _, axes, a, src = it
+                items.append(Home(axes, rows[a], src))
+        return Toolpath(array[0].copy(), items)
+
+    def target(self, params: dict[str, float]) -> list[float]:
+        pos, unit, off = self.pos, self.unit, self.off
+        tgt = pos[:]
+        for letter, value in params.items():
+            i = AXIS_INDEX.get(letter)
+            if i is not None:
+                if self.e_relative if i == 3 else self.relative:
+                    tgt[i] = pos[i] + value * unit
+                else:
+                    tgt[i] = value * unit + off[i]
+        return tgt
+
+    def axis_missing(self, block, tgt: list[float]) -> bool:
+        """An error (True) when the move changes an axis the machine cannot move; at its word."""
+        for i in self.fixed:
+            if tgt[i] != self.pos[i]:
+                letter = AXIS_LETTERS[i]
+                axis = letter.lower()
+                self.fail(block, letter, f"'{self.word(block, letter)}' moves {axis}, but the machine has no "
+                                         f"{axis} motor (motors: {', '.join(self.motors)})")
+                return True
+        return False
+
+    def add_point(self, tgt: list[float]) -> int:
+        """The tool goes to `tgt`: a new point; returns the index of the one before."""
+        self.flat.extend(tgt)
+        start, self.cur = self.cur, self.count
+        self.count += 1
+        self.pos = tgt
+        return start
+
+    def accel_for(self, tgt: list[float]) -> float:
+        """M204's cap for a move: P with extrusion, T without, R for E alone."""
+        pos = self.pos
+        if tgt[3] == pos[3]:
+            return self.accel_travel
+        if tgt[0] == pos[0] and tgt[1] == pos[1] and tgt[2] == pos[2]:
+            return self.accel_retract
+        return self.accel_print
+
+    def line_move(self, block, mode: str, params: dict[str, float]) -> None:
+        tgt = self.target(params)
+        if tgt == self.pos or (self.fixed and self.axis_missing(block, tgt)):
+            return  # no motion: nothing to do
+        if mode == "G0":
+            feed, tool = self.rapid, False
+        else:
+            feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+        accel = self.accel_for(tgt)
+        start = self.add_point(tgt)
+        self.items.append((LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode,
+                           accel, self.power))
+
+    def arc_move(self, block, mode: str, params: dict[str, float]) -> None:
+        plane = self.plane
+        u, v = plane
+        letters = OFFSET_LETTERS[plane]
+        name = PLANE_NAMES[plane]
+        other = ({"I", "J", "K"} - set(letters)).pop()
+        if other in params:
+            return self.fail(block, other, f"'{other}' is not an offset in the {name} plane; use {letters[0]} "
+                                           f"and {letters[1]}")
+        given = [c for c in letters if c in params]
+        if "R" in params and given:
+            return self.fail(block, "R", f"give either R or {letters[0]}/{letters[1]}, not both")
+        if "R" not in params and not given:
+            return self.fail(block, mode, f"{mode} needs the centre: {letters[0]}/{letters[1]} offsets ({name} "
+                                          f"plane) or R")
+        for i in plane:
+            if not self.movable[i]:
+                axis = "xyz"[i]
+                return self.fail(block, mode, f"an arc in the {name} plane moves {axis}, but the machine has no "
+                                              f"{axis} motor (motors: {', '.join(self.motors)})")
+        tgt = self.target(params)
+        if self.fixed and self.axis_missing(block, tgt):
+            return
+        pos, unit = self.pos, self.unit
+        start, end = (pos[u], pos[v]), (tgt[u], tgt[v])
+        try:
+            if "R" in params:
+                circle = arcs.from_radius(start, end, params["R"] * unit, mode == "G2")
+            else:
+                offset = (params.get(letters[0], 0.0) * unit, params.get(letters[1], 0.0) * unit)
+                circle = arcs.from_offsets(start, end, offset, mode == "G2", letters)
+        except arcs.ArcError as err:
+            return self.fail(block, err.letter if err.letter in params else given[0], err.message)
+        feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+        accel = self.accel_travel if tgt[3] == pos[3] else self.accel_print
+        start_index = self.add_point(tgt)
+        self.items.append((ARC, start_index, self.cur, circle, plane, feed, tool, self.source(block), mode, accel,
+                           self.power))
+
+    def set_position(self, block, params: dict[str, float]) -> bool | None:
+        """G92: the program position of the named axes becomes the given values (the machine stays)."""
+        given = [i for i, letter in enumerate(AXIS_LETTERS) if letter in params]
+        if not given:
+            self.fail(block, "G92", "G92 needs the axis words to set (X, Y, Z, E)")
+            return False
+        for i in given:
+            self.off[i] = self.pos[i] - params[AXIS_LETTERS[i]] * self.unit
+        return None
+
+    def home(self, block, params: dict[str, float]) -> bool | None:
+        """G28 [X] [Y] [Z] (values ignored; none: every axis the machine has): those axes go home, where
+        their G92 offsets are cleared (as Marlin). A delta always homes all three."""
+        named = [i for i in range(3) if "XYZ"[i] in params]
+        if self.kinematics == "delta" or not named:
+            named = [i for i in range(3) if self.movable[i]]
+        home = (0.0, 0.0, self.home_z)
+        tgt = self.pos[:]
+        axes = []
+        for i in named:
+            axis = "xyz"[i]
+            if not self.movable[i]:
+                if self.pos[i] != home[i]:
+                    self.fail(block, "XYZ"[i], f"G28 homes {axis}, but the machine has no {axis} motor "
+                                               f"(motors: {', '.join(self.motors)})")
+                    return False
+                continue
+            tgt[i] = home[i]
+            self.off[i] = 0.0
+            axes.append(axis)
+        if axes:
+            self.add_point(tgt)
+            self.items.append((HOME, tuple(axes), self.cur, self.source(block)))
+        return None
