@@ -13,7 +13,7 @@ import numpy as np
 
 from codegen.checks import Findings, MotorTrain, check, step_length_mm
 from codegen.compress import Compressed, compress
-from codegen.errors import BuildError, Diagnostic
+from codegen.errors import BuildError, Diagnostic, JobError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import LinearKinematics
@@ -122,6 +122,27 @@ def refine(segments: Segments, kin: LinearKinematics) -> Segments:
     return segments
 
 
+def check_ranges(job, kin: LinearKinematics, toolpath: Toolpath, segments: Segments) -> None:
+    """Every point of the path within each motor's `range`: an error at the shape or G-code line that leaves
+    it (the first point of each; at most 20), before anything is built."""
+    steppers = job.machine.steppers
+    bounded = [(m, steppers[name].range) for m, name in enumerate(kin.motors) if steppers[name].range]
+    if not bounded or not len(segments):
+        return
+    ends = kin.to_motor(np.concatenate([segments.start[:1], segments.end]))
+    items = np.concatenate([segments.item[:1], segments.item])
+    diagnostics = []
+    for m, (low, high) in bounded:
+        outside = np.flatnonzero((ends[:, m] < low - 1e-9) | (ends[:, m] > high + 1e-9))
+        _, first = np.unique(items[outside], return_index=True)
+        for k in outside[np.sort(first)][:20]:
+            item = toolpath.items[items[k]]
+            diagnostics.append(Diagnostic(item.source, f"motor {kin.motors[m]} would go to {ends[k, m]:.3f} mm, "
+                                                       f"outside its range [{low:g}, {high:g}]"))
+    if diagnostics:
+        raise JobError(sorted(diagnostics, key=lambda d: (d.where.file, d.where.line, d.where.col))[:20])
+
+
 def host_build(job, strict: bool = False) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
     try:
@@ -133,7 +154,9 @@ def host_build(job, strict: bool = False) -> HostBuild:
     toolpath, warnings = build_toolpath(job, strict)
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
-    segments = refine(split_long(drop_empty(flatten(toolpath, job.machine.tolerance)), kin), kin)
+    segments = drop_empty(flatten(toolpath, job.machine.tolerance))
+    check_ranges(job, kin, toolpath, segments)
+    segments = refine(split_long(segments, kin), kin)
     steps = segment_steps(segments, kin)
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us))

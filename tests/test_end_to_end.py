@@ -9,7 +9,7 @@ import pytest
 from codegen.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
-EXAMPLES = sorted((ROOT / "examples").glob("*.yaml"))
+EXAMPLES = sorted((ROOT / "examples").glob("*.yaml")) + sorted((ROOT / "examples" / "gcode").glob("*.yaml"))
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
@@ -21,7 +21,7 @@ def run(capsys, *argv):
     return code, out.out, out.err
 
 
-@pytest.mark.parametrize("example", EXAMPLES, ids=lambda p: p.stem)
+@pytest.mark.parametrize("example", EXAMPLES, ids=lambda p: p.stem)  # examples/printers: plan only
 def test_every_example_verifies_in_simavr(example, tmp_path, capsys):
     code, out, err = run(capsys, "verify", example, "--out", tmp_path, "--json")
     result = json.loads(out)
@@ -168,3 +168,12 @@ def test_sliced_benchy_plans_near_the_slicer_estimate_and_does_not_fit(tmp_path,
     assert code == 1
     assert "does not fit in flash" in err and "262144" in err and str(result["table_bytes"]) in err
     assert not (tmp_path / "firmware.hex").exists()
+
+
+def test_a_point_outside_a_motor_range_is_an_error_at_its_shape(tmp_path, capsys):
+    job = tmp_path / "far.yaml"
+    job.write_text((ROOT / "examples" / "line.yaml").read_text().replace("to: [90, 55]", "to: [90, 255]"))
+    code, _, err = run(capsys, "build", job, "--out", tmp_path / "out")
+    assert code == 2
+    assert "far.yaml:15:7: error: motor y would go to 255.000 mm, outside its range [0, 200]" in err
+    assert not (tmp_path / "out").exists()
