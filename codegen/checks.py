@@ -167,16 +167,18 @@ def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.
     for name, got, want in zip(names, final, expected_final):
         if got != want:
             findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")
-    if len(positions):
-        like = segments.start[position_segment]
-        axes = kin.to_axes((positions + start_steps[None, :]) / spm[None, :], like)
-        errors = path_errors(axes, position_segment, segments, near=0.5 * findings.path_limit_mm)
+    worst_at = None
+    for lo in range(0, len(positions), CHUNK):  # in chunks: the positions of a print are millions of rows
+        seg = position_segment[lo:lo + CHUNK]
+        axes = kin.to_axes((positions[lo:lo + CHUNK] + start_steps) / spm, segments.start[seg])
+        errors = path_errors(axes, seg, segments, near=0.5 * findings.path_limit_mm)
         worst = int(np.argmax(errors))
-        findings.max_path_error_mm = float(errors[worst])
-        if errors[worst] > findings.path_limit_mm + 1e-9:
-            findings.problems.append(
-                f"the tool strays {errors[worst]:.4f} mm from the path (limit {findings.path_limit_mm:.4f} mm: "
-                f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in axes[worst, :3])})")
+        if errors[worst] > findings.max_path_error_mm or worst_at is None:
+            findings.max_path_error_mm, worst_at = float(errors[worst]), axes[worst, :3]
+    if worst_at is not None and findings.max_path_error_mm > findings.path_limit_mm + 1e-9:
+        findings.problems.append(
+            f"the tool strays {findings.max_path_error_mm:.4f} mm from the path (limit "
+            f"{findings.path_limit_mm:.4f} mm: 1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in worst_at)})")
     corners_t, jumps = corner_jumps(plan, kin)
     for m, (name, train) in enumerate(zip(names, trains)):
         rate = max_rate_ratio(train, kin.limits.max_rate[m])

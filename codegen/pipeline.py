@@ -6,6 +6,8 @@ Each stage is a function with a typed result; this module only composes them (an
 from __future__ import annotations
 
 import math
+import time
+from contextlib import contextmanager
 
 from dataclasses import dataclass
 
@@ -143,31 +145,52 @@ def check_ranges(job, kin: LinearKinematics, toolpath: Toolpath, segments: Segme
         raise JobError(sorted(diagnostics, key=lambda d: (d.where.file, d.where.line, d.where.col))[:20])
 
 
-def host_build(job, strict: bool = False) -> HostBuild:
+class Stopwatch:
+    """Wall time of each stage, for the benchmarks: `with watch("plan"): ...`."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, stage: str):
+        begin = time.perf_counter()
+        yield
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - begin
+
+
+def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
+    watch = watch or Stopwatch()
     try:
         target = target_info(job.board)
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
     kin = make_kinematics(job.machine)
-    toolpath, warnings = build_toolpath(job, strict)
+    with watch("toolpath"):
+        toolpath, warnings = build_toolpath(job, strict)
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
-    segments = drop_empty(flatten(toolpath, job.machine.tolerance))
-    check_ranges(job, kin, toolpath, segments)
-    segments = refine(split_long(segments, kin), kin)
-    steps = segment_steps(segments, kin)
+    with watch("segments"):
+        segments = drop_empty(flatten(toolpath, job.machine.tolerance))
+        check_ranges(job, kin, toolpath, segments)
+        segments = refine(split_long(segments, kin), kin)
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
-    limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us))
-    motion = plan(segments, kin, steps, limits)
-    events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
-    compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
-                          target.block_gap_ticks(pulse_us, setup_us))
-    pulses = predict(compressed.schedule)
+    with watch("plan"):
+        steps = segment_steps(segments, kin)
+        limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us))
+        motion = plan(segments, kin, steps, limits)
+    with watch("step times"):
+        events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
+    with watch("rate runs"):
+        compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
+                              target.block_gap_ticks(pulse_us, setup_us))
+    with watch("twin"):
+        pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
                        None, start_steps, expected_final, warnings)  # type: ignore[arg-type]
-    trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
-    result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
-                            expected_final, start_steps, job.machine.tolerance)
+    with watch("checks"):
+        trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
+        result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
+                                expected_final, start_steps, job.machine.tolerance)
     return result

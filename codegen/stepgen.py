@@ -162,24 +162,39 @@ def staircase_bound(segments: Segments, kin: LinearKinematics) -> np.ndarray:
     return deviation @ reach
 
 
+STAIRCASE_CHUNK = 1 << 19  # events per pass: small temporaries are reused, large ones cost page faults
+
+
 def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
     """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment's line: the
     tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
-    part = segments.take(which)
+    events = np.abs(segment_steps(segments.take(which), kin)).max(axis=1, initial=0)
+    bounds = np.searchsorted(np.cumsum(events), np.arange(STAIRCASE_CHUNK, events.sum() + STAIRCASE_CHUNK,
+                                                             STAIRCASE_CHUNK), side="right")
+    worst, lo = np.zeros(len(which)), 0
+    for hi in np.unique(np.concatenate([np.maximum(bounds, 1), [len(which)]])):
+        if hi > lo:
+            worst[lo:hi] = _staircase_error(segments.take(which[lo:hi]), kin)
+            lo = hi
+    return worst
+
+
+def _staircase_error(part: Segments, kin: LinearKinematics) -> np.ndarray:
     steps = segment_steps(part, kin)
     exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
     exact_end = kin.to_motor(part.end) * kin.limits.steps_per_mm
     master = np.argmax(np.abs(steps), axis=1)
     modulus = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
     init = bresenham_init(exact, exact_end, master, steps, modulus)
-    events = np.abs(steps).max(axis=1, initial=0)
-    block, _, position = bresenham(steps, modulus, init, events)
+    block, _, position = bresenham(steps, modulus, init, np.abs(steps).max(axis=1, initial=0))
     before = np.cumsum(steps, axis=0) - steps  # positions add up over the blocks: count each from its start
     motor_mm = (position - before[block] + np.round(exact)[block]) / kin.limits.steps_per_mm
     axes = kin.to_axes(motor_mm, part.start[block])[:, :3]
     dist, _ = chord_distance(axes, block, part, clamp=False)
-    worst = np.zeros(len(which))
-    np.maximum.at(worst, block, dist)
+    worst = np.zeros(len(part))
+    has = np.flatnonzero(np.bincount(block, minlength=len(part)))  # blocks are in order: reduce runs of them
+    if len(has):
+        worst[has] = np.maximum.reduceat(dist, np.searchsorted(block, has))
     return worst
 
 
