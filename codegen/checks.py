@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from codegen.kinematics.base import LinearKinematics
+from codegen.kinematics.base import Kinematics
 from codegen.planner import RATE_WINDOW, Plan
 from codegen.segments import REF_ARC, Segments
 
@@ -48,11 +48,9 @@ class Findings:
         return not self.problems
 
 
-def step_length_mm(kin: LinearKinematics) -> float:
+def step_length_mm(kin: Kinematics) -> float:
     """The largest tool displacement one step of one motor makes."""
-    eye = np.diag(1.0 / kin.limits.steps_per_mm)
-    moved = kin.to_axes(eye, np.zeros((len(eye), 4)))
-    return float(np.linalg.norm(moved[:, :3], axis=1).max())
+    return float(kin.step_reach().max())
 
 
 def chord_distance(p: np.ndarray, s: np.ndarray, segments: Segments,
@@ -121,11 +119,12 @@ def max_rate_ratio(train: MotorTrain, max_rate: float) -> float:
     return float(RATE_WINDOW / max(span.min(), 1e-12) / max_rate)
 
 
-def corner_jumps(plan: Plan, kin: LinearKinematics) -> tuple[np.ndarray, np.ndarray]:
+def corner_jumps(plan: Plan, segments: Segments, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
     """Times (s) of corners and each motor's planned velocity jump there (steps/s), (J,) and (J, M)."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
     change = plan.direction[j] - plan.direction[j - 1]
-    jump = plan.v_entry[j][:, None] * kin.motor_factors(change) * kin.limits.steps_per_mm[None, :]
+    corner_points = segments.start[j]
+    jump = plan.v_entry[j][:, None] * kin.motor_factors(change, corner_points) * kin.limits.steps_per_mm[None, :]
     return plan.t_start[j], jump
 
 
@@ -149,7 +148,7 @@ def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, 
 
 
 def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
-          segments: Segments, plan: Plan, kin: LinearKinematics, expected_final: np.ndarray,
+          segments: Segments, plan: Plan, kin: Kinematics, expected_final: np.ndarray,
           start_steps: np.ndarray, tolerance: float) -> Findings:
     """`positions` (P, M): motor steps (relative to the start) after each event (the pulses one interrupt
     makes together); `position_segment` (P,): the segment each event belongs to."""
@@ -179,7 +178,7 @@ def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.
         findings.problems.append(
             f"the tool strays {findings.max_path_error_mm:.4f} mm from the path (limit "
             f"{findings.path_limit_mm:.4f} mm: 1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in worst_at)})")
-    corners_t, jumps = corner_jumps(plan, kin)
+    corners_t, jumps = corner_jumps(plan, segments, kin)
     for m, (name, train) in enumerate(zip(names, trains)):
         rate = max_rate_ratio(train, kin.limits.max_rate[m])
         accel = max_accel_ratio(train, kin.limits.max_accel[m] * spm[m], corners_t, jumps[:, m])

@@ -18,7 +18,7 @@ from codegen.compress import Compressed, compress
 from codegen.errors import BuildError, Diagnostic, JobError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.kinematics import make_kinematics
-from codegen.kinematics.base import LinearKinematics
+from codegen.kinematics.base import Kinematics
 from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
                              staircase_bound, staircase_error)
@@ -37,7 +37,7 @@ REFINE_ROUNDS = 4
 class HostBuild:
     job: object
     target: TargetInfo
-    kin: LinearKinematics
+    kin: Kinematics
     toolpath: Toolpath
     segments: Segments
     plan: Plan
@@ -109,7 +109,7 @@ def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray
     return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
 
 
-def refine(segments: Segments, kin: LinearKinematics) -> Segments:
+def refine(segments: Segments, kin: Kinematics) -> Segments:
     """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
     two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
     limit = STAIRCASE_LIMIT * step_length_mm(kin)
@@ -124,7 +124,7 @@ def refine(segments: Segments, kin: LinearKinematics) -> Segments:
     return segments
 
 
-def check_ranges(job, kin: LinearKinematics, toolpath: Toolpath, segments: Segments) -> None:
+def check_ranges(job, kin: Kinematics, toolpath: Toolpath, segments: Segments) -> None:
     """Every point of the path within each motor's `range`: an error at the shape or G-code line that leaves
     it (the first point of each; at most 20), before anything is built."""
     steppers = job.machine.steppers

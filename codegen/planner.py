@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.kinematics.base import LinearKinematics
+from codegen.kinematics.base import Kinematics
 from codegen.segments import Segments
 
 SMOOTH_TURN = 0.5  # rad: junctions turning less than this are part of a curve, not corners
@@ -85,7 +85,7 @@ def _axis_cap(per_axis: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.min(np.divide(per_axis, share, out=np.full_like(share, np.inf), where=share > 0), axis=1)
 
 
-def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
+def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
     """`steps` (n, M): signed motor steps of every segment (from positions rounded once)."""
     n = len(segments)
     if n == 0:
@@ -98,7 +98,8 @@ def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: P
     keep = 1.0 - limits.margin
     vmax, amax = motor.max_velocity * keep, motor.max_accel * keep
 
-    factors = kin.motor_factors(u)  # (n, M) motor mm per path mm
+    # (n, M) motor mm per path mm: the larger of the two ends (they differ where the kinematics is not linear)
+    factors = np.maximum(kin.motor_factors(u, segments.start), kin.motor_factors(u, segments.end))
     q = quantisation_factor(steps)
     v_motor = np.min(np.divide(vmax * q, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
     master = np.abs(steps).max(axis=1) if steps.size else np.zeros(n)
@@ -112,7 +113,7 @@ def plan(segments: Segments, kin: LinearKinematics, steps: np.ndarray, limits: P
     normal = u_next - u_prev
     norm = np.linalg.norm(normal, axis=1)
     normal = np.divide(normal, norm[:, None], out=np.zeros_like(normal), where=norm[:, None] > 0)
-    normal_factors = kin.motor_factors(normal)  # (n-1, M)
+    normal_factors = kin.motor_factors(normal, segments.start[1:])  # (n-1, M)
     a_normal = np.min(np.divide(amax, normal_factors, out=np.full_like(normal_factors, np.inf),
                                 where=normal_factors > 0), axis=1)
     sin_half = np.sqrt(0.5 * (1.0 + cos_turn))  # Grbl's sin(theta/2), theta = angle to the reversed incoming

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.kinematics.base import LinearKinematics
+from codegen.kinematics.base import Kinematics
 from codegen.checks import chord_distance
 from codegen.planner import Plan
 from codegen.schedule import MAX_MODULUS
@@ -34,7 +34,7 @@ class Events:
     phase: np.ndarray  # (E,) 0 accelerating, 1 cruising, 2 decelerating, 3 dwell
 
 
-def split_long(segments: Segments, kin: LinearKinematics) -> Segments:
+def split_long(segments: Segments, kin: Kinematics) -> Segments:
     """Cut segments whose master motor would make more steps than a block holds into equal parts."""
     steps = np.abs(kin.to_steps(segments.end) - kin.to_steps(segments.start)).max(axis=1, initial=0)
     parts = np.maximum(1, -(-steps // (MAX_MODULUS - 1)))
@@ -66,7 +66,7 @@ def _cut(segments: Segments, owner: np.ndarray, f0: np.ndarray, f1: np.ndarray) 
     return segments.take(owner, start=start, end=end)
 
 
-def quantisation_split(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
+def quantisation_split(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
     """Where to cut segments whose Bresenham staircase strays too far: at the point where the slave with the
     largest rounding mismatch sits exactly on a whole step nearest the middle (its rounding error is zero
     there), or at the middle when no slave crosses a whole step inside."""
@@ -87,11 +87,11 @@ def quantisation_split(segments: Segments, kin: LinearKinematics, which: np.ndar
     return np.where(inside, np.divide(k - a, b - a, out=np.full(len(a), 0.5), where=b != a), 0.5)
 
 
-def segment_steps(segments: Segments, kin: LinearKinematics) -> np.ndarray:
+def segment_steps(segments: Segments, kin: Kinematics) -> np.ndarray:
     return kin.to_steps(segments.end) - kin.to_steps(segments.start)
 
 
-def generate(segments: Segments, plan: Plan, kin: LinearKinematics, steps: np.ndarray,
+def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
              max_gap: float) -> Events:
     """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events."""
     n_master = np.abs(steps).max(axis=1, initial=0)
@@ -131,7 +131,7 @@ def generate(segments: Segments, plan: Plan, kin: LinearKinematics, steps: np.nd
     return Events(blocks, block_steps, modulus, init, segments.tool[blocks], first, time, phase)
 
 
-def staircase_bound(segments: Segments, kin: LinearKinematics) -> np.ndarray:
+def staircase_bound(segments: Segments, kin: Kinematics) -> np.ndarray:
     """An upper bound (mm) of `staircase_error` for every segment, without enumerating events.
 
     After i master events a slave has made c(i) = (i d - init) / N + theta steps, 0 <= theta <= (N - 1) / N,
@@ -158,14 +158,14 @@ def staircase_bound(segments: Segments, kin: LinearKinematics) -> np.ndarray:
     low = np.minimum(drift, 0.0) + base
     slave = np.arange(steps.shape[1])[None, :] != master[:, None]
     deviation = np.where(slave, np.maximum(np.abs(high), np.abs(low)), 0.0)
-    reach = np.linalg.norm(kin.to_axes(np.diag(1.0 / spm), np.zeros((len(spm), 4)))[:, :3], axis=1)
+    reach = kin.step_reach()
     return deviation @ reach
 
 
 STAIRCASE_CHUNK = 1 << 19  # events per pass: small temporaries are reused, large ones cost page faults
 
 
-def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray) -> np.ndarray:
+def staircase_error(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
     """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment's line: the
     tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
     events = np.abs(segment_steps(segments.take(which), kin)).max(axis=1, initial=0)
@@ -179,7 +179,7 @@ def staircase_error(segments: Segments, kin: LinearKinematics, which: np.ndarray
     return worst
 
 
-def _staircase_error(part: Segments, kin: LinearKinematics) -> np.ndarray:
+def _staircase_error(part: Segments, kin: Kinematics) -> np.ndarray:
     steps = segment_steps(part, kin)
     exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
     exact_end = kin.to_motor(part.end) * kin.limits.steps_per_mm

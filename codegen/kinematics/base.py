@@ -33,13 +33,35 @@ class MotorLimits:
 
 
 class Kinematics:
-    """Maps axis positions to motor positions. Linear variants give `matrix` (motors x 4 axes)."""
+    """Maps axis positions to motor positions (and back). Every variant implements the methods below; the
+    linear ones (cartesian, corexy) through a fixed matrix, delta through its geometry."""
 
     name = "abstract"
     sockets: dict[str, str] = {}  # motor name -> board stepper socket
 
     def __init__(self, limits: MotorLimits):
         self.limits = limits
+
+    def motor_factors(self, directions: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """|d motor / d path| (motor mm per mm of tool travel) along unit directions (N, 4) at points (N, 4)."""
+        raise NotImplementedError
+
+    def step_reach(self) -> np.ndarray:
+        """(M,) the largest tool displacement (mm, xyz) one step of each motor can make in the workspace."""
+        raise NotImplementedError
+
+    def subdivide(self, segments, tolerance: float):
+        """Cut straight segments so that moving the motors linearly between the cuts keeps the tool within
+        `tolerance` of the straight line (nothing to do where motors are linear in the axes)."""
+        return segments
+
+    def unreachable(self, points: np.ndarray) -> np.ndarray:
+        """(N,) True where the machine cannot put the tool at the point (N, 4)."""
+        return np.zeros(len(points), dtype=bool)
+
+    def home(self) -> np.ndarray:
+        """Where the tool is once every motor has homed (4-vector)."""
+        return np.zeros(4)
 
     @property
     def motors(self) -> tuple[str, ...]:
@@ -80,6 +102,9 @@ class LinearKinematics(Kinematics):
         out[:, self.driven_axes] = np.asarray(motor_mm, dtype=float) @ self._inverse.T
         return out
 
-    def motor_factors(self, directions: np.ndarray) -> np.ndarray:
-        """|d motor / d path| for unit direction vectors (N, 4) -> (N, M)."""
+    def motor_factors(self, directions: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
         return np.abs(directions @ self.matrix.T)
+
+    def step_reach(self) -> np.ndarray:
+        return np.linalg.norm(self.to_axes(np.diag(1.0 / self.limits.steps_per_mm),
+                                           np.zeros((len(self.motors), 4)))[:, :3], axis=1)
