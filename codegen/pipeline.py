@@ -16,13 +16,14 @@ import numpy as np
 from codegen.checks import Findings, MotorTrain, check, step_length_mm
 from codegen.compress import Compressed, compress
 from codegen.errors import BuildError, Diagnostic, JobError
-from codegen.firmware import FirmwareConfig, MotorPins
+from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
 from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
                              staircase_bound, staircase_error)
 from codegen.gcode import toolpath_from_gcode
+from codegen.homing import home_position, homes, homing_axes
 from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.targets import TargetInfo, target_info
 from codegen.segments import Segments, flatten
@@ -48,6 +49,7 @@ class HostBuild:
     start_steps: np.ndarray
     expected_final: np.ndarray
     warnings: list[Diagnostic]
+    homing: tuple[HomingAxis, ...]  # the motors the firmware homes at power-up
 
     @property
     def schedule(self):
@@ -63,6 +65,7 @@ class HostBuild:
             motors=tuple(MotorPins(m, self.kin.socket(m), bool(steppers[m].invert_dir)) for m in self.kin.motors),
             step_pulse_us=self.job.machine.step_pulse_us,
             dir_setup_us=self.job.machine.dir_setup_us,
+            homing=self.homing,
         )
 
     def event_segments(self) -> np.ndarray:
@@ -71,29 +74,30 @@ class HostBuild:
         return self.events.block_segment[block]
 
 
-def build_toolpath(job, strict: bool = False) -> tuple[Toolpath, list[Diagnostic]]:
-    """The program's toolpath and the warnings its front end gave."""
+def build_toolpath(job, strict: bool = False) -> tuple[Toolpath, list[Diagnostic], bool]:
+    """The program's toolpath, the warnings its front end gave, and whether it starts by homing (G28)."""
     if job.program.shapes:
-        return toolpath_from_shapes(job), []
+        return toolpath_from_shapes(job), [], False
     toolpath, warnings = toolpath_from_gcode(job, strict)
-    return settle_homes(toolpath), warnings
+    toolpath, homes_first = settle_homes(toolpath)
+    return toolpath, warnings, homes_first
 
 
-def settle_homes(toolpath: Toolpath) -> Toolpath:
-    """Homing before the first move says where the program starts. A later one becomes a straight tool-off
-    move to the home position: where the machine is afterwards (the endstop search itself is the firmware's,
-    and comes with the homing issue)."""
-    start, items, here = toolpath.start, [], None
+def settle_homes(toolpath: Toolpath) -> tuple[Toolpath, bool]:
+    """Homing before the first move is the firmware's (at power-up) and says where the program starts. A
+    later one becomes a straight tool-off move to the home position: where the machine is afterwards (homing
+    in the middle of a table is not supported yet). Also says whether the program homes first."""
+    start, items, here, first = toolpath.start, [], None, False
     for item in toolpath.items:
         if isinstance(item, Home):
             if here is None:
-                start = item.position
+                start, first = item.position, True
                 continue
             item = Line(here, item.position, math.inf, False, item.source, "home")
         if isinstance(item, (Line, Arc, Curve)):
             here = item.end
         items.append(item)
-    return Toolpath(np.asarray(start, dtype=float), items)
+    return Toolpath(np.asarray(start, dtype=float), items), first
 
 
 def drop_empty(segments: Segments) -> Segments:
@@ -124,23 +128,27 @@ def refine(segments: Segments, kin: Kinematics) -> Segments:
     return segments
 
 
-def check_ranges(job, kin: Kinematics, toolpath: Toolpath, segments: Segments) -> None:
-    """Every point of the path within each motor's `range`: an error at the shape or G-code line that leaves
-    it (the first point of each; at most 20), before anything is built."""
-    steppers = job.machine.steppers
-    bounded = [(m, steppers[name].range) for m, name in enumerate(kin.motors) if steppers[name].range]
-    if not bounded or not len(segments):
+def check_reach(job, kin: Kinematics, toolpath: Toolpath, segments: Segments) -> None:
+    """Every point of the path reachable and within each motor's `range`: an error at the shape or G-code
+    line that leaves it (the first point of each; at most 20), before anything is built."""
+    if not len(segments):
         return
-    ends = kin.to_motor(np.concatenate([segments.start[:1], segments.end]))
+    points = np.concatenate([segments.start[:1], segments.end])
     items = np.concatenate([segments.item[:1], segments.item])
+    motor = kin.to_motor(points)
+    problems = [(np.flatnonzero(kin.unreachable(points)),
+                 lambda k: f"the machine cannot reach ({', '.join(f'{c:.3f}' for c in points[k, :3])})")]
+    for m, name in enumerate(kin.motors):
+        span = job.machine.steppers[name].range
+        if span:
+            outside = np.flatnonzero((motor[:, m] < span[0] - 1e-9) | (motor[:, m] > span[1] + 1e-9))
+            problems.append((outside, lambda k, m=m, name=name, span=span:
+                             f"motor {name} would go to {motor[k, m]:.3f} mm, outside its range "
+                             f"[{span[0]:g}, {span[1]:g}]"))
     diagnostics = []
-    for m, (low, high) in bounded:
-        outside = np.flatnonzero((ends[:, m] < low - 1e-9) | (ends[:, m] > high + 1e-9))
-        _, first = np.unique(items[outside], return_index=True)
-        for k in outside[np.sort(first)][:20]:
-            item = toolpath.items[items[k]]
-            diagnostics.append(Diagnostic(item.source, f"motor {kin.motors[m]} would go to {ends[k, m]:.3f} mm, "
-                                                       f"outside its range [{low:g}, {high:g}]"))
+    for where, message in problems:
+        _, first = np.unique(items[where], return_index=True)
+        diagnostics += [Diagnostic(toolpath.items[items[k]].source, message(k)) for k in where[np.sort(first)][:20]]
     if diagnostics:
         raise JobError(sorted(diagnostics, key=lambda d: (d.where.file, d.where.line, d.where.col))[:20])
 
@@ -168,13 +176,18 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
             from None
     kin = make_kinematics(job.machine)
     with watch("toolpath"):
-        toolpath, warnings = build_toolpath(job, strict)
+        toolpath, warnings, homes_first = build_toolpath(job, strict)
+    homing: tuple[HomingAxis, ...] = ()
+    if homes(job, homes_first):
+        if not homes_first:
+            toolpath.start = home_position(job, kin)
+        homing = homing_axes(job, kin, target.tick_hz)
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     with watch("segments"):
         segments = drop_empty(flatten(toolpath, job.machine.tolerance))
-        check_ranges(job, kin, toolpath, segments)
-        segments = refine(split_long(segments, kin), kin)
+        check_reach(job, kin, toolpath, segments)
+        segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     with watch("plan"):
         steps = segment_steps(segments, kin)
@@ -188,7 +201,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
     with watch("twin"):
         pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
-                       None, start_steps, expected_final, warnings)  # type: ignore[arg-type]
+                       None, start_steps, expected_final, warnings, homing)  # type: ignore[arg-type]
     with watch("checks"):
         trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
         result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,

@@ -16,6 +16,21 @@ class MotorPins:
 
 
 @dataclass(frozen=True)
+class HomingAxis:
+    """How one motor homes: towards its switch fast, back off, towards it again slowly; then its position
+    is `home_steps` and the step table starts."""
+
+    motor: int  # index into FirmwareConfig.motors
+    switch: str  # the board's endstop name: x_min, x_max, y_min, y_max, z_min, z_max
+    direction: int  # +1 / -1: the way the motor moves (in machine coordinates) to reach the switch
+    max_steps: int  # a switch that has not closed after this many steps stops the machine in an error state
+    fast_interval: int  # timer ticks between steps on the first approach
+    slow_interval: int  # timer ticks between steps on the second approach
+    backoff_steps: int  # steps away from the switch between the approaches
+    home_steps: int  # the motor's position (steps) where its switch closes on the slow approach
+
+
+@dataclass(frozen=True)
 class FirmwareConfig:
     job_name: str
     job_file: str  # shown in the generated header
@@ -24,6 +39,7 @@ class FirmwareConfig:
     motors: tuple[MotorPins, ...]  # in the schedule's motor order
     step_pulse_us: float = 2.0
     dir_setup_us: float = 1.0
+    homing: tuple[HomingAxis, ...] = ()  # motors homed at power-up, together, before the table plays
 
 
 @dataclass

@@ -144,6 +144,14 @@ class Delta(_Model):
         return v
 
 
+class Homing(_Model):
+    """How the motors find their switches: fast towards them, back off, slowly towards them again."""
+
+    speed: Positive = 20.0  # mm/s of motor travel on the first approach
+    slow_speed: Positive = 2.0  # mm/s on the second approach
+    backoff: Positive = 3.0  # mm away from the switches between the approaches
+
+
 class Machine(_Model):
     kinematics: _choice(*KINEMATICS)  # type: ignore[valid-type]
     steppers: dict[str, Stepper]
@@ -151,6 +159,7 @@ class Machine(_Model):
     tolerance: Positive = 0.002  # mm, Grbl's $12
     step_pulse_us: Annotated[float, BeforeValidator(_number), Field(gt=0, le=100)] = 2.0  # STEP high time
     dir_setup_us: Annotated[float, BeforeValidator(_number), Field(ge=0, le=100)] = 1.0  # DIR before STEP
+    homing: Homing = Homing()
     delta: Optional[Delta] = None
 
     @property
@@ -332,6 +341,7 @@ class Program(_Model):
     start: Point = (0.0, 0.0)
     feed: Positive = 1200.0  # mm/min
     travel_feed: Optional[Positive] = None  # mm/min; None: as fast as the machine allows
+    home: Flag = False  # home at power-up before the program (delta machines always do)
     shapes: Optional[Annotated[list[ShapeItem], Field(min_length=1)]] = None
     gcode: Optional[Text] = None  # a path relative to the job file, or the G-code itself
     _gcode_source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<gcode>"))
