@@ -91,6 +91,9 @@ def segment_steps(segments: Segments, kin: Kinematics) -> np.ndarray:
     return kin.to_steps(segments.end) - kin.to_steps(segments.start)
 
 
+EVENT_CHUNK = 1 << 20  # events timed per pass: small temporaries are reused, large ones cost page faults
+
+
 def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
              max_gap: float) -> Events:
     """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events."""
@@ -100,35 +103,50 @@ def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
     blocks = np.flatnonzero(events_per > 0)
     count = events_per[blocks]
     first = np.concatenate([[0], np.cumsum(count)])
-    seg = np.repeat(blocks, count)
-    k = np.arange(first[-1]) - np.repeat(first[:-1], count) + 1  # 1-based event number within its block
-
-    # Master crossings of half-step points, as distances along the (exact) segment.
     exact = kin.to_motor(segments.start) * kin.limits.steps_per_mm
     exact_end = kin.to_motor(segments.end) * kin.limits.steps_per_mm
     master = np.argmax(np.abs(steps), axis=1)
     rows = np.arange(len(segments))
-    x0 = exact[rows, master]
-    x1 = exact_end[rows, master]
-    p0 = np.round(x0)
-    sign = np.sign(steps[rows, master])
-    crossing = p0[seg] + sign[seg] * (k - 0.5)
-    span = (x1 - x0)[seg]
-    frac = np.divide(crossing - x0[seg], span, out=np.zeros_like(span), where=span != 0)
-    s = np.clip(frac, 0.0, 1.0) * plan.length[seg]
-    time = plan.time_at(seg, s)
-    phase = np.where(s < plan.s_acc[seg], 0, np.where(s <= plan.s_acc[seg] + plan.s_cruise[seg], 1, 2))
-
-    is_dwell = dwell[seg]
-    if np.any(is_dwell):
-        # Step-less events spread evenly over the dwell, the last one at its end.
-        dwell_time = plan.t_start[seg] + segments.dwell[seg] * k / count[np.searchsorted(blocks, seg)]
-        time = np.where(is_dwell, dwell_time, time)
-        phase = np.where(is_dwell, 3, phase)
+    crossing = _Crossings(exact[rows, master], exact_end[rows, master], np.sign(steps[rows, master]))
+    time = np.empty(first[-1])
+    phase = np.empty(first[-1], dtype=np.int8)
+    cut = np.searchsorted(first, np.arange(0, first[-1], EVENT_CHUNK), side="right") - 1
+    for lo, hi in zip(cut, np.append(cut[1:], len(blocks))):
+        if hi > lo:
+            span = slice(first[lo], first[hi])
+            time[span], phase[span] = _times(segments, plan, crossing, blocks[lo:hi], count[lo:hi], dwell)
     block_steps = np.where(dwell[blocks][:, None], 0, steps[blocks])
     modulus = np.where(dwell[blocks], 1, n_master[blocks])
     init = bresenham_init(exact[blocks], exact_end[blocks], master[blocks], block_steps, modulus)
     return Events(blocks, block_steps, modulus, init, segments.tool[blocks], first, time, phase)
+
+
+class _Crossings:
+    """The master's exact positions (steps) at the ends of every segment and its direction."""
+
+    def __init__(self, x0: np.ndarray, x1: np.ndarray, sign: np.ndarray):
+        self.x0, self.span, self.p0, self.sign = x0, x1 - x0, np.round(x0), sign
+
+
+def _times(segments: Segments, plan: Plan, master: _Crossings, blocks: np.ndarray, count: np.ndarray,
+           dwell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ideal time and motion phase of the events of some blocks: the master steps where its exact position
+    crosses a half-step point (a distance along the exact segment); a dwell's step-less events are spread
+    evenly over it, the last at its end."""
+    seg = np.repeat(blocks, count)
+    k = np.arange(len(seg)) - np.repeat(np.cumsum(count) - count, count) + 1.0  # event number in its block
+    span = master.span[seg]
+    frac = np.divide(master.p0[seg] + master.sign[seg] * (k - 0.5) - master.x0[seg], span,
+                     out=np.zeros_like(span), where=span != 0)
+    s = np.clip(frac, 0.0, 1.0) * plan.length[seg]
+    time = plan.time_at(seg, s)
+    phase = np.where(s < plan.s_acc[seg], 0, np.where(s <= plan.s_acc[seg] + plan.s_cruise[seg], 1, 2))
+    is_dwell = dwell[seg]
+    if np.any(is_dwell):
+        dwell_time = plan.t_start[seg] + segments.dwell[seg] * k / np.repeat(count, count)
+        time = np.where(is_dwell, dwell_time, time)
+        phase = np.where(is_dwell, 3, phase)
+    return time, phase
 
 
 def staircase_bound(segments: Segments, kin: Kinematics) -> np.ndarray:
