@@ -49,8 +49,8 @@ class Findings:
 
 
 def step_length_mm(kin: Kinematics) -> float:
-    """The largest tool displacement one step of one motor makes."""
-    return float(kin.step_reach().max())
+    """The tool's allowance for stepping: one step of the coarsest motor (two carriages' on a delta)."""
+    return kin.path_quantum()
 
 
 def chord_distance(p: np.ndarray, s: np.ndarray, segments: Segments,

@@ -32,6 +32,7 @@ from codegen.twin import Pulses, predict
 
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4
+REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
 
 
 @dataclass
@@ -133,11 +134,18 @@ def check_reach(job, kin: Kinematics, toolpath: Toolpath, segments: Segments) ->
     line that leaves it (the first point of each; at most 20), before anything is built."""
     if not len(segments):
         return
-    points = np.concatenate([segments.start[:1], segments.end])
-    items = np.concatenate([segments.item[:1], segments.item])
+    # Every piece's end; where motors are not linear in the axes (a delta's carriages rise and fall along a
+    # straight line) also points along each piece.
+    share = np.linspace(0.0, 1.0, 2 if kin.linear else REACH_SAMPLES + 1)[1:]
+    points = np.concatenate([segments.start[:1], (segments.start[:, None, :] + share[None, :, None] * (
+        segments.end - segments.start)[:, None, :]).reshape(-1, 4)])
+    items = np.concatenate([segments.item[:1], np.repeat(segments.item, len(share))])
     motor = kin.to_motor(points)
+    ends = np.concatenate([segments.end[:1], np.repeat(segments.end, len(share), axis=0)])
+    at = lambda p: ", ".join(f"{c:.3f}" for c in p[:3])  # noqa: E731
     problems = [(np.flatnonzero(kin.unreachable(points)),
-                 lambda k: f"the machine cannot reach ({', '.join(f'{c:.3f}' for c in points[k, :3])})")]
+                 lambda k: f"the machine cannot reach ({at(points[k])})" + (
+                     "" if np.allclose(points[k], ends[k]) else f" on the way to ({at(ends[k])})"))]
     for m, name in enumerate(kin.motors):
         span = job.machine.steppers[name].range
         if span:
@@ -182,12 +190,13 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
         if not homes_first:
             toolpath.start = home_position(job, kin)
         homing = homing_axes(job, kin, target.tick_hz)
-    start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
-    expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     with watch("segments"):
         segments = drop_empty(flatten(toolpath, job.machine.tolerance))
         check_reach(job, kin, toolpath, segments)
         segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
+        check_reach(job, kin, toolpath, segments)  # again on the pieces: a carriage may peak between samples
+    start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
+    expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     with watch("plan"):
         steps = segment_steps(segments, kin)

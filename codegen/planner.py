@@ -143,7 +143,10 @@ def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Planner
     curved_normals = normal_factors * (curvature > 0)[:, None]
     side[:-1] = np.maximum(side[:-1], curved_normals)
     side[1:] = np.maximum(side[1:], curved_normals)
-    sideways = kappa[:, None] * side  # centripetal motor accel per (mm/s)^2
+    # Motor acceleration per (mm/s)^2: centripetal on curves, and a non-linear machine's motors speed up and
+    # slow down along straight lines too.
+    bend = np.maximum(kin.motor_bend(u, segments.start), kin.motor_bend(u, segments.end))
+    sideways = kappa[:, None] * side + bend
     w_curve = np.min(np.divide(limits.centripetal_share * amax, sideways, out=np.full_like(sideways, np.inf),
                                where=sideways > 0), axis=1)
     v_program = _axis_cap(segments.axis_velocity, u)

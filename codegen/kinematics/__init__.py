@@ -5,8 +5,9 @@ from __future__ import annotations
 from codegen.kinematics.base import Kinematics, MotorLimits
 from codegen.kinematics.cartesian import Cartesian
 from codegen.kinematics.corexy import CoreXY
+from codegen.kinematics.delta import Delta
 
-VARIANTS = {"cartesian": Cartesian, "corexy": CoreXY}
+VARIANTS = {"cartesian": Cartesian, "corexy": CoreXY, "delta": Delta}
 
 
 def make_kinematics(machine) -> Kinematics:
@@ -17,7 +18,11 @@ def make_kinematics(machine) -> Kinematics:
         variant = VARIANTS[machine.kinematics]
     except KeyError:
         raise NotImplementedError(f"kinematics '{machine.kinematics}' is not supported yet") from None
+    if variant is Delta:
+        geometry = machine.delta
+        return Delta(limits, geometry.radius, geometry.diagonal_rod, geometry.height, geometry.tower_angles,
+                     ranges=[getattr(machine.steppers[n], "range", None) for n in names])
     return variant(limits)
 
 
-__all__ = ["Kinematics", "MotorLimits", "make_kinematics", "Cartesian", "CoreXY"]
+__all__ = ["Kinematics", "MotorLimits", "make_kinematics", "Cartesian", "CoreXY", "Delta"]

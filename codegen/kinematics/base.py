@@ -50,6 +50,16 @@ class Kinematics:
         """(M,) the largest tool displacement (mm, xyz) one step of each motor can make in the workspace."""
         raise NotImplementedError
 
+    def motor_bend(self, directions: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(N, M) |d^2 motor / ds^2| along straight lines: motor acceleration per (mm/s)^2 of constant speed."""
+        return np.zeros((len(points), len(self.motors)))
+
+    def path_quantum(self) -> float:
+        """How far (mm) from the path stepping itself may put the tool: one step of the coarsest motor."""
+        return float(self.step_reach().max())
+
+    linear = False  # motor positions are a fixed linear map of the axes
+
     def subdivide(self, segments, tolerance: float):
         """Cut straight segments so that moving the motors linearly between the cuts keeps the tool within
         `tolerance` of the straight line (nothing to do where motors are linear in the axes)."""
@@ -86,6 +96,7 @@ class Kinematics:
 class LinearKinematics(Kinematics):
     """Motor positions are a fixed linear map of the axes: motor = matrix @ axes."""
 
+    linear = True
     axis_rows: dict[str, tuple[float, float, float, float]] = {}
 
     def __init__(self, limits: MotorLimits):
