@@ -8,6 +8,10 @@ latency, within +-2 cycles:
   - "runs":  a new rate run at every event (a run load from flash each time);
   - "block": a new block at every event, all DIR pins flipping (block and run load: the worst case, which gives
              targets/atmega2560.yaml's min_event_cycles with five motors).
+Homing at power-up (templates/avr/homing.c.j2) is measured the same way: the shortest step interval, shared by
+1, 3 or 5 homed motors whose switches close at different distances, at which every homing step comes one
+interval after the one before within +-2 cycles (in each phase), with the DIR setup of the default 1 us kept at
+the phase changes; targets/atmega2560.yaml's homing_event_cycles are these figures less the STEP pulse.
 
     python benchmarks/firmware_rate.py
 """
@@ -23,14 +27,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware import FirmwareConfig, MotorPins  # noqa: E402
-from codegen.firmware.avr import build_image, render_sources  # noqa: E402
+from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins  # noqa: E402
+from codegen.firmware.avr import build_image, load_target, render_sources  # noqa: E402
 from codegen.schedule import Schedule  # noqa: E402
 from codegen.sim.avr import SimTrace, simulate  # noqa: E402
 
 F_CPU = 16_000_000
 TOLERANCE = 2  # cycles around the constant latency
 SOCKETS = (("x", "X"), ("y", "Y"), ("z", "Z"), ("a", "E0"), ("b", "E1"))
+HOMING_SWITCHES = ("x_min", "y_min", "z_min", "x_max", "y_max")  # any free switch will do for E0 and E1
+HOMING_BACKOFF = 20  # steps
 
 
 def config(n_motors: int) -> FirmwareConfig:
@@ -91,6 +97,59 @@ def fastest(n_motors: int, events: int, mode: str, workdir: Path, lo: int = 40, 
     return hi
 
 
+def homing_config(n_motors: int, interval: int) -> FirmwareConfig:
+    axes = tuple(HomingAxis(m, HOMING_SWITCHES[m], 1, 500, interval, interval, HOMING_BACKOFF, 0)
+                 for m in range(n_motors))
+    return FirmwareConfig("homing_rate", "benchmarks/firmware_rate.py", "avr", "ramps-1.4",
+                          config(n_motors).motors, homing=axes)
+
+
+def homing_trace(n_motors: int, interval: int, workdir: Path) -> SimTrace:
+    """Home n motors (switches 40, 50, ... steps away), then play a one-event table."""
+    sched = schedule(n_motors, 2000, 1, "run")
+    cfg = homing_config(n_motors, interval)
+    mcu = load_target("atmega2560")
+    limit, mcu["homing_event_cycles"] = mcu["homing_event_cycles"], [0] * 5  # measure below the checked minimum
+    try:
+        sources = render_sources(sched, cfg)
+    finally:
+        mcu["homing_event_cycles"] = limit
+    image = build_image(sources, workdir, sched.table_bytes())
+    return simulate(image.hex_path, cfg, 400 * interval * 4 + 1_000_000,
+                    switches={m: 40 + 10 * m for m in range(n_motors)})
+
+
+def homing_on_time(n_motors: int, interval: int, workdir: Path) -> bool:
+    try:
+        trace = homing_trace(n_motors, interval, workdir)
+    except BuildError:
+        return False
+    setup = int(np.ceil(1.0 * F_CPU / 1e6))
+    if trace.homing_failed or any(s is None or s < setup for s in trace.dir_setup_min_cycles):
+        return False
+    for m in range(n_motors):
+        home = (trace.step_motor == m) & (trace.step_phase == "home")
+        cycles, dirs = trace.step_cycle[home], trace.step_dir[home]
+        if len(cycles) != 40 + 10 * m + 2 * HOMING_BACKOFF:
+            return False
+        same_phase = dirs[1:] == dirs[:-1]  # the phases alternate directions
+        if np.abs(np.diff(cycles)[same_phase] - interval).max() > TOLERANCE:
+            return False
+    return True
+
+
+def homing_fastest(n_motors: int, workdir: Path, lo: int = 40, hi: int = 4000) -> int:
+    if not homing_on_time(n_motors, hi, workdir):
+        raise BuildError(f"homing {n_motors} motor(s): not on time even at {hi} cycles per step")
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if homing_on_time(n_motors, mid, workdir):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory(prefix="firmware-rate-") as tmp:
         work = Path(tmp)
@@ -118,6 +177,12 @@ def main() -> None:
         print(f"  5 motors: compare match to the last DIR write of a block load: {dir_write} cycles")
         quiet = play(1, 2000, 200, "run", work)
         print(f"  1 motor: shortest STEP high time: {min(quiet.pulse_high_min_cycles)} cycles")
+
+        pulse = int(np.ceil(2.0 * F_CPU / 1e6))
+        for n in (1, 2, 3, 4, 5):
+            cycles = homing_fastest(n, work)
+            print(f"  homing {n} motor(s): shortest step interval {cycles} cycles ({cycles - pulse} without the "
+                  f"{pulse}-cycle STEP pulse)")
 
 
 if __name__ == "__main__":

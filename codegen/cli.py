@@ -14,7 +14,7 @@ from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build
-from codegen.verify import compare
+from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, plan_summary, verify_json, write_json, write_trace
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
@@ -103,8 +103,9 @@ def cmd_verify(args) -> int:
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     simulator = _target_module("sim", host.target.target)
     budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
-    trace = simulator.simulate(image.hex_path, host.firmware_config(), budget)
-    verdict = compare(host, trace)
+    switches = simulated_switches(host)
+    trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
+    verdict = compare(host, trace, switches)
     result = verify_json(host, verdict, image)
     if args.trace:
         write_trace(Path(args.trace), host, trace)

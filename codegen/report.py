@@ -96,6 +96,7 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
             for name in host.kin.motors
         },
         "start_offset_us": _round(verdict.latency_us, 3),
+        "homing": verdict.homing,
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
                   "table_bytes": host.schedule.table_bytes()},
         "problems": verdict.problems + f.problems,
@@ -109,9 +110,9 @@ def write_trace(path: Path, host: HostBuild, trace) -> None:
     with path.open("w", newline="", encoding="utf-8") as out:
         writer = csv.writer(out)
         writer.writerow(["time_s", "motor", "dir", "phase"])
-        for c, m, d in zip(trace.step_cycle[order].tolist(), trace.step_motor[order].tolist(),
-                           trace.step_dir[order].tolist()):
-            writer.writerow([f"{c / trace.f_cpu:.9f}", names[m], d, "run"])
+        for c, m, d, p in zip(trace.step_cycle[order].tolist(), trace.step_motor[order].tolist(),
+                              trace.step_dir[order].tolist(), np.asarray(trace.step_phase)[order].tolist()):
+            writer.writerow([f"{c / trace.f_cpu:.9f}", names[m], d, p])
 
 
 def human_plan(summary: dict) -> str:

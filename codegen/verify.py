@@ -13,10 +13,40 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from codegen.checks import Findings, check
+from codegen.firmware.avr_homing import homing_steps
 from codegen.pipeline import HostBuild, trains_from
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
+SWITCH_DISTANCE_MM = (20.0, 35.0, 50.0)  # where the simulated machine starts: this far short of each switch
+
+
+def simulated_switches(host: HostBuild) -> dict[int, int]:
+    """Each homed motor's switch, in steps from where the simulation starts (the machine starts some way
+    short of its switches, each at another distance)."""
+    spm = host.kin.limits.steps_per_mm
+    return {h.motor: h.direction * round(SWITCH_DISTANCE_MM[i % len(SWITCH_DISTANCE_MM)] * spm[h.motor])
+            for i, h in enumerate(host.homing)}
+
+
+def homing_report(host: HostBuild, trace, switches: dict[int, int | None]) -> tuple[dict, list[str]]:
+    """Homing steps per motor against what the switch positions imply (fast + back off + slow approach);
+    a switch at None never closes."""
+    problems = [f"homing failed: {trace.homing_fault}"] if trace.homing_failed else []
+    report = {}
+    home = np.asarray(trace.step_phase) == "home"
+    for h in host.homing:
+        name = host.kin.motors[h.motor]
+        mine = home & (trace.step_motor == h.motor)
+        switch = switches.get(h.motor)
+        expected = h.max_steps if switch is None else sum(homing_steps(h, abs(switch)))
+        net = int(trace.step_dir[mine].sum())
+        report[name] = {"steps": int(mine.sum()), "expected_steps": expected, "net": net,
+                        "switch": h.switch}
+        if not trace.homing_failed and (mine.sum() != expected or net != switch):
+            problems.append(f"motor {name} homed in {int(mine.sum())} steps ending {net} from its start; "
+                            f"its switch implies {expected} steps ending {switches[h.motor]}")
+    return report, problems
 
 
 @dataclass
@@ -29,13 +59,17 @@ class Verdict:
     pulse_width_us: dict[str, float]
     dir_setup_us: dict[str, float | None]
     problems: list[str] = field(default_factory=list)
+    homing: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
         return not self.problems and self.findings.ok
 
 
-def compare(host: HostBuild, trace) -> Verdict:
+def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
+    """The simulated run (the table's steps, after any homing) against the twin; homing on its own."""
+    homing, homing_problems = homing_report(host, full_trace, switches)
+    trace = full_trace.run_only()
     names = host.kin.motors
     f_cpu, tick_hz = trace.f_cpu, host.target.tick_hz
     twin = host.pulses
@@ -107,7 +141,8 @@ def compare(host: HostBuild, trace) -> Verdict:
         if us is not None and us < cfg.dir_setup_us:
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
     problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
-    return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup, problems)
+    return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
+                   homing_problems + problems, homing)
 
 
 def tool_problems(host: HostBuild, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None) -> list[str]:

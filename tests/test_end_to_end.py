@@ -4,6 +4,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from codegen.cli import main
@@ -177,3 +178,35 @@ def test_a_point_outside_a_motor_range_is_an_error_at_its_shape(tmp_path, capsys
     assert code == 2
     assert "far.yaml:15:7: error: motor y would go to 255.000 mm, outside its range [0, 200]" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_delta_homing_with_a_switch_that_never_closes_fails_verification(tmp_path, capsys):
+    from codegen.job import load_job
+    from codegen.pipeline import host_build
+    from codegen.sim.avr import simulate
+    from codegen.verify import compare, simulated_switches
+
+    job = load_job(ROOT / "examples" / "kossel-mini.yaml")
+    assert run(capsys, "build", job.path, "--out", tmp_path)[0] == 0
+    host = host_build(job)
+    switches = simulated_switches(host)
+    switches[2] = None  # tower c's switch is broken
+    trace = simulate(tmp_path / "firmware.hex", host.firmware_config(), 16_000_000 * 60, switches=switches)
+    verdict = compare(host, trace, switches)
+    assert trace.homing_failed and not verdict.ok
+    assert any(p.startswith("homing failed:") for p in verdict.problems)
+    c = host.homing[2]
+    assert verdict.homing["c"]["steps"] == c.max_steps  # it gave up after the tower's travel, no endless motion
+    assert not np.any(np.asarray(trace.step_phase) == "run")  # and played nothing of the program
+
+
+def test_trace_marks_homing_steps(tmp_path, capsys):
+    trace = tmp_path / "steps.csv"
+    code, out, _ = run(capsys, "verify", ROOT / "examples" / "delta-seed.yaml", "--out", tmp_path / "b",
+                       "--json", "--trace", trace)
+    result = json.loads(out)
+    assert code == 0, result["problems"]
+    phases = [row.split(",")[3] for row in trace.read_text().splitlines()[1:]]
+    homing = sum(m["steps"] for m in result["homing"].values())
+    assert phases[:homing] == ["home"] * homing and set(phases[homing:]) == {"run"}
+    assert len(phases) - homing == sum(m["steps"] for m in result["motors"].values())

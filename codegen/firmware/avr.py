@@ -20,6 +20,7 @@ import yaml
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image
+from codegen.firmware.avr_homing import homing_context
 from codegen.paths import targets_dir
 from codegen.render import render
 from codegen.schedule import TOOL_BIT, Schedule
@@ -59,12 +60,25 @@ class MotorWiring:
 
 
 @dataclass(frozen=True)
+class Endstop:
+    """A board's endstop input: a switch read with the internal pull-up."""
+
+    name: str  # x_min, x_max, ...
+    pin: Pin
+    closed_high: bool  # the level the pin reads while the switch is closed (RAMPS: a switch to ground, low)
+
+
+@dataclass(frozen=True)
 class BoardPins:
     mcu: str
     motors: tuple[MotorWiring, ...]
     tool: Pin
     tool_active_high: bool
     enable_active_low: bool
+    endstops: tuple[Endstop, ...] = ()
+
+    def endstop(self, name: str) -> Endstop | None:
+        return next((e for e in self.endstops if e.name == name), None)
 
 
 def parse_pin(text: str) -> Pin:
@@ -95,7 +109,18 @@ def board_pins(config: FirmwareConfig) -> BoardPins:
                                   parse_pin(s["enable"]), m.invert_dir))
     tool = board["tool"]
     return BoardPins(board["mcu"], tuple(motors), parse_pin(tool["pin"]), bool(tool["active_high"]),
-                     bool(board["enable_active_low"]))
+                     bool(board["enable_active_low"]), _endstops(config.board, board.get("endstops") or {}))
+
+
+def _endstops(board: str, table: dict) -> tuple[Endstop, ...]:
+    """The board file's `endstops: {x_max: {pin: PE4, closed: low}, ...}`."""
+    out = []
+    for name, spec in table.items():
+        if not isinstance(spec, dict) or set(spec) != {"pin", "closed"} or spec["closed"] not in ("low", "high"):
+            raise BuildError(f"board {board}: endstop {name} must read {{pin: PE4, closed: low}} (closed: low or "
+                             f"high, the level of the pin while the switch is closed), not {spec!r}")
+        out.append(Endstop(str(name), parse_pin(spec["pin"]), spec["closed"] == "high"))
+    return tuple(out)
 
 
 def _ident(name: str) -> str:
@@ -124,7 +149,8 @@ def _table_chunks(data: bytes, schedule: Schedule) -> list[dict]:
 
 
 def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]:
-    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c."""
+    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c, and homing.c
+    when the config homes motors."""
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
@@ -168,7 +194,9 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         "clobber_lines": [", ".join(f'"{r}"' for r in scratch[i:i + 10]) + ("," if i + 10 < len(scratch) else ");")
                           for i in range(0, len(scratch), 10)],
     }
-    return {name: render(f"avr/{name}.j2", **context) for name in ("config.h", "table.h", "table.c", "player.c")}
+    context.update(homing_context(config, pins, motors, mcu))
+    names = ("config.h", "table.h", "table.c", "player.c") + (("homing.c",) if config.homing else ())
+    return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 
 def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
@@ -207,10 +235,13 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
 
 def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
     """Every byte of flash by what it is: the step table, the player's own code (the functions player.o
-    defines), the initial values of RAM variables, and the rest (interrupt vectors, C start-up, libgcc)."""
-    own = {line.split()[-1] for line in _run(["avr-nm", "--defined-only", "player.o"], cwd, "avr-nm").stdout
-           .splitlines() if line.split()[-2] in "Tt"}
-    table = player = 0
+    defines), the homing code (homing.o's, in an image that homes), the initial values of RAM variables, and
+    the rest (interrupt vectors, C start-up, libgcc)."""
+    own = {}
+    for obj in (name for name in ("player", "homing") if (cwd / f"{name}.o").exists()):
+        symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
+        own[obj] = {line.split()[-1] for line in symbols if line.split()[-2] in "Tt"}
+    table = player = homing = 0
     for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
         parts = line.split()
         if len(parts) != 4 or parts[2] not in "Tt":
@@ -218,11 +249,14 @@ def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, in
         size = int(parts[1], 16)
         if parts[3].startswith("table_chunk_"):
             table += size
-        elif parts[3] in own:
+        elif parts[3] in own["player"]:
             player += size
+        elif parts[3] in own.get("homing", ()):
+            homing += size
     text = sections.get(".text", 0)
-    return {"table": table, "player": player, "ram_initial_values": sections.get(".data", 0),
-            "vectors_startup_libgcc": text - table - player}
+    parts = {"table": table, "player": player, "ram_initial_values": sections.get(".data", 0),
+             "vectors_startup_libgcc": text - table - player - homing}
+    return {**parts, "homing": homing} if "homing" in own else parts
 
 
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:

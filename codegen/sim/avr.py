@@ -1,7 +1,9 @@
 """Run an ATmega2560 firmware.hex in simavr and decode its STEP, DIR and tool pins with exact cycle times.
 
 simavr 1.6 has no usable trace output, so a small C harness (simavr_harness.c, linked with libsimavr) is built
-on first use into a cache directory and logs every real pin level change as binary records.
+on first use into a cache directory and logs every real pin level change as binary records. For an image that
+homes, the harness also plays the endstop switches: it follows each homed motor's position from its STEP and
+DIR edges and closes the motor's switch where `simulate(..., switches=)` puts it.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import hashlib
 import os
 import subprocess
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,28 +20,44 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr import board_pins, load_target
+from codegen.firmware.avr_homing import homing_ticks_bound
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr")
 HARNESS_LIBS = ("-lsimavr", "-lelf")
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
 EXIT_STATES = {0: "done", 1: "crashed", 2: "budget"}
+PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
+HOMING_FAILED = 0x02  # GPIOR0 bit set by homing.c's error state (GPIOR1: the motor bits, GPIOR2: the phase)
+HOMING_PHASES = {1: "fast approach", 2: "back off", 3: "slow approach"}
 
 
 @dataclass
 class SimTrace:
-    """What the simulated firmware did with its pins; step pulses in time order (motors: config order)."""
+    """What the simulated firmware did with its pins; step pulses in time order (motors: config order).
+
+    The step arrays hold every pulse, homing included; `step_phase` tells them apart and `run_only()` keeps the
+    step table's (what the twin predicts)."""
 
     state: str  # done | crashed | budget
     cycles: int  # total simulated cycles
     f_cpu: int
-    timer_start_cycle: int | None  # the cycle at which Timer1 started counting (tick 0)
+    timer_start_cycle: int | None  # the cycle at which the player started Timer1 (its tick 0); None if never
     step_cycle: np.ndarray  # (P,) int64, STEP rising edge
     step_motor: np.ndarray  # (P,) int index into config.motors
     step_dir: np.ndarray  # (P,) +1 / -1, DIR at the rising edge with invert_dir undone
-    pulse_high_min_cycles: list[int | None]  # per motor; None without pulses
+    pulse_high_min_cycles: list[int | None]  # per motor, homing included; None without pulses
     dir_setup_min_cycles: list[int | None]  # per motor: DIR change to the next STEP rise; None if never
     tool_edges: list[tuple[int, int]]  # (cycle, 1 tool on / 0 off), active level undone
+    step_phase: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U4"))  # (P,) "home" | "run"
+    homing_failed: bool = False  # the image stopped in homing's error state (and played no table)
+    homing_fault: str | None = None  # which motors and phase, when homing_failed
+
+    def run_only(self) -> SimTrace:
+        """The same trace with the step table's pulses only (phase "run")."""
+        run = self.step_phase == PHASE_RUN
+        return replace(self, step_cycle=self.step_cycle[run], step_motor=self.step_motor[run],
+                       step_dir=self.step_dir[run], step_phase=self.step_phase[run])
 
 
 def _cache_dir() -> Path:
@@ -77,16 +95,60 @@ def _rises_falls(rec: np.ndarray, pin: int) -> tuple[np.ndarray, np.ndarray]:
     return cycles[mine["level"] == 1], cycles[mine["level"] == 0]
 
 
-def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int) -> SimTrace:
-    """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget."""
+def _switch_args(config: FirmwareConfig, pins, switches: dict[int, int | None]) -> list[str]:
+    """The harness's switch=... arguments: one per homed motor (a switch with no position never closes)."""
+    homed = {h.motor: h for h in config.homing}
+    stray = sorted(set(switches) - set(homed))
+    if stray:
+        raise ValueError(f"switches for motors {stray} that the config does not home (homed: {sorted(homed)})")
+    args = []
+    for motor, h in sorted(homed.items()):
+        endstop = pins.endstop(h.switch)
+        if endstop is None:
+            raise BuildError(f"board {config.board} has no endstop `{h.switch}`")
+        at = switches.get(motor)
+        args.append(f"switch={endstop.pin.port}{endstop.pin.bit},{int(endstop.closed_high)},{2 * motor},"
+                    f"{2 * motor + 1},{int(pins.motors[motor].invert_dir)},{h.direction},"
+                    f"{'never' if at is None else int(at)}")
+    return args
+
+
+def _homing_fault(config: FirmwareConfig, status: int, motor_bits: int, phase: int) -> str | None:
+    """What homing.c's status bytes say (GPIOR0, GPIOR1, GPIOR2); None unless homing failed."""
+    if not status & HOMING_FAILED:
+        return None
+    switch = {h.motor: h.switch for h in config.homing}
+    motors = ", ".join(f"motor {m.name} (switch {switch.get(i, '?')})" for i, m in enumerate(config.motors)
+                       if motor_bits >> i & 1) or "an unknown motor"
+    verb = "did not open within its back off limit" if phase == 2 else "did not close within max_steps"
+    return f"homing failed in the {HOMING_PHASES.get(phase, f'phase {phase}')}: {motors}: the switch {verb}"
+
+
+def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
+             switches: dict[int, int | None] | None = None) -> SimTrace:
+    """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget.
+
+    `switches` maps a homed motor's index (config.motors) to the position, in steps from where the simulation
+    starts, signed in machine coordinates, at which its switch closes: the switch reads closed while the motor
+    is there or beyond it in the motor's homing direction, open otherwise. A homed motor without an entry (or
+    with None) has a switch that never closes. Without `switches` at all, the machine starts on its switches
+    (every one at position 0: where a job that homes says the machine starts), so homing backs off and comes
+    back. `cycle_budget` is for the step table: an image that homes gets a bound on its homing time on top.
+    A failed homing is not an error here: see `homing_failed`."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])
+    if switches is None:
+        switches = {h.motor: 0 for h in config.homing}
+    towards = {h.motor: None if switches.get(h.motor) is None else int(switches[h.motor]) * h.direction
+               for h in config.homing}
+    if config.homing:
+        cycle_budget = int(cycle_budget) + homing_ticks_bound(config, towards, f_cpu)
     watched = [p for w in pins.motors for p in (w.step, w.dir)] + [pins.tool]
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges_path), str(int(cycle_budget)),
-               *[f"{p.port}{p.bit}" for p in watched]]
+               *_switch_args(config, pins, switches), *[f"{p.port}{p.bit}" for p in watched]]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
@@ -120,8 +182,13 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int) -> SimTr
     tool = rec[rec["pin"] == len(watched) - 1]
     tool_on = tool["level"].astype(int) ^ (0 if pins.tool_active_high else 1)
     timer_start = int(fields.get("timer_start", "-1"))
+    run = cyc[order] >= timer_start if timer_start >= 0 else np.zeros(len(order), dtype=bool)
+    status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
+    fault = _homing_fault(config, *status)
     return SimTrace(state=state, cycles=cycles, f_cpu=f_cpu,
                     timer_start_cycle=timer_start if timer_start >= 0 else None,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
-                    tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)])
+                    tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)],
+                    step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
+                    homing_failed=fault is not None, homing_fault=fault)

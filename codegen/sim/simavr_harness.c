@@ -1,10 +1,19 @@
-/* printer-codegen simavr harness: run a firmware .hex and log pin level changes with exact cycle times.
+/* printer-codegen simavr harness: run a firmware .hex, log pin level changes with exact cycle times, and
+ * drive endstop switches from the simulated motor positions.
  *
- * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET PIN...     (PIN like F0, L3, B5)
+ * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [SWITCH...] PIN...     (PIN like F0, L3, B5)
+ *   SWITCH: switch=PIN,CLOSED,STEP,DIR,INVERT,TOWARDS,AT   e.g. switch=E4,0,0,1,0,1,400
+ *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open; the motor whose
+ *     STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT is 1) moves
+ *     towards the switch in direction TOWARDS (+1/-1). The harness counts the motor's position in steps from
+ *     0 at every STEP rising edge, and the switch is closed while the position is at AT or beyond it in
+ *     direction TOWARDS, open otherwise (AT = "never": always open). It changes at once, without bounce.
  *
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
  *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8.
- * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>".
+ * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
+ * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2>"; timer_start is the player's tick 0: the first write that
+ * starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts off).
  * Exit status: 0 done (the firmware slept with interrupts off), 1 crashed, 2 budget exhausted, 3 bad usage.
  */
 #include <stdint.h>
@@ -19,13 +28,63 @@
 #include <sim_io.h>
 
 #define MAX_PINS 32
+#define MAX_SWITCHES 8
 #define TCCR1B_ADDR 0x81 /* data-space address of Timer1's clock select register */
 #define TIMER1_CLOCK_BITS 0x07 /* CS12..CS10: non-zero once the timer runs */
+#define TIMSK1_ADDR 0x6F /* Timer1 interrupt mask: the player enables one before it starts the timer, homing none */
+#define GPIOR0_ADDR 0x3E /* the firmware's status bytes (data-space addresses) */
+#define GPIOR1_ADDR 0x4A
+#define GPIOR2_ADDR 0x4B
+
+typedef struct {
+    avr_irq_t *irq;        /* the switch's input pin */
+    uint8_t closed_level;  /* pin level while closed */
+    int step, dir;         /* the motor's watched STEP and DIR pins */
+    int invert;            /* DIR level 1 means - */
+    int towards;           /* +1 / -1 */
+    int never;             /* never closes */
+    long long at;          /* closed at this position and beyond, towards the switch */
+    long long position;    /* steps, from 0 at the start */
+    uint8_t driven;        /* the level the harness drives */
+} endstop_t;
 
 static avr_t *avr;
 static FILE *edges;
 static uint8_t last_level[MAX_PINS]; /* pins start low after reset */
 static long long timer_start = -1;
+static endstop_t endstops[MAX_SWITCHES];
+static int n_endstops;
+static int reassert; /* a PORT write (the pull-up) overrode a driven switch level */
+
+static void drive(endstop_t *s)
+{
+    int closed = !s->never && (s->towards > 0 ? s->position >= s->at : s->position <= s->at);
+    uint8_t level = closed ? s->closed_level : !s->closed_level;
+    if (level == s->driven)
+        return;
+    s->driven = level;
+    avr_raise_irq(s->irq, level);
+}
+
+/* simavr raises an input's pin IRQ with the PORT bit on PORT writes (the pull-up) and sets PIN from it; the
+ * external switch wins on a real board, so the main loop raises the driven level again. */
+static void switch_notify(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    if ((value ? 1 : 0) != ((endstop_t *)param)->driven)
+        reassert = 1;
+}
+
+static void step_edge(uint8_t index)
+{
+    for (int i = 0; i < n_endstops; i++) {
+        endstop_t *s = &endstops[i];
+        if (s->step != index)
+            continue;
+        s->position += (last_level[s->dir] ^ s->invert) ? 1 : -1;
+        drive(s);
+    }
+}
 
 /* Every PORT write re-raises all 8 pin IRQs: keep the last level and log real changes only. */
 static void pin_notify(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -42,15 +101,17 @@ static void pin_notify(struct avr_irq_t *irq, uint32_t value, void *param)
     record[8] = index;
     record[9] = level;
     fwrite(record, sizeof record, 1, edges);
+    if (level)
+        step_edge(index);
 }
 
-/* Shares TCCR1B with the timer module (simavr dispatches to both) to note tick 0. */
+/* Shares TCCR1B with the timer module (simavr dispatches to both) to note the player's tick 0. */
 static void tccr1b_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value, void *param)
 {
     (void)core;
     (void)addr;
     (void)param;
-    if (timer_start < 0 && (value & TIMER1_CLOCK_BITS))
+    if (timer_start < 0 && (value & TIMER1_CLOCK_BITS) && avr->data[TIMSK1_ADDR])
         timer_start = (long long)avr->cycle;
 }
 
@@ -84,10 +145,53 @@ static int load_hex(const char *path, elf_firmware_t *fw)
     return 0;
 }
 
+static avr_irq_t *port_pin(const char *text)
+{
+    char port = text[0];
+    int bit = text[1] - '0';
+    if (port < 'A' || port > 'L' || bit < 0 || bit > 7 || text[2]) {
+        fprintf(stderr, "bad pin %s (expected e.g. F0)\n", text);
+        return NULL;
+    }
+    avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit);
+    if (!irq)
+        fprintf(stderr, "no port %c\n", port);
+    return irq;
+}
+
+/* switch=PIN,CLOSED,STEP,DIR,INVERT,TOWARDS,AT */
+static int parse_switch(const char *spec, int n_pins)
+{
+    char pin[4], at[32];
+    endstop_t *s = &endstops[n_endstops];
+    int closed;
+    memset(s, 0, sizeof *s);
+    if (n_endstops == MAX_SWITCHES
+        || sscanf(spec, "switch=%3[^,],%d,%d,%d,%d,%d,%31s", pin, &closed, &s->step, &s->dir, &s->invert,
+                  &s->towards, at) != 7
+        || s->step < 0 || s->step >= n_pins || s->dir < 0 || s->dir >= n_pins || (closed != 0 && closed != 1)) {
+        fprintf(stderr, "bad switch %s\n", spec);
+        return -1;
+    }
+    if (!(s->irq = port_pin(pin)))
+        return -1;
+    s->closed_level = (uint8_t)closed;
+    s->never = strcmp(at, "never") == 0;
+    s->at = s->never ? 0 : strtoll(at, NULL, 10);
+    s->driven = 2; /* none yet */
+    avr_irq_register_notify(s->irq, switch_notify, s);
+    n_endstops++;
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    if (argc < 7 || argc - 6 > MAX_PINS) {
-        fprintf(stderr, "usage: %s MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET PIN...\n", argv[0]);
+    int n_switches = 0;
+    while (6 + n_switches < argc && strncmp(argv[6 + n_switches], "switch=", 7) == 0)
+        n_switches++;
+    const int first_pin = 6 + n_switches, n_pins = argc - first_pin;
+    if (argc < 7 || n_pins < 1 || n_pins > MAX_PINS || n_switches > MAX_SWITCHES) {
+        fprintf(stderr, "usage: %s MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [SWITCH...] PIN...\n", argv[0]);
         return 3;
     }
     elf_firmware_t fw;
@@ -113,28 +217,34 @@ int main(int argc, char **argv)
         perror(argv[4]);
         return 3;
     }
-    for (int i = 6; i < argc; i++) {
-        char port = argv[i][0];
-        int bit = argv[i][1] - '0';
-        if (port < 'A' || port > 'L' || bit < 0 || bit > 7 || argv[i][2]) {
-            fprintf(stderr, "bad pin %s (expected e.g. F0)\n", argv[i]);
+    for (int i = first_pin; i < argc; i++) {
+        avr_irq_t *irq = port_pin(argv[i]);
+        if (!irq)
             return 3;
-        }
-        avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit);
-        if (!irq) {
-            fprintf(stderr, "no port %c on %s\n", port, fw.mmcu);
-            return 3;
-        }
-        avr_irq_register_notify(irq, pin_notify, (void *)(uintptr_t)(i - 6));
+        avr_irq_register_notify(irq, pin_notify, (void *)(uintptr_t)(i - first_pin));
     }
+    for (int i = 6; i < first_pin; i++)
+        if (parse_switch(argv[i], n_pins) != 0)
+            return 3;
+    for (int i = 0; i < n_endstops; i++)
+        drive(&endstops[i]);
     avr_register_io_write(avr, TCCR1B_ADDR, tccr1b_written, NULL);
 
     int state = cpu_Running;
-    while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget)
+    while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget) {
         state = avr_run(avr);
+        if (reassert) {
+            reassert = 0;
+            for (int i = 0; i < n_endstops; i++)
+                if ((endstops[i].irq->value ? 1 : 0) != endstops[i].driven)
+                    avr_raise_irq(endstops[i].irq, endstops[i].driven);
+        }
+    }
 
     fclose(edges);
     const char *name = state == cpu_Done ? "done" : state == cpu_Crashed ? "crashed" : "budget";
-    printf("state=%s cycles=%llu timer_start=%lld\n", name, (unsigned long long)avr->cycle, timer_start);
+    printf("state=%s cycles=%llu timer_start=%lld status=%u status1=%u status2=%u\n", name,
+           (unsigned long long)avr->cycle, timer_start, avr->data[GPIOR0_ADDR], avr->data[GPIOR1_ADDR],
+           avr->data[GPIOR2_ADDR]);
     return state == cpu_Done ? 0 : state == cpu_Crashed ? 1 : 2;
 }
