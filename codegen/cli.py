@@ -21,9 +21,12 @@ IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 
 
 def _target_module(kind: str, target: str):
+    name = f"codegen.{kind}.{target}"
     try:
-        return importlib.import_module(f"codegen.{kind}.{target}")
-    except ModuleNotFoundError:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as error:
+        if error.name != name:
+            raise
         raise BuildError(f"the {target} target has no {kind} support yet") from None
 
 
