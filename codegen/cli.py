@@ -18,6 +18,7 @@ from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, plan_summary, verify_json, write_json, write_trace
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
+SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
 
 
 def _target_module(kind: str, target: str):
@@ -116,7 +117,8 @@ def cmd_verify(args) -> int:
         print(json.dumps(result, indent=2))
     else:
         state = "PASS" if result["pass"] else "FAIL"
-        print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in simavr, {result['duration_s']:.4f} s simulated, "
+        print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in {SIMULATORS[host.target.target]}, "
+              f"{result['duration_s']:.4f} s simulated, "
               f"{result['planned_duration_s']:.4f} s planned")
         for name, m in result["motors"].items():
             print(f"  {name}: {m['steps']} steps, ends at {m['final']} (job: {m['expected_final']}), "
