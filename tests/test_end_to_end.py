@@ -140,8 +140,28 @@ def test_a_program_that_moves_nothing_plays_nothing(tmp_path, capsys):
 def test_target_override_never_builds_for_the_wrong_chip(tmp_path, capsys):
     code, _, err = run(capsys, "build", ROOT / "examples" / "line.yaml", "--target", "mcs51", "--out", tmp_path)
     assert code == 2 and "line.yaml:4:8: error: board: 'ramps-1.4' is a board for target avr, not mcs51" in err
-    code, _, err = run(capsys, "build", ROOT / "examples" / "arc.yaml", "--target", "mcs51", "--out", tmp_path)
-    assert code == 1 and "the mcs51 target is not supported yet" in err
+    assert not (tmp_path / "firmware.hex").exists()
+
+
+@pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None, reason="needs sdcc and s51")
+@pytest.mark.parametrize("example", ["arc", "star"])
+def test_small_jobs_verify_on_the_8051_in_s51(example, tmp_path, capsys):
+    code, out, _ = run(capsys, "verify", ROOT / "examples" / f"{example}.yaml", "--target", "mcs51",
+                       "--out", tmp_path, "--json")
+    result = json.loads(out)
+    assert code == 0, result["problems"]
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_timing_error_us"] <= 5.0 and motor["max_rate_ratio"] <= 1.0
+    assert result["max_path_error_mm"] <= result["path_limit_mm"]
+    assert result["image"]["flash_bytes"] <= 8192
+
+
+@pytest.mark.skipif(shutil.which("sdcc") is None, reason="needs sdcc")
+def test_a_job_too_big_for_the_8051_is_refused_with_sizes(tmp_path, capsys):
+    code, _, err = run(capsys, "build", ROOT / "examples" / "plotter-set.yaml", "--target", "mcs51",
+                       "--out", tmp_path)
+    assert code == 1 and "does not fit" in err and "8192" in err
     assert not (tmp_path / "firmware.hex").exists()
 
 

@@ -1,0 +1,148 @@
+"""Run an 8051 firmware.hex in s51 (ucsim) and decode its STEP, DIR and tool pins with exact clock times.
+
+s51 runs a command script: it loads the hex, sets a breakpoint on every byte write to a port that carries a watched
+pin (`break sfr w 0x90`: MOV/ORL/ANL/XRL) and on every bit write to a watched pin (`break bits w 0x91`: SETB, CLR,
+MOV bit,C), each of which prints `sim_ticks` (oscillator clocks, 12 per machine cycle) and the port latch, then
+runs on. Fetch breakpoints on `_timer_start` (the SETB TR0 of player_start) and `_halt` (from firmware.sym.json,
+written next to the hex by codegen.firmware.mcs51) mark tick 0 and the end; a conditional fetch breakpoint on the
+Timer0 vector stops a run that outlives its cycle budget, and `timeout` bounds the wall time.
+
+Tick 0 of the table is the Timer0 overflow START_TICKS ticks after the timer starts: timer_start_cycle is the
+clock count at the end of SETB TR0 (its fetch + 12) + START_TICKS x 12. Pins come out of reset high (port latches
+0xFF); edges are level changes of the latch.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from codegen.errors import BuildError
+from codegen.firmware import FirmwareConfig
+from codegen.firmware.mcs51 import SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories
+from codegen.sim.avr import PHASE_RUN, SimTrace
+
+TAG_TIMER, TAG_HALT, TAG_BUDGET = 16, 17, 18  # record tags beyond the port tags 0..3
+MAX_CONDITION = (1 << 32) - 1  # sim_ticks is 32-bit: longer budgets rely on the wall-clock timeout
+SIM_CLOCKS_PER_S = 20e6  # a pessimistic s51 speed with breakpoints, for the wall-clock timeout
+
+
+def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget: int) -> str:
+    """The s51 command script: every record prints two lines, sim_ticks and tag * 256 + value."""
+    lines = [f'file "{hex_path}"']
+    n = 0
+
+    def brk(spec: str, tag_expr: str, resume: bool) -> None:
+        nonlocal n
+        n += 1
+        lines.append(f"break {spec}")
+        lines.append(f"commands {n} expression /u sim_ticks ; expression /u {tag_expr}" + (" ; run" if resume else ""))
+
+    for port in ports:
+        brk(f"sfr w {SFR[port]:#x}", f"{port * 256}+P{port}", True)
+    for bit in bits:
+        port = (bit - 0x80) >> 4
+        brk(f"bits w {bit:#x}", f"{port * 256}+P{port}", True)
+    brk(f"{sym['timer_start']:#x}", str(TAG_TIMER * 256), True)
+    brk(f"{sym['halt']:#x}", str(TAG_HALT * 256), False)
+    if budget <= MAX_CONDITION:
+        brk(f"{VECTOR_TIMER0:#x} if sim_ticks>{budget}", str(TAG_BUDGET * 256), False)
+    lines += ["run", "quit", ""]
+    return "\n".join(lines)
+
+
+def _records(stdout: str) -> np.ndarray:
+    """(clock, tag, value) rows from the pairs of number lines the breakpoints print; 32-bit clocks unwrapped."""
+    numbers = [int(line) for line in stdout.splitlines() if line.strip().isdigit()]
+    pairs = np.array(numbers[: len(numbers) // 2 * 2], dtype=np.int64).reshape(-1, 2)
+    clocks = pairs[:, 0].copy()
+    if len(clocks) > 1:  # records come in time order, far less than 2**32 clocks apart
+        clocks += np.concatenate([[0], np.cumsum(np.diff(clocks) < 0)]) << 32
+    return np.stack([clocks, pairs[:, 1] >> 8, pairs[:, 1] & 0xFF], axis=1)
+
+
+def _levels(rec: np.ndarray, port: int, bit: int) -> tuple[np.ndarray, np.ndarray]:
+    """Changes of one pin: (clock, new level), from its port's records (the latch starts at 1 after reset)."""
+    mine = rec[rec[:, 1] == port]
+    level = (mine[:, 2] >> bit) & 1
+    changed = np.diff(np.concatenate([[1], level])) != 0
+    return mine[changed, 0], level[changed]
+
+
+def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
+             switches: dict[int, int | None] | None = None) -> SimTrace:
+    """Run `hex_path` until the firmware reaches halt(); BuildError on a crash or past the budget (CPU clocks)."""
+    if config.homing or switches:
+        raise NotImplementedError("homing on the mcs51 target is a later increment")
+    if shutil.which("s51") is None:
+        raise BuildError("s51 not found: install sdcc-ucsim")
+    hex_path = Path(hex_path).resolve()
+    sym_path = hex_path.with_name(SYMBOLS_FILE)
+    if not sym_path.is_file():
+        raise BuildError(f"{sym_path} is missing: build the image with codegen.firmware.mcs51")
+    sym = json.loads(sym_path.read_text(encoding="utf-8"))
+    pins = board_pins(config)
+    f_cpu = int(memories(config.board)["f_cpu"])
+    watched = [p for m in pins["motors"] for p in (m["step"], m["dir"])] + [pins["tool"]]
+    ports = sorted({p.port for p in watched})
+    bits = sorted({SFR[p.port] + p.bit for p in watched})
+    with tempfile.TemporaryDirectory(prefix="printer-codegen-s51-") as tmp:
+        script = Path(tmp) / "run.cmd"
+        script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget)), encoding="utf-8")
+        wall = 10 + cycle_budget / SIM_CLOCKS_PER_S
+        try:
+            done = subprocess.run(["timeout", f"{wall:.0f}", "s51", "-X", str(f_cpu), "-C", str(script)],
+                                  stdin=subprocess.DEVNULL, capture_output=True, text=True)
+        except FileNotFoundError as exc:
+            raise BuildError("timeout or s51 not found") from exc
+    rec = _records(done.stdout)
+    stray = set(np.unique(rec[:, 1]).tolist()) - {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET}
+    if stray:
+        raise BuildError(f"unexpected s51 output (record tags {sorted(stray)}) for {hex_path}")
+    ends = rec[rec[:, 1] >= TAG_HALT]
+    cycles = int(rec[-1, 0]) if len(rec) else 0
+    if len(ends) == 0 and done.returncode == 124:
+        raise BuildError(f"the firmware did not finish within {wall:.0f} s of simulation ({hex_path})")
+    if len(ends) == 0:
+        raise BuildError(f"the firmware stopped in s51 without reaching halt() after {cycles} clocks ({hex_path}):\n"
+                         f"{(done.stderr + done.stdout)[-2000:].strip()}")
+    if ends[0, 1] == TAG_BUDGET:
+        raise BuildError(f"the firmware did not finish within {cycle_budget} cycles "
+                         f"({cycle_budget / f_cpu:.3f} s simulated; {hex_path})")
+    clocks = int(sym["clocks_per_tick"])
+    starts = rec[rec[:, 1] == TAG_TIMER, 0]
+    timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None
+    return _trace(rec, pins, f_cpu, cycles, timer_start)
+
+
+def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None) -> SimTrace:
+    step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []
+    for m, wiring in enumerate(pins["motors"]):
+        t, level = _levels(rec, wiring["step"].port, wiring["step"].bit)
+        rise, fall = t[level == 1], t[level == 0]
+        dir_t, dir_level = _levels(rec, wiring["dir"].port, wiring["dir"].bit)
+        # DIR at each rising edge: the last change before it (the latch is 1 after reset).
+        at = np.concatenate([[1], dir_level])[np.searchsorted(dir_t, rise, side="right")]
+        step_cycle.append(rise)
+        step_motor.append(np.full(len(rise), m, dtype=np.int64))
+        step_dir.append(np.where(at ^ int(wiring["invert"]), 1, -1).astype(np.int64))
+        nxt = np.searchsorted(fall, rise, side="right")  # the fall that ends each pulse
+        ended = nxt < len(fall)
+        high_min.append(int((fall[nxt[ended]] - rise[ended]).min()) if ended.any() else None)
+        after = np.searchsorted(rise, dir_t, side="right")  # DIR change to the next STEP rise
+        followed = after < len(rise)
+        setup_min.append(int((rise[after[followed]] - dir_t[followed]).min()) if followed.any() else None)
+    cyc, mot, dirs = (np.concatenate(a) if a else np.zeros(0, np.int64) for a in (step_cycle, step_motor, step_dir))
+    order = np.lexsort((mot, cyc))
+    tool_t, tool_level = _levels(rec, pins["tool"].port, pins["tool"].bit)
+    tool_on = tool_level ^ (0 if pins["tool_active_high"] else 1)
+    run = np.full(len(order), PHASE_RUN, dtype="<U4")
+    return SimTrace(state="done", cycles=cycles, f_cpu=f_cpu, timer_start_cycle=timer_start,
+                    step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
+                    pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
+                    tool_edges=[(int(c), int(v)) for c, v in zip(tool_t, tool_on)], step_phase=run)
