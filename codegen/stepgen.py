@@ -175,7 +175,10 @@ def staircase_bound(segments: Segments, kin: Kinematics) -> np.ndarray:
     high = (nn - 1) / nn + np.maximum(drift, 0.0) + base
     low = np.minimum(drift, 0.0) + base
     slave = np.arange(steps.shape[1])[None, :] != master[:, None]
-    deviation = np.where(slave, np.maximum(np.abs(high), np.abs(low)), 0.0)
+    deviation = np.maximum(np.abs(high), np.abs(low))
+    # A motor that makes no step stays put: it is exactly as far off as its exact position drifts.
+    still = np.maximum(np.abs(beta), np.abs(beta + nn * rate))
+    deviation = np.where(slave, np.where(steps == 0, still, deviation), 0.0)
     reach = kin.step_reach()
     return deviation @ reach
 
