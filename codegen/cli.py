@@ -139,7 +139,12 @@ def cmd_plan(args) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="printer-codegen", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="printer-codegen",
+        description="Plan a job (machine + shapes or G-code) on the host, build step-table firmware for an "
+                    "ATmega2560 or an 8051, and verify the image pulse by pulse in a simulator.",
+        epilog="Exit codes: 0 success; 1 the build failed, the job does not fit, or verification found a "
+               "difference; 2 bad input (file:line:col: error: ... on stderr).")
     p.add_argument("--version", action="version", version=f"printer-codegen {__version__}")
     verbs = p.add_subparsers(dest="verb", required=True)
     for name, handler, help_text in (
