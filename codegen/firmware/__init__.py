@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from codegen.errors import BuildError
 
 
 @dataclass(frozen=True)
@@ -55,3 +58,14 @@ class Image:
     ram_capacity: int
     sections: dict[str, int] = field(default_factory=dict)  # loadable sections: name -> bytes
     flash_parts: dict[str, int] = field(default_factory=dict)  # every flash byte by what it holds
+
+
+def run_tool(cmd: list[str], cwd: Path, what: str, install: str) -> subprocess.CompletedProcess:
+    """Run a toolchain command; BuildError with its output when it fails, or naming `install` when missing."""
+    try:
+        done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    except FileNotFoundError as exc:
+        raise BuildError(f"{cmd[0]} not found: install {install}") from exc
+    if done.returncode != 0:
+        raise BuildError(f"{what} failed:\n{(done.stderr + done.stdout).strip()}")
+    return done

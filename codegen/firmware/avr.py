@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, Image
+from codegen.firmware import FirmwareConfig, Image, run_tool
 from codegen.firmware.avr_homing import homing_context
 from codegen.paths import targets_dir
 from codegen.render import render
@@ -200,13 +200,7 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
 
 
 def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
-    try:
-        done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    except FileNotFoundError as exc:
-        raise BuildError(f"{cmd[0]} not found: install gcc-avr, binutils-avr and avr-libc") from exc
-    if done.returncode != 0:
-        raise BuildError(f"{what} failed:\n{(done.stderr + done.stdout).strip()}")
-    return done
+    return run_tool(cmd, cwd, what, "gcc-avr, binutils-avr and avr-libc")
 
 
 def _section_sizes(elf: Path, cwd: Path) -> dict[str, int]:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, Image
+from codegen.firmware import FirmwareConfig, Image, run_tool
 from codegen.firmware.avr import load_target
 from codegen.render import render
 from codegen.schedule import RUN_BYTES, TOOL_BIT, Schedule
@@ -207,13 +207,7 @@ def _sdcc_flags(mem: dict, code_size: int, xram_size: int) -> list[str]:
 
 
 def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
-    try:
-        done = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-    except FileNotFoundError as exc:
-        raise BuildError(f"{cmd[0]} not found: install sdcc") from exc
-    if done.returncode != 0:
-        raise BuildError(f"{what} failed:\n{(done.stderr + done.stdout).strip()}")
-    return done
+    return run_tool(cmd, cwd, what, "sdcc")
 
 
 def _link(mem: dict, objects: list[str], code_size: int, xram_size: int, cwd: Path) -> subprocess.CompletedProcess:

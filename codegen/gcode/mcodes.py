@@ -83,22 +83,23 @@ def _per_axis(it, block, params, strict: bool = True) -> dict[str, float] | None
     return values or None
 
 
+def _axis_limits(it, block, params, field: str):
+    values = _per_axis(it, block, params)
+    if values:
+        it.items.append(Limits(it.source(block), **{field: values}))
+    return None
+
+
 @_guarded
 def max_accel(it, block, params):
     """M201 X Y Z E: largest acceleration per axis (mm/s^2)."""
-    values = _per_axis(it, block, params)
-    if values:
-        it.items.append(Limits(it.source(block), max_accel=values))
-    return None
+    return _axis_limits(it, block, params, "max_accel")
 
 
 @_guarded
 def max_velocity(it, block, params):
     """M203 X Y Z E: largest velocity per axis (mm/s, Marlin's unit)."""
-    values = _per_axis(it, block, params)
-    if values:
-        it.items.append(Limits(it.source(block), max_velocity=values))
-    return None
+    return _axis_limits(it, block, params, "max_velocity")
 
 
 @_guarded
