@@ -125,6 +125,8 @@ def cmd_verify(args) -> int:
                   f"timing within {m['max_timing_error_us']:.2f} us of the twin, rate {100 * m['max_rate_ratio']:.1f} %"
                   f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
         print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+        if result.get("display") is not None:
+            print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
         for problem in result["problems"]:
             print(f"  problem: {problem}")
     return 0 if result["pass"] else 1

@@ -125,10 +125,45 @@ def _fit_within(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, neede
     raise RuntimeError("rate runs did not converge to the timing window")
 
 
+def _bad_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray):
+    """Fit, and the runs with an event outside the window or closer to its predecessor than the player can go."""
+    interval, add, n = fit(starts, ideal * FRAC_ONE)
+    out = emitted(starts, interval, add, n) >> 8
+    bad = (np.abs(out - ideal) > window) | (np.diff(np.concatenate([[0], out])) < needed)
+    return np.unique(np.searchsorted(starts, np.flatnonzero(bad), side="right") - 1), n
+
+
+def _merge_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray,
+                fixed: np.ndarray) -> np.ndarray:
+    """Join neighbouring runs, pair by pair, wherever the joined run still keeps every event in its window
+    (the run limits are estimates; this measures). Runs starting at `fixed` events stay."""
+    idle = 0
+    for sweep in range(64):
+        pair = np.arange(sweep % 2, len(starts) - 1, 2)
+        pair = pair[~fixed[starts[pair + 1]]]
+        if len(pair) == 0:
+            idle += 1
+            if idle == 2:
+                break
+            continue
+        trial = np.delete(starts, pair + 1)
+        joined = np.searchsorted(trial, starts[pair])
+        bad, n = _bad_runs(trial, ideal, window, needed)
+        ok = ~np.isin(joined, bad) & (n[joined] <= MAX_COUNT)
+        idle = 0 if ok.any() else idle + 1
+        starts = np.delete(starts, pair[ok] + 1)
+        if idle == 2:
+            break
+    return starts
+
+
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
-             window: TimingWindow = TimingWindow(), final_tool: bool = False) -> Compressed:
+             window: TimingWindow = TimingWindow(), final_tool: bool = False,
+             cross_blocks: bool = False) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
-    one that starts a block (both include reading the table; plain events inside a run are cheaper)."""
+    one that starts a block (both include reading the table; plain events inside a run are cheaper).
+    `cross_blocks`: the player keeps a run going across block starts (the compact tables), so only motion
+    phases cut runs; otherwise every block has runs of its own and its first event is a run by itself."""
     needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
     needed[events.block_first[:-1]] = block_gap_ticks
     ideal = spread(events.time * tick_hz, 1.1 * needed + 2.0)
@@ -137,11 +172,19 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
     total = len(ideal)
     breaks = np.zeros(total, dtype=bool)
     first = events.block_first[:-1]
-    breaks[first] = True
-    breaks[np.minimum(first + 1, total - 1)] = True  # a block's first event is a run of its own
+    if cross_blocks:
+        breaks[:1] = True
+    else:
+        breaks[first] = True
+        breaks[np.minimum(first + 1, total - 1)] = True  # a block's first event is a run of its own
     breaks[1:] |= events.phase[1:] != events.phase[:-1]
     limit = run_limits(ideal, win, events.phase)
     starts = segment_runs(breaks, limit)
+    if cross_blocks:
+        starts, *_ = _fit_within(starts, ideal, win, needed)
+        fixed = np.zeros(total, dtype=bool)
+        fixed[:1] = True
+        starts = _merge_runs(starts, ideal, win, needed, fixed)
     starts, interval, add, n, out = _fit_within(starts, ideal, win, needed)
     block_runs = np.searchsorted(starts, events.block_first)
     schedule = Schedule(
@@ -158,5 +201,6 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
         run_add=add,
         run_count=n,
         final_tool=final_tool,
+        block_events=np.diff(events.block_first).astype(np.int64) if cross_blocks else None,
     )
     return Compressed(schedule, ideal, out, win)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.checks import Findings, MotorTrain, check, step_length_mm
-from codegen.compress import Compressed, compress
+from codegen.compress import Compressed, TimingWindow, compress
 from codegen.errors import BuildError, Diagnostic, JobError
 from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
 from codegen.kinematics import make_kinematics
@@ -25,6 +25,7 @@ from codegen.stepgen import (Events, generate, quantisation_split, segment_steps
 from codegen.gcode import toolpath_from_gcode
 from codegen.homing import home_position, homes, homing_axes
 from codegen.shapes import build_toolpath as toolpath_from_shapes
+from codegen.curve_timing import smooth_curve_times
 from codegen.targets import TargetInfo, target_info
 from codegen.segments import Segments, flatten
 from codegen.toolpath import Arc, Curve, Home, Line, Toolpath
@@ -67,6 +68,7 @@ class HostBuild:
             step_pulse_us=self.job.machine.step_pulse_us,
             dir_setup_us=self.job.machine.dir_setup_us,
             homing=self.homing,
+            start_steps=tuple(int(v) for v in self.start_steps),
         )
 
     def event_segments(self) -> np.ndarray:
@@ -174,6 +176,12 @@ class Stopwatch:
         self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - begin
 
 
+def timing_window(target: TargetInfo) -> TimingWindow:
+    """How far an event may be from its ideal time. The 5 % share of the gap bounds the rate error; on the
+    compact tables (8 KB of code memory) the absolute cap is wider, so that slow moves need fewer runs."""
+    return TimingWindow(max_us=100.0) if target.compact_tables else TimingWindow()
+
+
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator."""
     watch = watch or Stopwatch()
@@ -204,9 +212,12 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
         motion = plan(segments, kin, steps, limits)
     with watch("step times"):
         events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
+        if target.compact_tables:
+            events = smooth_curve_times(events, segments, motion, kin)
     with watch("rate runs"):
         compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
-                              target.block_gap_ticks(pulse_us, setup_us))
+                              target.block_gap_ticks(pulse_us, setup_us), window=timing_window(target),
+                              cross_blocks=target.compact_tables)
     with watch("twin"):
         pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,

@@ -76,6 +76,8 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
     f = verdict.findings
     return {
         "pass": verdict.ok,
+        "target": host.target.target,
+        "board": host.target.board,
         "duration_s": _round(verdict.duration_s),
         "planned_duration_s": _round(verdict.planned_duration_s),
         "max_path_error_mm": _round(f.max_path_error_mm),
@@ -96,6 +98,7 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         },
         "start_offset_us": _round(verdict.latency_us, 3),
         "homing": verdict.homing,
+        "display": verdict.display,
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
                   "table_bytes": host.schedule.table_bytes()},
         "problems": verdict.problems + f.problems,

@@ -63,6 +63,22 @@ class Schedule:
     run_add: np.ndarray  # (R,) int64, 16.8 fixed point ticks
     run_count: np.ndarray  # (R,) int64
     final_tool: bool = False
+    # Events of every block when runs may run on across block starts (the compact tables of the 8051); None:
+    # every block has runs of its own, block_runs partitions them and gives the counts.
+    block_events: np.ndarray | None = None
+
+    @property
+    def runs_cross_blocks(self) -> bool:
+        return self.block_events is not None
+
+    def events_per_block(self) -> np.ndarray:
+        if self.block_events is not None:
+            return self.block_events
+        counts = np.zeros(self.n_blocks, dtype=np.int64)
+        if self.n_runs:
+            run_block = np.repeat(np.arange(self.n_blocks), np.diff(self.block_runs))
+            np.add.at(counts, run_block, self.run_count)
+        return counts
 
     @property
     def n_blocks(self) -> int:
@@ -77,6 +93,9 @@ class Schedule:
 
     def table_bytes(self) -> int:
         """Size of the encoded stream, end marker included."""
+        if self.runs_cross_blocks:
+            from codegen.firmware.mcs51_table import encode  # the compact stream (its module imports this one)
+            return len(encode(self).data)
         return self.n_blocks * self.header_bytes() + self.n_runs * RUN_BYTES + 3
 
     def block_flags(self) -> np.ndarray:
@@ -100,11 +119,15 @@ class Schedule:
             problems.append("run add out of range")
         if np.any(np.diff(self.block_runs) > 0xFFFF):
             problems.append("too many runs in a block")
+        if self.block_events is not None and int(self.block_events.sum()) != int(self.run_count.sum()):
+            problems.append("the blocks' events and the runs' events differ")
         if problems:
             raise ValueError("; ".join(problems))
 
     def encode(self) -> bytes:
         """The byte stream described in the module docstring (vectorised)."""
+        if self.runs_cross_blocks:
+            raise ValueError("runs that cross block starts need the compact encoding (codegen.firmware.mcs51_table)")
         self.validate()
         motors = len(self.motors)
         n_runs = np.diff(self.block_runs)

@@ -52,6 +52,16 @@ class TargetInfo:
         return self.tick_hz / (1.25 * self.run_gap_ticks(motors, step_pulse_us))
 
     @property
+    def isr_latency_us(self) -> float:
+        """From the timer event to the first STEP edge: the player's constant delay."""
+        return int(self.mcu_data.get("isr_latency_cycles", 0)) * 1e6 / self.f_cpu
+
+    @property
+    def compact_tables(self) -> bool:
+        """The player reads the compact table stream (short records, runs that go on across block starts)."""
+        return self.mcu_data.get("table_format") == "compact"
+
+    @property
     def max_gap_s(self) -> float:
         """Longest wait between two events the player's 24.8 fixed-point interval can express."""
         return ((1 << 24) - 1) / self.tick_hz
@@ -65,7 +75,8 @@ def _load(name: str) -> dict:
 def target_info(board: str) -> TargetInfo:
     board_data = _load(board)
     mcu = board_data["mcu"]
-    mcu_data = _load(mcu)
+    # A board may carry its own measured player costs (a display makes the interrupt save main's registers).
+    mcu_data = {**_load(mcu), **(board_data.get("player_costs") or {})}
     f_cpu = int(mcu_data["f_cpu"])
     tick_hz = int(mcu_data.get("tick_hz", f_cpu))
     return TargetInfo(

@@ -71,10 +71,7 @@ def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
 
 def predict(schedule: Schedule) -> Pulses:
     ticks = event_ticks(schedule)
-    counts = np.zeros(schedule.n_blocks, dtype=np.int64)
-    if schedule.n_runs:
-        run_block = np.repeat(np.arange(schedule.n_blocks), np.diff(schedule.block_runs))
-        np.add.at(counts, run_block, schedule.run_count)
+    counts = schedule.events_per_block()
     signed = schedule.block_steps * schedule.block_dirs.astype(np.int64)
     block, stepped, position = bresenham(signed, schedule.block_modulus, schedule.block_init, counts)
     event_idx, motor = np.nonzero(stepped)

@@ -11,43 +11,46 @@ import pytest
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware import mcs51_table
 from codegen.firmware.mcs51 import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
 from codegen.schedule import Schedule
 from codegen.sim.mcs51 import simulate
-from tests.reference_player import play
+from tests.reference_player import event_ticks, play
 
 CLOCKS = 12  # CPU clocks per timer tick (machine cycle)
 TOLERANCE = 2  # clocks around the constant overflow-to-edge latency
+# On a board with a display main runs between interrupts: an interrupt waits up to one machine cycle more for the
+# end of main's instruction (the display driver has no 4-cycle MUL or DIV).
+BUSY_TOLERANCE = TOLERANCE + CLOCKS
 
 
-def make_schedule(motors, blocks, final_tool=False):
-    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...])."""
+def make_schedule(motors, blocks, final_tool=False, runs=None):
+    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...]), each with runs of
+    its own; or, with `runs` (the whole program's), (dirs, steps, modulus, init, tool, events)."""
     m = len(motors)
-    runs = [r for b in blocks for r in b[5]]
+    events = [sum(r[2] for r in b[5]) for b in blocks] if runs is None else [b[5] for b in blocks]
+    own = runs is None
+    runs = [r for b in blocks for r in b[5]] if own else runs
+    run_first = np.cumsum([0] + [r[2] for r in runs])
+    block_runs = np.searchsorted(run_first, np.cumsum([0] + events))
     per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
     return Schedule(
         motors=tuple(motors), tick_hz=1_000_000, block_dirs=per_motor(0, np.int8),
         block_steps=per_motor(1, np.int64), block_modulus=np.array([b[2] for b in blocks], dtype=np.int64),
         block_init=per_motor(3, np.int64), block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_runs=np.concatenate([[0], np.cumsum([len(b[5]) for b in blocks])]).astype(np.int64),
-        block_segment=np.zeros(len(blocks), dtype=np.int64),
+        block_runs=block_runs.astype(np.int64), block_segment=np.zeros(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
         run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
-        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool)
+        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,
+        block_events=np.array(events, dtype=np.int64))
 
 
 def block_spans(schedule):
     """Per block, the ticks of its first and last event (plain Python)."""
-    spans, pos = [], 0
-    for b in range(schedule.n_blocks):
-        first = None
-        for r in range(int(schedule.block_runs[b]), int(schedule.block_runs[b + 1])):
-            interval = int(schedule.run_interval[r])
-            for _ in range(int(schedule.run_count[r])):
-                pos += interval
-                first = pos >> 8 if first is None else first
-                interval += int(schedule.run_add[r])
-        spans.append((first, pos >> 8))
+    ticks, spans, first = event_ticks(schedule), [], 0
+    for events in schedule.events_per_block():
+        spans.append((ticks[first], ticks[first + events - 1]))
+        first += events
     return spans
 
 
@@ -75,7 +78,8 @@ def check_plays(schedule, cfg, trace):
         assert np.array_equal(trace.step_dir[mine], ref_dirs), f"motor {schedule.motors[m]}: dirs"
         late[motors == m] = trace.step_cycle[mine] - trace.timer_start_cycle - CLOCKS * ticks[motors == m]
     latency = int(np.median(late)) if len(late) else 0
-    assert np.abs(late - latency).max(initial=0) <= TOLERANCE, "a pulse off its scheduled tick"
+    tolerance = BUSY_TOLERANCE if cfg.board == "seed-51" else TOLERANCE
+    assert np.abs(late - latency).max(initial=0) <= tolerance, "a pulse off its scheduled tick"
     assert len(late) == 0 or 0 < latency < 20 * CLOCKS
     pulse = int(np.ceil(cfg.step_pulse_us * 12))
     assert all(h is None or h >= pulse for h in trace.pulse_high_min_cycles)
@@ -106,7 +110,7 @@ def test_blocks_runs_dwell_long_waits_and_tool(tmp_path):
         assert CLOCKS * spans[b - 1][1] + latency < cycle - trace.timer_start_cycle < CLOCKS * spans[b][0] + latency
     assert trace.tool_edges[-1][0] > trace.step_cycle[-1]
     assert image.flash_bytes < 2048 and image.ram_bytes < 64 and image.flash_parts["table"] == sched.table_bytes()
-    assert sum(image.flash_parts.values()) == image.flash_bytes and image.flash_parts["player"] < 800
+    assert sum(image.flash_parts.values()) == image.flash_bytes and image.flash_parts["player"] < 1100
 
 
 def test_seed_board_inverted_dir_long_pulses_and_a_first_long_wait(tmp_path):
@@ -130,9 +134,9 @@ def test_seed_board_inverted_dir_long_pulses_and_a_first_long_wait(tmp_path):
 
 def test_many_runs_across_code_pages(tmp_path):
     """About 7 KB of table on the STC89C52RC: a run load at most events, random intervals and adds, reads across
-    every 256-byte page of the table, 768 runs in the block (a low byte of 0)."""
+    every 256-byte page of the table, 1100 short runs in one long block."""
     rng = np.random.default_rng(51)
-    n = 768
+    n = 1100
     intervals = rng.integers(200 * 256, 600 * 256, n)
     runs = [(int(v), int(a), int(c)) for v, a, c in zip(intervals, rng.integers(-300, 300, n), rng.integers(1, 3, n))]
     total = sum(c for _, _, c in runs)
@@ -182,7 +186,7 @@ def test_too_big_table_is_refused_with_the_sizes(tmp_path):
     cfg = config(("x",), ("X",))
     small = make_schedule(("x",), [((1,), (1,), 1, (0,), False, [(300 * 256, 0, 1)])])
     build_image(render_sources(small, cfg), tmp_path, small.table_bytes())  # an earlier image must not survive
-    sched = make_schedule(("x",), [((1,), (100,), 100, (0,), False, [(300 * 256, 0, 1)] * 950)])
+    sched = make_schedule(("x",), [((1,), (850,), 850, (0,), False, [(70_000 * 256, 0, 1)] * 850)])
     assert 8192 < sched.table_bytes() < 9000
     with pytest.raises(BuildError) as error:
         build_image(render_sources(sched, cfg), tmp_path, sched.table_bytes())
@@ -206,7 +210,7 @@ def test_ram_overflows_name_the_memory(tmp_path):
 
 
 def test_compile_error_budget_sockets_and_homing(tmp_path):
-    sched = make_schedule(("x",), [((1,), (1,), 1, (0,), False, [(10_000_000 * 256, 0, 2)])])
+    sched = make_schedule(("x",), [((1,), (2,), 2, (0,), False, [(10_000_000 * 256, 0, 2)])])
     cfg = config(("x",), ("X",))
     sources = render_sources(sched, cfg)
     with pytest.raises(BuildError, match="player.c"):
@@ -220,7 +224,7 @@ def test_compile_error_budget_sockets_and_homing(tmp_path):
         render_sources(make_schedule(("e",), []), config(("e",), ("E0",), board="seed-51"))
     homing = FirmwareConfig("test", "t", "mcs51", "at89c52", cfg.motors,
                             homing=(HomingAxis(0, "x_min", -1, 100, 500, 1000, 10, 0),))
-    with pytest.raises(NotImplementedError):
+    with pytest.raises(BuildError, match="does not home"):
         simulate(image.hex_path, homing, 1_000_000)
 
 
@@ -260,3 +264,29 @@ def test_step_pins_on_two_ports(tmp_path, monkeypatch):
         latency.append(int(late[0]))
     assert latency[1] - latency[0] == 2 * CLOCKS
     assert [on for _, on in trace.tool_edges] == [0, 1, 0]  # active high: on from reset until main turns it off
+
+
+def test_runs_go_on_across_blocks_in_short_and_long_records(tmp_path):
+    """The compact stream: short blocks (master left out, at any index) and long ones, a dwell, runs that start
+    inside a block and go on across several, short and long run records, the end marker's tool."""
+    runs = [(3000 * 256, -5000, 30), (1200 * 256 + 100, 3, 300), (70_000 * 256, 0, 2), (800 * 256, 0, 40)]
+    blocks = [
+        ((1, -1, 1), (10, 4, 0), 10, (5, 2, 5), True, 10),
+        ((-1, 1, 1), (3, 12, 12), 12, (1, 0, 0), True, 12),  # two masters: y is the one left out
+        ((1, 1, -1), (0, 5, 8), 8, (0, 4, 7), False, 8),
+        ((1, 1, 1), (300, 299, 1), 300, (150, 0, 299), False, 300),  # long: modulus > 255
+        ((1, 1, 1), (0, 0, 0), 1, (0, 0, 0), True, 2),  # a dwell of two events
+        ((-1, -1, -1), (40, 40, 39), 40, (0, 39, 20), False, 40),
+    ]
+    sched = make_schedule(("x", "y", "z"), blocks, final_tool=True, runs=runs)
+    table = mcs51_table.encode(sched)
+    assert table.counts() == {"short_blocks": 4, "long_blocks": 2, "short_runs": 2, "long_runs": 2}
+    # short block = 2 x motors bytes; its flags carry the master in bits 4-5
+    assert table.data[0] == 0x40 | 0b101 and table.data[1] == 10 and list(table.data[2:6]) == [4, 0, 2, 5]
+    assert len(table.data) == 4 * 6 + 2 * (3 + 12) + 2 * 6 + 2 * 10 + 2
+    assert table.data[-2:] == bytes([0x40, 0])
+    cfg = config(("x", "y", "z"), ("X", "Y", "Z"))
+    image, trace = build_and_run(sched, cfg, tmp_path)
+    check_plays(sched, cfg, trace)
+    assert [on for _, on in trace.tool_edges] == [1, 0, 1, 0, 1]
+    assert image.flash_parts["table"] == len(table.data)

@@ -43,6 +43,7 @@ class FirmwareConfig:
     step_pulse_us: float = 2.0
     dir_setup_us: float = 1.0
     homing: tuple[HomingAxis, ...] = ()  # motors homed at power-up, together, before the table plays
+    start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
 
 
 @dataclass

@@ -11,11 +11,13 @@ finished it, and each starting with the DIR pins set and a PHASE_PAUSE_US stands
      (at most `max_steps` steps); the position there is `home_steps`.
 A motor reads its switch when its next step is due. With a switch that closes d >= 1 steps away (towards it)
 and opens again one step short of that, the motor makes exactly d + backoff_steps + backoff_steps steps;
-`homing_steps` gives the counts in every case."""
+`homing_steps` gives the counts in every case. The 8051 image homes the same way (mcs51_homing.py uses the
+sequence's figures and the board-free checks here)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 from codegen.errors import BuildError
@@ -64,6 +66,41 @@ def min_interval_cycles(mcu: dict, f_cpu: int, n_motors: int, step_pulse_us: flo
     return int(work[min(n_motors, len(work)) - 1]) + math.ceil(step_pulse_us * f_cpu / 1e6)
 
 
+def homed_motors(config: FirmwareConfig, motors: list[dict], problems: list[str]
+                 ) -> Iterator[tuple[str, HomingAxis, dict]]:
+    """Each homing axis with its entry of `motors` and its name in messages (`homing[k] (motor x)`). A motor
+    index out of range (the axis is left out), a motor homed twice or too long a DIR setup for the pause adds
+    to `problems`."""
+    if config.dir_setup_us > PHASE_PAUSE_US / 2:
+        problems.append(f"dir_setup_us = {config.dir_setup_us} is too long for homing's {PHASE_PAUSE_US:g} us pause")
+    seen = set()
+    for k, h in enumerate(config.homing):
+        if not 0 <= h.motor < len(motors):
+            problems.append(f"homing[{k}]: motor index {h.motor} out of range (the image has {len(motors)} motors)")
+            continue
+        m = motors[h.motor]
+        where = f"homing[{k}] (motor {m['name']})"
+        if h.motor in seen:
+            problems.append(f"{where}: the motor is homed twice")
+        seen.add(h.motor)
+        yield where, h, m
+
+
+def axis_problems(where: str, h: HomingAxis, shortest: int) -> list[str]:
+    """What is wrong with one axis's direction, step counts and intervals (at least `shortest` timer ticks),
+    whatever the board."""
+    problems = [] if h.direction in (1, -1) else [f"{where}: direction must be +1 or -1, not {h.direction}"]
+    for field, low in (("max_steps", 1), ("backoff_steps", 1), ("fast_interval", shortest),
+                       ("slow_interval", shortest)):
+        value = getattr(h, field)
+        high = MAX_COUNT // 2 if field == "backoff_steps" else MAX_COUNT
+        if not isinstance(value, int) or not low <= value <= high:
+            unit = "timer ticks" if field.endswith("interval") else "steps"
+            problems.append(f"{where}: {field} = {value} {unit} is outside {low}..{high}"
+                            + (" (one homing event's work and the STEP pulse)" if low == shortest else ""))
+    return problems
+
+
 def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], mcu: dict) -> dict:
     """Template variables for homing (`homing` is empty without it); BuildError lists every problem."""
     f_cpu = int(mcu["f_cpu"])
@@ -73,19 +110,8 @@ def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], 
     if not config.homing:
         return context
     shortest = min_interval_cycles(mcu, f_cpu, len(config.homing), config.step_pulse_us)
-    problems, axes, seen_motors, seen_switches = [], [], set(), set()
-    if config.dir_setup_us > PHASE_PAUSE_US / 2:
-        problems.append(f"dir_setup_us = {config.dir_setup_us} is too long for homing's {PHASE_PAUSE_US:g} us pause")
-    for k, h in enumerate(config.homing):
-        where = f"homing[{k}]"
-        if not 0 <= h.motor < len(motors):
-            problems.append(f"{where}: motor index {h.motor} out of range (the image has {len(motors)} motors)")
-            continue
-        m = motors[h.motor]
-        where = f"homing[{k}] (motor {m['name']})"
-        if h.motor in seen_motors:
-            problems.append(f"{where}: the motor is homed twice")
-        seen_motors.add(h.motor)
+    problems, axes, seen_switches = [], [], set()
+    for where, h, m in homed_motors(config, motors, problems):
         switch = pins.endstop(h.switch)
         if switch is None:
             names = ", ".join(e.name for e in pins.endstops) or "none"
@@ -93,16 +119,7 @@ def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], 
         elif h.switch in seen_switches:
             problems.append(f"{where}: switch {h.switch} is used by two motors")
         seen_switches.add(h.switch)
-        if h.direction not in (1, -1):
-            problems.append(f"{where}: direction must be +1 or -1, not {h.direction}")
-        for field, low in (("max_steps", 1), ("backoff_steps", 1), ("fast_interval", shortest),
-                           ("slow_interval", shortest)):
-            value = getattr(h, field)
-            high = MAX_COUNT // 2 if field == "backoff_steps" else MAX_COUNT
-            if not isinstance(value, int) or not low <= value <= high:
-                unit = "timer ticks" if field.endswith("interval") else "steps"
-                problems.append(f"{where}: {field} = {value} {unit} is outside {low}..{high}"
-                                + (" (one homing event's work and the STEP pulse)" if low == shortest else ""))
+        problems += axis_problems(where, h, shortest)
         if switch is None or problems:
             continue
         us = (lambda ticks: f"{ticks / f_cpu * 1e6:g}")

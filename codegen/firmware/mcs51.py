@@ -23,23 +23,25 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, run_tool
 from codegen.firmware.avr import load_target
 from codegen.render import render
-from codegen.schedule import RUN_BYTES, TOOL_BIT, Schedule
+from codegen.firmware import mcs51_table
+from codegen.schedule import TOOL_BIT, Schedule
 
 LINE_BYTES = 16  # table bytes per line of table.c
 TOOL_FLAG_BIT = TOOL_BIT.bit_length() - 1
 STOP_TICKS = 7  # cycles Timer0 stands still in the interrupt's `arm` sequence (calibrated in s51)
 START_TICKS = 16  # from the timer start to tick 0 (main reaches idle before it)
 # Shortest STEP high time of each path of the interrupt (machine cycles from the rise to the fall), before pads.
-PATH_TICKS = {"same": 18, "run": 10, "block": 14}
+PATH_TICKS = {"same": 20, "run": 12, "block": 10}
 # Where the interrupt finds the STEP pins of each port (in port order) when it raises them: set by the previous
 # interrupt, left alone by main's idle loop.
 RAISE_REGS = ("a", "r0", "r1", "b")
 MAX_PAD = 511
+BLOCK_REGS = (3, 4, 5, 6)  # bank 0 registers a block load uses (saved when main runs)
+LONG_REGS = (2, 3, 4, 5, 6, 7)  # and a long wait
 VECTOR_TIMER0 = 0x000B
 SYMBOLS_FILE = "firmware.sym.json"
 MAP_FILE = "firmware.map"
 SFR = {0: 0x80, 1: 0x90, 2: 0xA0, 3: 0xB0}
-_HEX = [f"0x{b:02X}" for b in range(256)]
 _ROM_FULL = "Insufficient ROM/EPROM/FLASH memory"
 _XRAM_FULL = "Insufficient EXTERNAL RAM memory"
 _IRAM_FULL = re.compile(r"Could not get (\d+) consecutive bytes in internal RAM for area (\w+)")
@@ -119,35 +121,20 @@ def board_pins(config: FirmwareConfig) -> dict:
             "enable_active_low": bool(board["enable_active_low"]), "held": held}
 
 
-def _table_lines(data: bytes, schedule: Schedule) -> list[dict]:
-    """table.c's lines of at most LINE_BYTES, with a comment line where each block starts."""
-    flags, runs = schedule.block_flags(), np.diff(schedule.block_runs)
-    marks = {int(o): f"block {b}: flags 0x{int(flags[b]):02X}, {int(runs[b])} run(s)"
-             for b, o in enumerate(schedule.block_offsets())}
-    marks[len(data) - 3] = "end marker"
-    cuts = sorted(set(marks) | {0, len(data)})
-    lines = []
-    for a, b in zip(cuts, cuts[1:]):
-        for i in range(a, b, LINE_BYTES):
-            comment = f"0x{a:04X}: {marks[a]}" if i == a and a in marks else ""
-            lines.append({"comment": comment, "text": ", ".join(_HEX[x] for x in data[i:min(i + LINE_BYTES, b)])})
-    return lines
-
-
 def _pin_dict(pin: Pin) -> dict:
     return {"name": pin.name, "sfr": pin.sfr, "mask": pin.mask, "var": pin.var, "bit": pin.bit}
 
 
 def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]:
-    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c."""
+    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c (and homing.c for
+    an image that homes at power-up)."""
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
-    if config.homing:
-        raise BuildError("homing is not supported on the mcs51 target yet")
     pins = board_pins(config)
     mem = memories(config.board)
-    data = schedule.encode()
+    table = mcs51_table.encode(schedule)
+    data = table.data
     motors = []
     for index, w in enumerate(pins["motors"]):
         motors.append({"name": w["name"], "socket": w["socket"], "id": re.sub(r"\W", "_", w["name"]).upper(),
@@ -180,12 +167,29 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         "held": [{**_pin_dict(h["pin"]), "level": h["level"], "what": h["what"]} for h in pins["held"]],
         "stop_ticks": STOP_TICKS, "start_ticks": START_TICKS, "step_pulse_us": config.step_pulse_us,
         "step_pulse_ticks": pulse_ticks, "step_path_ticks": min(path.values()), "pads": pads,
-        "run_bytes": RUN_BYTES, "header_bytes": schedule.header_bytes(),
-        "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
-        "lines": _table_lines(data, schedule),
+        "short_run_bytes": mcs51_table.SHORT_RUN_BYTES, "long_run_bytes": mcs51_table.LONG_RUN_BYTES,
+        "short_block_bytes": mcs51_table.short_block_bytes(len(motors)),
+        "long_block_bytes": mcs51_table.long_block_bytes(len(motors)),
+        "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs, **table.counts(),
+        "lines": mcs51_table.table_lines(table, schedule, LINE_BYTES),
     }
     sources = {name: render(f"mcs51/{name}.j2", **context) for name in ("config.h", "table.h", "table.c")}
+    from codegen.firmware.mcs51_homing import homing_context  # here: that module builds on this one
+
+    context.update(homing_context(config, pins, motors, pulse_ticks))
+    from codegen.firmware.mcs51_lcd import board_lcd, render_lcd  # here: that module builds on this one
+
+    lcd = board_lcd(config.board, [m.name for m in config.motors])
+    for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
+        m["start_steps"] = int(start) % 65536  # the display shows signed 16-bit positions
+    # With a display, main runs its code while the interrupt plays: the interrupt saves what it uses, and keeps
+    # every motor's position at each block start for main to show.
+    context.update(busy_main=lcd is not None, positions=lcd is not None, block_regs=BLOCK_REGS, long_regs=LONG_REGS)
+    if lcd is not None:
+        sources.update(render_lcd(lcd, context))
     sources["player.c"] = _tidy_asm(render("mcs51/player.c.j2", **context))
+    if config.homing:
+        sources["homing.c"] = render("mcs51/homing.c.j2", **context)
     return sources
 
 

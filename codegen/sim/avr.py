@@ -14,6 +14,7 @@ import subprocess
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -52,6 +53,7 @@ class SimTrace:
     step_phase: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U4"))  # (P,) "home" | "run"
     homing_failed: bool = False  # the image stopped in homing's error state (and played no table)
     homing_fault: str | None = None  # which motors and phase, when homing_failed
+    display: Any = None  # a board's status display, decoded (codegen.sim.hd44780.Display); None without one
 
     def run_only(self) -> SimTrace:
         """The same trace with the step table's pulses only (phase "run")."""

@@ -10,6 +10,14 @@ Timer0 vector stops a run that outlives its cycle budget, and `timeout` bounds t
 Tick 0 of the table is the Timer0 overflow START_TICKS ticks after the timer starts: timer_start_cycle is the
 clock count at the end of SETB TR0 (its fetch + 12) + START_TICKS x 12. Pins come out of reset high (port latches
 0xFF); edges are level changes of the latch.
+
+Endstop keys (an image that homes): ucsim keeps a port's latch (`P3`, what the firmware writes) apart from the
+levels outside circuits put on its pins (the variable `pin3`, alias `port3_pin`; the firmware reads latch AND
+pins). The script keeps each homed motor's position in a simulator variable (`var hq0`, in ucsim's own variable
+memory, not the 8051's) and, in the commands of the write breakpoints of its STEP port, one expression adds +-1
+at each rising STEP edge (the latch against its last value, `hl1`, with the DIR latch giving the way) and puts the
+key's level on `pin<port>`: closed from the switch position on, open short of it. The firmware's fault routine
+(`_homing_fault`, from firmware.map) gets a fetch breakpoint that prints the status it is called with (DPL).
 """
 
 from __future__ import annotations
@@ -24,17 +32,30 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
-from codegen.firmware.mcs51 import SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories
-from codegen.sim.avr import PHASE_RUN, SimTrace
+from codegen.firmware.avr_homing import homing_ticks_bound
+from codegen.firmware.mcs51 import MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
+from codegen.firmware.mcs51_homing import decode_status, endstops
+from codegen.firmware.mcs51_lcd import board_lcd
+from codegen.sim.hd44780 import decode as decode_display
+from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault
 
-TAG_TIMER, TAG_HALT, TAG_BUDGET = 16, 17, 18  # record tags beyond the port tags 0..3
+TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT = 16, 17, 18, 19  # record tags beyond the port tags 0..3
 MAX_CONDITION = (1 << 32) - 1  # sim_ticks is 32-bit: longer budgets rely on the wall-clock timeout
 SIM_CLOCKS_PER_S = 20e6  # a pessimistic s51 speed with breakpoints, for the wall-clock timeout
+POSITION_BIAS = 1 << 30  # s51 compares unsigned: positions (steps towards the switch) are kept this far above 0
+SWITCH_REACH = 1 << 29  # switch positions beyond +-this many steps are as good as never reached
 
 
-def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget: int) -> str:
-    """The s51 command script: every record prints two lines, sim_ticks and tag * 256 + value."""
-    lines = [f'file "{hex_path}"']
+def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget: int, *,
+            prelude: tuple[str, ...] = (), on_write: dict[int, str] | None = None,
+            fault: int | None = None) -> str:
+    """The s51 command script: every record prints two lines, sim_ticks and tag * 256 + value.
+
+    `prelude`: commands after loading the hex (none may print a line of digits alone); `on_write`: per port, an
+    expression (no spaces) evaluated at every write to the port before its record; `fault`: the address of a
+    routine whose fetch ends the run with a TAG_FAULT record of DPL."""
+    lines = [f'file "{hex_path}"', *prelude]
+    effects = {port: expr + "," for port, expr in (on_write or {}).items()}
     n = 0
 
     def brk(spec: str, tag_expr: str, resume: bool) -> None:
@@ -44,12 +65,14 @@ def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget
         lines.append(f"commands {n} expression /u sim_ticks ; expression /u {tag_expr}" + (" ; run" if resume else ""))
 
     for port in ports:
-        brk(f"sfr w {SFR[port]:#x}", f"{port * 256}+P{port}", True)
+        brk(f"sfr w {SFR[port]:#x}", f"{effects.get(port, '')}{port * 256}+P{port}", True)
     for bit in bits:
         port = (bit - 0x80) >> 4
-        brk(f"bits w {bit:#x}", f"{port * 256}+P{port}", True)
+        brk(f"bits w {bit:#x}", f"{effects.get(port, '')}{port * 256}+P{port}", True)
     brk(f"{sym['timer_start']:#x}", str(TAG_TIMER * 256), True)
     brk(f"{sym['halt']:#x}", str(TAG_HALT * 256), False)
+    if fault is not None:
+        brk(f"{fault:#x}", f"{TAG_FAULT * 256}+DPL", False)
     if budget <= MAX_CONDITION:
         brk(f"{VECTOR_TIMER0:#x} if sim_ticks>{budget}", str(TAG_BUDGET * 256), False)
     lines += ["run", "quit", ""]
@@ -74,11 +97,49 @@ def _levels(rec: np.ndarray, port: int, bit: int) -> tuple[np.ndarray, np.ndarra
     return mine[changed, 0], level[changed]
 
 
+def _switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | None],
+                  ) -> tuple[tuple[str, ...], dict[int, str]]:
+    """The script's prelude and per-port expressions that play the endstop keys (see the top of this file):
+    motor m's key closes once the motor has made `switches[m]` steps (signed, machine coordinates) from where
+    the run starts; None: it never closes."""
+    keys = endstops(config.board)
+    prelude, updates, levels = [], {}, {}
+    pin_levels = {}  # port -> the pins' level at the start
+    for h in config.homing:
+        wiring, key, at = pins["motors"][h.motor], keys[h.switch], switches.get(h.motor)
+        step, dirp, q = wiring["step"], wiring["dir"], f"hq{h.motor}"
+        towards_high = (h.direction > 0) != wiring["invert"]
+        prelude += [f"var {q}", f"expression /X {q}={POSITION_BIAS}"]
+        rise = f"P{step.port}&~hl{step.port}&{step.mask}"
+        way = f"(P{dirp.port}&{dirp.mask})?{2 if towards_high else 0}:{0 if towards_high else 2}"
+        updates.setdefault(step.port, []).append(f"{q}={q}+(({rise})?({way}):1)-1")
+        port, closed = key.pin.port, key.pin.mask if key.closed_high else 0
+        start = pin_levels.get(port, 0xFF) & ~key.pin.mask
+        if at is None:  # never closes
+            pin_levels[port] = start | (key.pin.mask ^ closed)
+            continue
+        threshold = POSITION_BIAS + max(-SWITCH_REACH, min(SWITCH_REACH, int(at) * h.direction))
+        pin_levels[port] = start | (closed if threshold <= POSITION_BIAS else key.pin.mask ^ closed)
+        levels.setdefault(step.port, []).append(
+            f"pin{port}=(pin{port}&{0xFF & ~key.pin.mask})|(({q}>={threshold})?{closed}:{key.pin.mask ^ closed})")
+    for port in sorted(updates):
+        prelude += [f"var hl{port}", f"expression /X hl{port}=255"]  # the latch after reset
+    prelude += [f"expression /X pin{port}={level}" for port, level in sorted(pin_levels.items())]
+    on_write = {port: ",".join(updates[port] + [f"hl{port}=P{port}"] + levels.get(port, [])) for port in updates}
+    return tuple(prelude), on_write
+
+
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
              switches: dict[int, int | None] | None = None) -> SimTrace:
-    """Run `hex_path` until the firmware reaches halt(); BuildError on a crash or past the budget (CPU clocks)."""
-    if config.homing or switches:
-        raise NotImplementedError("homing on the mcs51 target is a later increment")
+    """Run `hex_path` until the firmware reaches halt() (or homing's fault state); BuildError on a crash or past
+    the budget (CPU clocks).
+
+    `switches` maps a homed motor's index (config.motors) to the position, in steps from where the simulation
+    starts, signed in machine coordinates, at which its key closes: closed while the motor is there or beyond it
+    in its homing direction, open otherwise. A homed motor without an entry (or with None) has a key that never
+    closes. Without `switches` at all, the machine starts on its keys (every one at position 0). `cycle_budget`
+    is for the step table: an image that homes gets a bound on its homing time on top. A failed homing is not an
+    error here: see SimTrace.homing_failed."""
     if shutil.which("s51") is None:
         raise BuildError("s51 not found: install sdcc-ucsim")
     hex_path = Path(hex_path).resolve()
@@ -87,13 +148,35 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         raise BuildError(f"{sym_path} is missing: build the image with codegen.firmware.mcs51")
     sym = json.loads(sym_path.read_text(encoding="utf-8"))
     pins = board_pins(config)
-    f_cpu = int(memories(config.board)["f_cpu"])
+    mem = memories(config.board)
+    f_cpu = int(mem["f_cpu"])
+    homed = {h.motor for h in config.homing}
+    stray = sorted(set(switches or {}) - homed)
+    if stray:
+        raise ValueError(f"switches for motors {stray} that the config does not home (homed: {sorted(homed)})")
+    extra: dict = {}
+    if config.homing:
+        if switches is None:
+            switches = {m: 0 for m in homed}
+        towards = {h.motor: None if switches.get(h.motor) is None else int(switches[h.motor]) * h.direction
+                   for h in config.homing}
+        cycle_budget = int(cycle_budget) + homing_ticks_bound(config, towards, int(mem["tick_hz"])) * int(
+            sym["clocks_per_tick"])
+        prelude, on_write = _switch_model(config, pins, switches)
+        fault = read_map(hex_path.with_name(MAP_FILE))[1].get("_homing_fault")
+        if fault is None:
+            raise BuildError(f"{hex_path.with_name(MAP_FILE)} lacks _homing_fault: the image does not home")
+        extra = {"prelude": prelude, "on_write": on_write, "fault": fault}
     watched = [p for m in pins["motors"] for p in (m["step"], m["dir"])] + [pins["tool"]]
+    lcd = board_lcd(config.board, [m.name for m in config.motors])
+    if lcd is not None:
+        w = lcd.wiring
+        watched += [p for p in (w.rs, w.e, w.rw, *w.data) if p is not None]
     ports = sorted({p.port for p in watched})
     bits = sorted({SFR[p.port] + p.bit for p in watched})
     with tempfile.TemporaryDirectory(prefix="printer-codegen-s51-") as tmp:
         script = Path(tmp) / "run.cmd"
-        script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget)), encoding="utf-8")
+        script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget), **extra), encoding="utf-8")
         wall = 10 + cycle_budget / SIM_CLOCKS_PER_S
         try:
             done = subprocess.run(["timeout", f"{wall:.0f}", "s51", "-X", str(f_cpu), "-C", str(script)],
@@ -101,7 +184,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         except FileNotFoundError as exc:
             raise BuildError("timeout or s51 not found") from exc
     rec = _records(done.stdout)
-    stray = set(np.unique(rec[:, 1]).tolist()) - {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET}
+    stray = set(np.unique(rec[:, 1]).tolist()) - {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT}
     if stray:
         raise BuildError(f"unexpected s51 output (record tags {sorted(stray)}) for {hex_path}")
     ends = rec[rec[:, 1] >= TAG_HALT]
@@ -114,13 +197,23 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     if ends[0, 1] == TAG_BUDGET:
         raise BuildError(f"the firmware did not finish within {cycle_budget} cycles "
                          f"({cycle_budget / f_cpu:.3f} s simulated; {hex_path})")
+    fault = None
+    if ends[0, 1] == TAG_FAULT:
+        motor_bits, phase = decode_status(int(ends[0, 2]))
+        fault = _homing_fault(config, HOMING_FAILED, motor_bits, phase)
     clocks = int(sym["clocks_per_tick"])
     starts = rec[rec[:, 1] == TAG_TIMER, 0]
     timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None
-    return _trace(rec, pins, f_cpu, cycles, timer_start)
+    trace = _trace(rec, pins, f_cpu, cycles, timer_start, int(starts[0]) if len(starts) else None)
+    trace.homing_failed, trace.homing_fault = fault is not None, fault
+    if lcd is not None:
+        trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
+    return trace
 
 
-def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None) -> SimTrace:
+def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None,
+           run_from: int | None) -> SimTrace:
+    """The trace of the records; steps from clock `run_from` on (the player's timer start) are the table's."""
     step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []
     for m, wiring in enumerate(pins["motors"]):
         t, level = _levels(rec, wiring["step"].port, wiring["step"].bit)
@@ -141,8 +234,9 @@ def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: in
     order = np.lexsort((mot, cyc))
     tool_t, tool_level = _levels(rec, pins["tool"].port, pins["tool"].bit)
     tool_on = tool_level ^ (0 if pins["tool_active_high"] else 1)
-    run = np.full(len(order), PHASE_RUN, dtype="<U4")
+    run = cyc[order] >= run_from if run_from is not None else np.zeros(len(order), dtype=bool)
     return SimTrace(state="done", cycles=cycles, f_cpu=f_cpu, timer_start_cycle=timer_start,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
-                    tool_edges=[(int(c), int(v)) for c, v in zip(tool_t, tool_on)], step_phase=run)
+                    tool_edges=[(int(c), int(v)) for c, v in zip(tool_t, tool_on)],
+                    step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"))

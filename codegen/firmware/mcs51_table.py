@@ -1,0 +1,147 @@
+"""The compact table stream of the 8051 player: short records where the numbers are small, and rate runs that go on
+across block starts (8 KB of code memory holds the whole job).
+
+Semantics are codegen/schedule.py's, with two differences: a block lasts exactly `modulus` events (a dwell is a
+block of `events` step-less events), and the runs form one sequence over all events, independent of the blocks.
+The player reads one stream in the order it needs the records: at an event that starts a block and a run, the
+block record comes first. Little-endian.
+
+Block record, first byte `flags`: bit m (m < 4) motor m moves in + direction, bits 4-5 the master motor (short
+form), bit 6 the tool is on, and
+    bit 7 clear   short form: modulus u8 (1..255), then steps u8 and init u8 of every motor but the master, which
+                  steps at every event                                                 (2 * motors bytes)
+                  modulus 0: the end of the program; nothing follows and the tool takes bit 6 (2 bytes)
+    bit 7 (LONG)  long form:  modulus u16, steps u16 x motors, init u16 x motors       (3 + 4 * motors bytes)
+                  (a dwell, whose motors all stand, is always long)
+Run record, first byte `count`:
+    1..255        short form: interval u24 (16.8 ticks), add i16 (8.8 ticks)           (6 bytes)
+    0             long form:  count u16, interval u32 (24.8), add i24 (16.8)           (10 bytes)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.schedule import TOOL_BIT, Schedule
+
+LONG_BIT = 0x80
+MASTER_SHIFT = 4
+MAX_MOTORS = 4  # direction bits 0..3 of the flags
+SHORT_RUN_BYTES = 6
+LONG_RUN_BYTES = 10
+MAX_LONG_MODULUS = 0xFFFF
+_HEX = [f"0x{b:02X}" for b in range(256)]
+
+
+@dataclass
+class CompactTable:
+    data: bytes
+    block_offsets: np.ndarray  # (B,) byte offset of every block record
+    block_long: np.ndarray  # (B,) bool
+    run_long: np.ndarray  # (R,) bool
+
+    def counts(self) -> dict[str, int]:
+        return {"short_blocks": int((~self.block_long).sum()), "long_blocks": int(self.block_long.sum()),
+                "short_runs": int((~self.run_long).sum()), "long_runs": int(self.run_long.sum())}
+
+
+def short_block_bytes(motors: int) -> int:
+    return 2 * motors
+
+
+def long_block_bytes(motors: int) -> int:
+    return 3 + 4 * motors
+
+
+def _le(values: np.ndarray, width: int) -> np.ndarray:
+    v = np.asarray(values, dtype=np.int64)
+    return np.stack([(v >> (8 * i)) & 0xFF for i in range(width)], axis=-1).astype(np.uint8)
+
+
+def block_fields(schedule: Schedule) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(modulus, steps, init) as the player counts them: a dwell's modulus is its event count."""
+    events = schedule.events_per_block()
+    dwell = ~np.any(schedule.block_steps > 0, axis=1)
+    modulus = np.where(dwell, events, schedule.block_modulus)
+    init = np.where(dwell[:, None], 0, schedule.block_init)
+    if np.any(events != modulus):
+        raise ValueError("a moving block of the compact stream must last exactly `modulus` events")
+    return modulus, schedule.block_steps, init
+
+
+def encode(schedule: Schedule) -> CompactTable:
+    motors = len(schedule.motors)
+    if motors > MAX_MOTORS:
+        raise ValueError(f"the compact stream holds at most {MAX_MOTORS} motors")
+    if not schedule.runs_cross_blocks:
+        raise ValueError("the compact stream needs a schedule compressed with cross_blocks=True")
+    schedule.validate()
+    modulus, steps, init = block_fields(schedule)
+    if np.any(modulus < 1) or np.any(modulus > MAX_LONG_MODULUS):
+        raise ValueError("block modulus out of the compact stream's range")
+    flags = schedule.block_flags()
+    master = np.argmax(steps, axis=1)
+    block_long = (modulus > 0xFF) | ~np.any(steps > 0, axis=1)
+    width = long_block_bytes(motors)
+    blocks = np.zeros((schedule.n_blocks, width), dtype=np.uint8)
+    short = np.flatnonzero(~block_long)
+    blocks[:, 0] = flags | np.where(block_long, LONG_BIT, master << MASTER_SHIFT)
+    blocks[short, 1] = modulus[short]
+    # The slaves of a short block: every motor but its master, in motor order.
+    slave = np.arange(motors)[None, :] != master[short][:, None]
+    order = np.argsort(~slave, axis=1, kind="stable")[:, :motors - 1]
+    blocks[short[:, None], 2 + np.arange(motors - 1)[None, :]] = np.take_along_axis(steps[short], order, axis=1)
+    blocks[short[:, None], motors + 1 + np.arange(motors - 1)[None, :]] = np.take_along_axis(init[short], order, axis=1)
+    blocks[block_long, 1:3] = _le(modulus[block_long], 2)
+    for m in range(motors):
+        blocks[block_long, 3 + 2 * m:5 + 2 * m] = _le(steps[block_long, m], 2)
+        blocks[block_long, 3 + 2 * (motors + m):5 + 2 * (motors + m)] = _le(init[block_long, m], 2)
+    block_len = np.where(block_long, width, short_block_bytes(motors))
+
+    count, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
+    run_long = (count > 0xFF) | (interval >= 1 << 24) | (add < -(1 << 15)) | (add >= 1 << 15)
+    runs = np.zeros((schedule.n_runs, LONG_RUN_BYTES), dtype=np.uint8)
+    rs = ~run_long
+    runs[rs, 0] = count[rs]
+    runs[rs, 1:4] = _le(interval[rs], 3)
+    runs[rs, 4:6] = _le(add[rs] & 0xFFFF, 2)
+    runs[run_long, 1:3] = _le(count[run_long], 2)
+    runs[run_long, 3:7] = _le(interval[run_long], 4)
+    runs[run_long, 7:10] = _le(add[run_long] & 0xFFFFFF, 3)
+    run_len = np.where(run_long, LONG_RUN_BYTES, SHORT_RUN_BYTES)
+
+    # Records in the order the player needs them: by the event that starts them, a block before a run.
+    block_first = np.cumsum(schedule.events_per_block()) - schedule.events_per_block()
+    run_first = np.cumsum(count) - count
+    key = np.concatenate([2 * block_first, 2 * run_first + 1])
+    order = np.argsort(key, kind="stable")
+    size = max(width, LONG_RUN_BYTES)
+    matrix = np.zeros((len(key), size), dtype=np.uint8)
+    matrix[:schedule.n_blocks, :width] = blocks
+    matrix[schedule.n_blocks:, :LONG_RUN_BYTES] = runs
+    length = np.concatenate([block_len, run_len])[order]
+    matrix = matrix[order]
+    body = matrix[np.arange(size)[None, :] < length[:, None]]
+    end = TOOL_BIT if schedule.final_tool else 0
+    data = np.concatenate([body, [end, 0]]).astype(np.uint8).tobytes()
+    offsets = np.empty(len(key), dtype=np.int64)
+    offsets[order] = np.cumsum(length) - length
+    return CompactTable(data, offsets[:schedule.n_blocks], block_long, run_long)
+
+
+def table_lines(table: CompactTable, schedule: Schedule, line_bytes: int) -> list[dict]:
+    """table.c's lines of at most `line_bytes`, with a comment line where each block starts."""
+    flags = schedule.block_flags()
+    marks = {int(o): f"block {b}: flags 0x{int(flags[b]):02X}{' (long)' if table.block_long[b] else ''}"
+             for b, o in enumerate(table.block_offsets)}
+    data = table.data
+    marks[len(data) - 2] = "end marker"
+    cuts = sorted(set(marks) | {0, len(data)})
+    lines = []
+    for a, b in zip(cuts, cuts[1:]):
+        for i in range(a, b, line_bytes):
+            comment = f"0x{a:04X}: {marks[a]}" if i == a and a in marks else ""
+            lines.append({"comment": comment, "text": ", ".join(_HEX[x] for x in data[i:min(i + line_bytes, b)])})
+    return lines

@@ -1,0 +1,73 @@
+"""Curve timing and runs across blocks (the compact tables): event times follow the curve, not its chords, so
+rate runs span many chords; every event stays in its window."""
+
+import math
+
+import numpy as np
+
+from codegen.compress import TimingWindow, compress
+from codegen.curve_timing import smooth_curve_times
+from codegen.stepgen import generate
+from codegen.toolpath import Arc, Toolpath
+from codegen.twin import predict
+from tests.helpers import SRC, planned, point, polyline
+
+TICK = 1_000_000
+RUN_GAP, BLOCK_GAP = 130, 300
+
+
+def circle(r=20.0, feed=25.0):
+    return Toolpath(point(r, 0), [Arc(point(r, 0), point(r, 0), (0.0, 0.0), r, 0.0, 2 * math.pi, feed, True, SRC)])
+
+
+def timed(toolpath):
+    kin, segments, steps, p = planned(toolpath, max_event_rate=TICK / (1.25 * RUN_GAP))
+    events = generate(segments, p, kin, steps, max_gap=10.0)
+    return kin, segments, p, events, smooth_curve_times(events, segments, p, kin)
+
+
+def in_cruise(events):
+    first = events.block_first
+    inner = np.zeros(len(events.time), dtype=bool)
+    inner[first[2]:first[-3]] = True  # leave out the blocks that start and stop
+    return inner & (events.phase == 1)
+
+
+def test_times_pass_every_vertex_and_bend_smoothly():
+    kin, segments, p, chords, smooth = timed(circle())
+    assert np.all(np.diff(smooth.time) > 0)
+    # Per master step, within the same master: the chords' intervals jump at every vertex, the curve's do not.
+    master = np.argmax(np.abs(chords.block_steps), axis=1)
+    block = np.repeat(np.arange(len(master)), np.diff(chords.block_first))
+    same = (master[block][2:] == master[block][:-2]) & in_cruise(chords)[2:]
+    bend_chords = np.abs(np.diff(chords.time, 2))[same]
+    bend_smooth = np.abs(np.diff(smooth.time, 2))[same]
+    assert bend_chords.max() > 10 * bend_smooth.max()
+    # Every event within 0.1 ms of the chord timing (2.5 um of travel at this speed).
+    assert np.abs(smooth.time - chords.time).max() < 1e-4
+    # The first and last blocks start and end at rest: they keep their chord times.
+    first = slice(0, chords.block_first[1])
+    assert np.array_equal(smooth.time[first], chords.time[first])
+
+
+def test_lines_and_corners_keep_chord_times():
+    square = polyline([(0, 0), (10, 0), (10, 10), (0, 10), (0, 0)], feed=40)
+    *_, chords, smooth = timed(square)
+    assert np.array_equal(chords.time, smooth.time)
+
+
+def test_runs_cross_blocks_and_stay_in_their_windows():
+    kin, segments, p, chords, smooth = timed(circle())
+    own = compress(chords, kin.motors, TICK, RUN_GAP, BLOCK_GAP)
+    across = compress(smooth, kin.motors, TICK, RUN_GAP, BLOCK_GAP, TimingWindow(max_us=100.0),
+                      cross_blocks=True)
+    sched = across.schedule
+    assert sched.runs_cross_blocks and np.array_equal(sched.events_per_block(), np.diff(smooth.block_first))
+    assert np.all(np.abs(across.emitted_ticks - across.ideal_ticks) <= across.window_ticks)
+    gaps = np.diff(np.concatenate([[0], across.emitted_ticks]))
+    assert np.all(gaps >= RUN_GAP)
+    assert sched.n_runs * 3 < sched.n_blocks < own.schedule.n_runs / 2
+    # The twin plays the blocks off the one sequence of runs: the same steps as the chords say.
+    pulses = predict(sched)
+    assert np.array_equal(pulses.final_positions(), chords.block_steps.sum(axis=0))
+    assert np.array_equal(pulses.event_tick, across.emitted_ticks)
