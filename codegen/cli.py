@@ -64,12 +64,16 @@ def _checked_host(job, strict: bool) -> HostBuild:
     return host
 
 
+FIT_HINT = ("what helps: a larger machine.tolerance (fewer chords on curves), fewer or shorter moves, or a chip "
+            "with more flash")
+
+
 def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, object, Path]:
     host = _checked_host(job, strict)
     table = host.schedule.table_bytes()
     if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
         raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
-                         f"{host.target.mcu} has {host.target.flash_bytes}")
+                         f"{host.target.mcu} has {host.target.flash_bytes}; {FIT_HINT}")
     firmware = _target_module("firmware", host.target.target)
     sources = firmware.render_sources(host.schedule, host.firmware_config())
     fingerprint = _fingerprint(sources)
