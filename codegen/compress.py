@@ -133,26 +133,26 @@ def _bad_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed:
     return np.unique(np.searchsorted(starts, np.flatnonzero(bad), side="right") - 1), n
 
 
+MAX_SWEEPS = 64  # each sweep can halve the runs: far more than enough
+
+
 def _merge_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray,
                 fixed: np.ndarray) -> np.ndarray:
     """Join neighbouring runs, pair by pair, wherever the joined run still keeps every event in its window
     (the run limits are estimates; this measures). Runs starting at `fixed` events stay."""
-    idle = 0
-    for sweep in range(64):
+    quiet = 0  # sweeps in a row that joined nothing: after both pairings, nothing more will join
+    for sweep in range(MAX_SWEEPS):
         pair = np.arange(sweep % 2, len(starts) - 1, 2)
         pair = pair[~fixed[starts[pair + 1]]]
-        if len(pair) == 0:
-            idle += 1
-            if idle == 2:
-                break
-            continue
-        trial = np.delete(starts, pair + 1)
-        joined = np.searchsorted(trial, starts[pair])
-        bad, n = _bad_runs(trial, ideal, window, needed)
-        ok = ~np.isin(joined, bad) & (n[joined] <= MAX_COUNT)
-        idle = 0 if ok.any() else idle + 1
-        starts = np.delete(starts, pair[ok] + 1)
-        if idle == 2:
+        ok = np.zeros(len(pair), dtype=bool)
+        if len(pair):
+            trial = np.delete(starts, pair + 1)
+            joined = np.searchsorted(trial, starts[pair])
+            bad, n = _bad_runs(trial, ideal, window, needed)
+            ok = ~np.isin(joined, bad) & (n[joined] <= MAX_COUNT)
+            starts = np.delete(starts, pair[ok] + 1)
+        quiet = 0 if ok.any() else quiet + 1
+        if quiet == 2:
             break
     return starts
 
