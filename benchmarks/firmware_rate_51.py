@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from codegen.errors import BuildError  # noqa: E402
 from codegen.firmware import FirmwareConfig, MotorPins  # noqa: E402
 from codegen.firmware.mcs51 import build_image, render_sources  # noqa: E402
+from codegen.firmware.avr import load_target  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
 from codegen.schedule import Schedule  # noqa: E402
 from codegen.twin import predict  # noqa: E402
@@ -119,7 +120,7 @@ def on_time(n_motors: int, interval: int, events: int, mode: str, workdir: Path,
         return False
     late = latencies(sched, trace, n_motors)
     skip = 2 if mode in ("run", "accel") else 1
-    tolerance = TOLERANCE + (CLOCKS * MAIN_JITTER if board != BOARDS[0] else 0)
+    tolerance = TOLERANCE + (CLOCKS * MAIN_JITTER if load_target(board).get("lcd") else 0)
     return late is not None and all(int(np.abs(np.diff(m[skip:])).max()) <= tolerance for m in late)
 
 
@@ -136,7 +137,14 @@ def fastest(n_motors: int, events: int, mode: str, workdir: Path, board: str, lo
     return hi
 
 
+def coil_board(board: str) -> bool:
+    """A board with 4-wire coil sockets (coil-51: sockets X and Y only)."""
+    return any("coils" in s for s in (load_target(board).get("steppers") or {}).values())
+
+
 def motor_counts(board: str) -> tuple[int, ...]:
+    if coil_board(board):
+        return (1, 2)
     return MOTOR_COUNTS if board in BOARDS else MOTOR_COUNTS[:2]
 
 
@@ -151,6 +159,9 @@ def measure(work: Path, board: str) -> dict[str, int]:
         out[f"block_event_cycles_{suffix}"] = fastest(n, 2560, "block", work, board)
     sched, trace = play(1, 2000, 100, "run", work, board)
     out["isr_latency_cycles"] = min(int(np.median(m)) for m in latencies(sched, trace, 1)) // CLOCKS
+    if coil_board(board):  # no STEP pulse, no DIR pin: the coil port is written once per event
+        out["min_event_cycles"] = out[f"block_event_cycles_{motor_counts(board)[-1]}_motors"] + 1
+        return out
     # The STEP high time of every path: same run, run load, block load (the shortest is a run load's).
     highs = [h for mode in ("run", "runs", "block")
              for h in play(1, 2000, 20, mode, work, board)[1].pulse_high_min_cycles]
@@ -204,7 +215,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="firmware-rate-51-") as tmp:
         figures = measure(Path(tmp), args.board)
     print(f"board {args.board}")
-    jitter = "" if args.board in BOARDS else f" and +-{MAIN_JITTER} machine cycles of main's instructions"
+    jitter = "" if not load_target(args.board).get("lcd") else f" and +-{MAIN_JITTER} machine cycles of main's instructions"
     print(f"8051 player at 12 MHz (1 MHz timer ticks) in s51; every pulse on its tick within +-{TOLERANCE} clocks{jitter}; "
           f"motor 0 the master, every other motor stepping through Bresenham at (nearly) every event")
     for n in motor_counts(args.board):
@@ -216,7 +227,8 @@ def main() -> None:
             print(f"  {n} motor(s), {what}: {cycles} machine cycles per event, {rate:,.0f} steps/s per motor, "
                   f"{rate * n:,.0f} steps/s in total")
     for key in ("isr_latency_cycles", "step_high_min_cycles", "block_dir_write_cycles", "min_event_cycles"):
-        print(f"  {key}: {figures[key]} machine cycles")
+        if key in figures:
+                print(f"  {key}: {figures[key]} machine cycles")
     if args.write:
         boards = BOARDS if args.board in BOARDS else (args.board,)
         write_targets(figures, boards)

@@ -46,6 +46,9 @@ _ROM_FULL = "Insufficient ROM/EPROM/FLASH memory"
 _XRAM_FULL = "Insufficient EXTERNAL RAM memory"
 _IRAM_FULL = re.compile(r"Could not get (\d+) consecutive bytes in internal RAM for area (\w+)")
 UNBOUNDED_CODE = 65536
+# The 8-phase half-step sequence of a 4-wire coil drive over (coil 1, 2, 3, 4); + direction = the next phase.
+HALF_STEPS = ((1, 0, 0, 0), (1, 1, 0, 0), (0, 1, 0, 0), (0, 1, 1, 0), (0, 0, 1, 0), (0, 0, 1, 1), (0, 0, 0, 1),
+              (1, 0, 0, 1))
 
 
 @dataclass(frozen=True)
@@ -100,22 +103,44 @@ def board_pins(config: FirmwareConfig) -> dict:
         if m.socket not in sockets:
             raise BuildError(f"board {config.board} has no stepper socket {m.socket} (has {', '.join(sockets)})")
         s = sockets[m.socket]
+        if "coils" in s:
+            coils = [parse_pin(c) for c in s["coils"] or []]
+            if len(coils) != 4:
+                raise BuildError(f"board {config.board}: socket {m.socket} needs 4 coil pins (has {len(coils)})")
+            motors.append({"name": m.name, "socket": m.socket, "coils": coils, "step": None, "dir": None,
+                           "enable": None, "invert": m.invert_dir})
+            continue
         motors.append({"name": m.name, "socket": m.socket, "step": parse_pin(s["step"]), "dir": parse_pin(s["dir"]),
-                       "enable": parse_pin(s["enable"]), "invert": m.invert_dir})
+                       "enable": parse_pin(s["enable"]), "invert": m.invert_dir, "coils": None})
     held = [{"pin": parse_pin(h["pin"]), "level": 1 if h["level"] == "high" else 0, "what": h.get("what", "")}
             for h in board.get("held_pins") or []]
     tool = parse_pin(board["tool"]["pin"])
     # Every STEP, DIR, tool and held pin is its own (motors may share an enable pin).
     uses: dict[str, list[str]] = {}
-    roles = [(f"{m['name']} {kind.upper()}", m[kind]) for kind in ("step", "dir") for m in motors]
+    roles = [(f"{m['name']} {kind.upper()}", m[kind]) for kind in ("step", "dir") for m in motors if m[kind]]
+    roles += [(f"{m['name']} coil {i + 1}", c) for m in motors for i, c in enumerate(m["coils"] or [])]
     for role, pin in roles + [("tool", tool)] + [("held", h["pin"]) for h in held]:
         uses.setdefault(pin.name, []).append(role)
     for m in motors:
-        uses.setdefault(m["enable"].name, []).append("enable")
+        if m["enable"]:
+            uses.setdefault(m["enable"].name, []).append("enable")
     clash = {name: roles for name, roles in uses.items() if len(roles) > 1 and set(roles) != {"enable"}}
     if clash:
         raise BuildError(f"board {config.board}: pins used twice: "
                          + "; ".join(f"{name} ({', '.join(roles)})" for name, roles in sorted(clash.items())))
+    # A coil port is rewritten whole at each event: nothing else on it may change while the player runs.
+    coil_ports = {c.port for m in motors for c in m["coils"] or []}
+    moving = [(f"{m['name']} {kind.upper()}", m[kind]) for kind in ("step", "dir") for m in motors if m[kind]]
+    moving.append(("tool", tool))
+    lcd = board.get("lcd") or {}
+    moving += [(f"LCD {k}", parse_pin(v)) for k, v in lcd.items() if k in ("rs", "e", "rw") and v]
+    moving += [("LCD data", parse_pin(v)) for v in lcd.get("data") or []]
+    bad = [f"{pin.name} ({role})" for role, pin in moving if pin.port in coil_ports]
+    if bad:
+        raise BuildError(f"board {config.board}: coil pins share their port with pins that change while the player "
+                         f"runs: {', '.join(bad)} (coil ports: {', '.join(f'P{p}' for p in sorted(coil_ports))})")
+    if coil_ports and config.homing:
+        raise BuildError(f"board {config.board}: homing is not supported with coil-driven motors")
     return {"motors": motors, "tool": tool,
             "tool_active_high": bool(board["tool"]["active_high"]),
             "enable_active_low": bool(board["enable_active_low"]), "held": held}
@@ -131,29 +156,59 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
+    from codegen.firmware.mcs51_lcd import board_lcd, render_lcd  # here: that module builds on this one
+
     pins = board_pins(config)
     mem = memories(config.board)
     table = mcs51_table.encode(schedule)
     data = table.data
     motors = []
     for index, w in enumerate(pins["motors"]):
-        motors.append({"name": w["name"], "socket": w["socket"], "id": re.sub(r"\W", "_", w["name"]).upper(),
-                       "var": f"m{index}", "step": _pin_dict(w["step"]), "dir": _pin_dict(w["dir"]),
-                       "enable": _pin_dict(w["enable"]), "invert": w["invert"], "flag": 1 << index})
-    ports = sorted({m["step"]["sfr"] for m in motors})
+        entry = {"name": w["name"], "socket": w["socket"], "id": re.sub(r"\W", "_", w["name"]).upper(),
+                 "var": f"m{index}", "invert": w["invert"], "flag": 1 << index, "coil": w["coils"] is not None}
+        if w["coils"] is None:
+            entry.update(step=_pin_dict(w["step"]), dir=_pin_dict(w["dir"]), enable=_pin_dict(w["enable"]))
+        else:
+            entry.update(step=None, dir=None, enable=None, coils=[_pin_dict(c) for c in w["coils"]],
+                         patterns=[sum(c.mask for c, on in zip(w["coils"], bits) if on) for bits in HALF_STEPS])
+        motors.append(entry)
+    ports = sorted({m["step"]["sfr"] for m in motors if not m["coil"]})
+    c_ports = sorted({m["coils"][0]["sfr"] for m in motors if m["coil"]})
+    if len(ports) + len(c_ports) > len(RAISE_REGS):
+        raise BuildError(f"board {config.board}: STEP and coil pins on more than {len(RAISE_REGS)} ports")
     step_ports = []
     for sfr, reg in zip(ports, RAISE_REGS):
-        group = [m for m in motors if m["step"]["sfr"] == sfr]
+        group = [m for m in motors if not m["coil"] and m["step"]["sfr"] == sfr]
         step_ports.append({"sfr": sfr, "var": group[0]["step"]["var"], "pins": sum(m["step"]["mask"] for m in group),
                            "names": ", ".join(m["name"] for m in group), "reg": reg})
     enables: dict[str, int] = {}
     for m in motors:
-        enables[m["enable"]["sfr"]] = enables.get(m["enable"]["sfr"], 0) | m["enable"]["mask"]
+        if not m["coil"]:
+            enables[m["enable"]["sfr"]] = enables.get(m["enable"]["sfr"], 0) | m["enable"]["mask"]
+    coil_ports = []
+    for sfr, reg in zip(c_ports, RAISE_REGS[len(step_ports):]):
+        group = [m for m in motors if m["coil"] and m["coils"][0]["sfr"] == sfr]
+        if any(c["sfr"] != sfr for m in group for c in m["coils"]):
+            raise BuildError(f"board {config.board}: the 4 coil pins of a socket must be on one port")
+        mask = sum(c["mask"] for m in group for c in m["coils"])
+        # The other pins of the port keep the level main gives them: 1 from reset, held pins and enables.
+        static = 0xFF & ~mask
+        for sfr_e, bits in enables.items():
+            if sfr_e == sfr:
+                static = static & ~bits if pins["enable_active_low"] else static | bits
+        for h in pins["held"]:
+            if h["pin"].sfr == sfr:
+                static = static | h["pin"].mask if h["level"] else static & ~h["pin"].mask
+        init = static | sum(m["patterns"][0] for m in group)
+        coil_ports.append({"sfr": sfr, "var": f"p{sfr[1]}", "pins": mask, "static": static, "init": init, "init_coils": init & mask,
+                           "motors": group, "names": ", ".join(m["name"] for m in group), "reg": reg})
+    if coil_ports and board_lcd(config.board, [m.name for m in config.motors]) is not None:
+        raise BuildError(f"board {config.board}: coil-driven motors with a display are not supported")
     tick_hz = mem["tick_hz"]
     pulse_ticks = math.ceil(config.step_pulse_us * tick_hz / 1e6 - 1e-9)
     # Several STEP ports rise 2 cycles apart and fall 2 cycles apart: the same high time on each.
     path = dict(PATH_TICKS)
-    pads = {k: max(0, pulse_ticks - v) for k, v in path.items()}
+    pads = {k: max(0, pulse_ticks - v) if step_ports else 0 for k, v in path.items()}
     if max(pads.values()) > MAX_PAD:
         raise BuildError(f"step_pulse_us = {config.step_pulse_us} is too long for the 8051 player "
                          f"(at most {MAX_PAD + min(path.values())} us)")
@@ -161,7 +216,7 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     context = {
         "job_name": config.job_name, "job_file": config.job_file, "target": config.target, "board": config.board,
         "mcu": mem["mcu"], "f_cpu": mem["f_cpu"], "tick_hz": tick_hz, "clocks_per_tick": mem["f_cpu"] // tick_hz,
-        "motors": motors, "step_ports": step_ports, "tool": tool, "tool_flag": TOOL_BIT, "tool_bit": TOOL_FLAG_BIT,
+        "motors": motors, "step_ports": step_ports, "coil_ports": coil_ports, "tool": tool, "tool_flag": TOOL_BIT, "tool_bit": TOOL_FLAG_BIT,
         "enable_active_low": pins["enable_active_low"], "enable_ports": sorted(enables.items()),
         "step_clear": [(p["sfr"], p["pins"]) for p in step_ports],
         "held": [{**_pin_dict(h["pin"]), "level": h["level"], "what": h["what"]} for h in pins["held"]],
@@ -177,7 +232,6 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     from codegen.firmware.mcs51_homing import homing_context  # here: that module builds on this one
 
     context.update(homing_context(config, pins, motors, pulse_ticks))
-    from codegen.firmware.mcs51_lcd import board_lcd, render_lcd  # here: that module builds on this one
 
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
@@ -268,7 +322,8 @@ def _overflow(done: subprocess.CompletedProcess, mem: dict, objects: list[str], 
         needed = read_mem(cwd / "firmware.mem")["flash"] if again.returncode == 0 else None
         size = f"it needs {needed} bytes" if needed else "it needs more than 64 KB"
         return BuildError(f"the image does not fit in code memory: {size} (table {table_bytes} bytes), "
-                          f"{mem['flash']} available on the {mem['mcu']}")
+                          f"{mem['flash']} available on the {mem['mcu']}; what helps: a larger machine.tolerance "
+                          f"(fewer chords), a board without the display, or fewer moves")
     if _XRAM_FULL in out:
         again = _link(mem, objects, int(mem["flash"]), 65536, cwd)
         needed = read_mem(cwd / "firmware.mem")["xram"] if again.returncode == 0 else None

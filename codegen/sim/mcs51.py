@@ -33,7 +33,7 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr_homing import homing_ticks_bound
-from codegen.firmware.mcs51 import MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
+from codegen.firmware.mcs51 import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
 from codegen.firmware.mcs51_homing import decode_status, endstops
 from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
@@ -167,7 +167,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         if fault is None:
             raise BuildError(f"{hex_path.with_name(MAP_FILE)} lacks _homing_fault: the image does not home")
         extra = {"prelude": prelude, "on_write": on_write, "fault": fault}
-    watched = [p for m in pins["motors"] for p in (m["step"], m["dir"])] + [pins["tool"]]
+    watched = [p for m in pins["motors"] for p in (m["step"], m["dir"]) if p is not None] + [pins["tool"]]
+    watched += [c for m in pins["motors"] for c in m["coils"] or []]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         w = lcd.wiring
@@ -206,9 +207,43 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None
     trace = _trace(rec, pins, f_cpu, cycles, timer_start, int(starts[0]) if len(starts) else None)
     trace.homing_failed, trace.homing_fault = fault is not None, fault
+    # Coil ports: every write (clock, latch), to check the exact patterns (an attribute only coil boards have).
+    coil_ports = sorted({c.port for m in pins["motors"] for c in m["coils"] or []})
+    if coil_ports:
+        trace.coil_writes = {f"P{p}": rec[rec[:, 1] == p][:, [0, 2]] for p in coil_ports}
     if lcd is not None:
         trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
     return trace
+
+
+def coil_phases(rec: np.ndarray, coils: list) -> tuple[np.ndarray, np.ndarray]:
+    """Every write to the coils' port: (clock, half-step phase 0..7 of the 4 coil pins, -1 for no phase)."""
+    mine = rec[rec[:, 1] == coils[0].port]
+    code = sum(((mine[:, 2] >> c.bit) & 1) << (3 - i) for i, c in enumerate(coils))
+    lookup = np.full(16, -1, dtype=np.int64)
+    for phase, bits in enumerate(HALF_STEPS):
+        lookup[sum(b << (3 - i) for i, b in enumerate(bits))] = phase
+    return mine[:, 0], lookup[code] if len(mine) else np.zeros(0, np.int64)
+
+
+def coil_steps(rec: np.ndarray, coils: list) -> tuple[np.ndarray, np.ndarray]:
+    """The steps of a coil-driven motor: (clock, +1 / -1 in phase order) at each change of its 4 coil bits to the
+    next or previous half-step pattern. Changes before the first pattern (reset: all coils on, then main's
+    phase 0) are not steps; BuildError on a change that skips a phase or leaves the sequence."""
+    t, phase = coil_phases(rec, coils)
+    clock, way, last = [], [], -1
+    for c, ph in zip(t.tolist(), phase.tolist()):
+        if last < 0 or ph == last:
+            last = ph
+            continue
+        delta = (ph - last) % 8 if ph >= 0 else None
+        if delta not in (1, 7):
+            raise BuildError(f"coils {', '.join(p.name for p in coils)}: phase {last} -> "
+                             f"{'no phase' if ph < 0 else ph} at clock {c} (not one half-step)")
+        clock.append(c)
+        way.append(1 if delta == 1 else -1)
+        last = ph
+    return np.array(clock, dtype=np.int64), np.array(way, dtype=np.int64)
 
 
 def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None,
@@ -216,6 +251,14 @@ def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: in
     """The trace of the records; steps from clock `run_from` on (the player's timer start) are the table's."""
     step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []
     for m, wiring in enumerate(pins["motors"]):
+        if wiring["coils"] is not None:
+            rise, way = coil_steps(rec, wiring["coils"])
+            step_cycle.append(rise)
+            step_motor.append(np.full(len(rise), m, dtype=np.int64))
+            step_dir.append(way * (-1 if wiring["invert"] else 1))
+            high_min.append(None)
+            setup_min.append(None)
+            continue
         t, level = _levels(rec, wiring["step"].port, wiring["step"].bit)
         rise, fall = t[level == 1], t[level == 0]
         dir_t, dir_level = _levels(rec, wiring["dir"].port, wiring["dir"].bit)
