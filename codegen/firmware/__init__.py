@@ -46,6 +46,14 @@ class FirmwareConfig:
     start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
 
 
+def board_socket(board_name: str, board: dict, motor: MotorPins) -> dict:
+    """The board's stepper socket that drives `motor` (BuildError naming the sockets there are)."""
+    sockets = board["steppers"]
+    if motor.socket not in sockets:
+        raise BuildError(f"board {board_name} has no stepper socket {motor.socket} (has {', '.join(sockets)})")
+    return sockets[motor.socket]
+
+
 @dataclass
 class Image:
     """A built firmware image and what it uses of the MCU's memories."""

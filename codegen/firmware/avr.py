@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, Image, run_tool
+from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr_homing import homing_context
 from codegen.paths import targets_dir
 from codegen.render import render
@@ -99,12 +99,9 @@ def load_target(name: str) -> dict:
 
 def board_pins(config: FirmwareConfig) -> BoardPins:
     board = load_target(config.board)
-    sockets = board["steppers"]
     motors = []
     for m in config.motors:
-        if m.socket not in sockets:
-            raise BuildError(f"board {config.board} has no stepper socket {m.socket} (has {', '.join(sockets)})")
-        s = sockets[m.socket]
+        s = board_socket(config.board, board, m)
         motors.append(MotorWiring(m.name, m.socket, parse_pin(s["step"]), parse_pin(s["dir"]),
                                   parse_pin(s["enable"]), m.invert_dir))
     tool = board["tool"]

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, Image, run_tool
+from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr import load_target
 from codegen.render import render
 from codegen.firmware import mcs51_table
@@ -97,12 +97,9 @@ def memories(board: str) -> dict[str, int | str]:
 def board_pins(config: FirmwareConfig) -> dict:
     """Every pin the image drives, by role: motors (step, dir, enable, invert), tool, held pins."""
     board, _ = board_data(config.board)
-    sockets = board["steppers"]
     motors = []
     for m in config.motors:
-        if m.socket not in sockets:
-            raise BuildError(f"board {config.board} has no stepper socket {m.socket} (has {', '.join(sockets)})")
-        s = sockets[m.socket]
+        s = board_socket(config.board, board, m)
         if "coils" in s:
             coils = [parse_pin(c) for c in s["coils"] or []]
             if len(coils) != 4:
