@@ -3,7 +3,9 @@
 Every emitted event stays within `window(k)` of its ideal time, where the window is a share of the ideal gap
 to the previous event (so motor rates keep their accuracy at any speed), capped by an absolute bound. Events
 are never closer than the player's minimum gap: ideal times are first pushed apart where needed (exactly, as a
-running maximum), and the push is counted in the timing error the checks report.
+running maximum), and the push is counted in the timing error the checks report. A pushed event's successors
+catch up no faster than every motor's rate allows (a block start can cost the player more than the gap the
+plan leaves before it; catching up at the player's own pace would overspeed a motor that runs near its limit).
 
 Runs never straddle a block start or a change between accelerating, cruising and decelerating. Their length
 comes from the local third difference of the ideal times (the error of a quadratic fit), from the rounding of
@@ -18,8 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.planner import quantisation_factor
 from codegen.schedule import FRAC_ONE, MAX_ADD, MAX_COUNT, Schedule
 from codegen.stepgen import Events
+
+
+RATE_SHARE = 0.99  # of a motor's rate that catching up may use (the planner keeps 2 % headroom)
 
 
 @dataclass(frozen=True)
@@ -157,16 +163,30 @@ def _merge_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, neede
     return starts
 
 
+def rate_gaps(events: Events, max_rate: np.ndarray, share: float = RATE_SHARE) -> np.ndarray:
+    """Per block, the shortest gap (s) between its events that keeps every motor within `share` of its rate
+    over any 8 of its steps (a slave steps on at most `steps / modulus` of the events, Bresenham-spread)."""
+    steps = np.abs(events.block_steps).astype(float)
+    ratio = steps / np.maximum(events.block_modulus, 1)[:, None]
+    gap = np.divide(ratio, share * max_rate[None, :] * quantisation_factor(steps), out=np.zeros_like(ratio),
+                    where=steps > 0)
+    return gap.max(axis=1, initial=0.0)
+
+
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
              window: TimingWindow = TimingWindow(), final_tool: bool = False,
-             cross_blocks: bool = False) -> Compressed:
+             cross_blocks: bool = False, max_rate: np.ndarray | None = None) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
     one that starts a block (both include reading the table; plain events inside a run are cheaper).
     `cross_blocks`: the player keeps a run going across block starts (the compact tables), so only motion
-    phases cut runs; otherwise every block has runs of its own and its first event is a run by itself."""
+    phases cut runs; otherwise every block has runs of its own and its first event is a run by itself.
+    `max_rate` (steps/s per motor): pushed events catch up within it."""
     needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
     needed[events.block_first[:-1]] = block_gap_ticks
-    ideal = spread(events.time * tick_hz, 1.1 * needed + 2.0)
+    push = 1.1 * needed + 2.0
+    if max_rate is not None:
+        push = np.maximum(push, np.repeat(rate_gaps(events, max_rate) * tick_hz, np.diff(events.block_first)))
+    ideal = spread(events.time * tick_hz, push)
     gaps = np.diff(np.concatenate([[0.0], ideal]))
     win = np.clip(window.share * gaps, window.min_ticks, window.max_us * 1e-6 * tick_hz)
     total = len(ideal)

@@ -1,16 +1,25 @@
 """Event times along curves, from the curve rather than from its chords (for the compact tables).
 
-A curve becomes straight chords, and on each chord the master motor steps at the rate the chord's direction
-gives it: at every vertex that rate jumps, so the event times have a kink there and a rate run (linear in its
-interval) must end at almost every vertex. The tool really follows the curve, where the master's rate changes
-smoothly. So the events of consecutive blocks that meet without a corner, with the same master motor moving the
-same way, are timed on a cubic Hermite interpolant t(u) of the master's position u: through every vertex at its
-planned time, with the slope there from the planned speed and the mean of the two chords' master rates (for a
-circle, exactly the tangent's). Runs then span many chords. Positions do not change, and the checks measure the
-pulses against the limits as before.
+A curve becomes straight chords, and on each chord the master motor makes a fixed number of steps per mm of
+path: at every vertex that number jumps, so the event times have a kink there and a rate run (linear in its
+interval) must end at almost every vertex. The tool really follows the curve, where the master's share of the
+motion changes smoothly. So on consecutive blocks that meet without a corner, with the same master motor moving
+the same way, the path position s at which the master reaches position u is a cubic Hermite s(u): through every
+vertex, with the slope ds/du there from the mean of the two chords' master steps per mm (for a circle, exactly
+the tangent's). Each event's time is then the plan's own time at that path position (its trapezoids, exactly),
+so speeds, accelerations and every vertex time stay the plan's; positions do not change.
 
-A group's outer vertices use their own chord's rate; a block whose outer vertex is a standstill keeps the chord
-times (a standstill has no finite slope dt/du).
+Curve timing bends the master's rate inside a chord, so it is kept only where it provably keeps every motor
+within its limits; elsewhere a block keeps its chord times:
+- velocity: the largest du/ds on the chord, times the block's peak speed, for the master and (through the
+  block's Bresenham ratio) every slave, within each motor's rate (with the planner's quantisation factor);
+- acceleration: the tangential part (plan acceleration times the largest du/ds) plus the bending part (peak
+  speed squared times the largest |d2u/ds2|), for every motor, within its acceleration;
+- the jump each slave's velocity makes at a vertex no larger than the one chord timing makes there, or within
+  what its acceleration allows over the shorter of the two chords.
+A block that keeps its chord times leaves its neighbours' slopes as they are: the master's velocity then jumps
+at that vertex by half what chord timing makes it jump. The planner keeps 2 % below every limit; curve timing
+may use that headroom (half of it for rates, where the compressor's window takes the other half).
 """
 
 from __future__ import annotations
@@ -20,11 +29,12 @@ from dataclasses import replace
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.planner import Plan
+from codegen.planner import Plan, quantisation_factor
 from codegen.segments import Segments
 from codegen.stepgen import Events
 
-MIN_SPEED = 1e-9  # mm/s: slower than this a vertex is a standstill
+RATE_SHARE = 0.99  # of every motor's rate: half the planner's headroom, the other half is the compressor's
+ACCEL_SHARE = 1.0  # of every motor's acceleration: the planner's headroom (its window average is far below)
 
 
 def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kinematics) -> Events:
@@ -38,47 +48,92 @@ def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kine
     steps = events.block_steps
     master = np.argmax(np.abs(steps), axis=1)
     rows = np.arange(n_blocks)
-    u0, u1 = x0[rows, master], x1[rows, master]
+    u0 = x0[rows, master]
+    span = np.abs(x1[rows, master] - u0)
     sign = np.sign(steps[rows, master])
-    moving = (sign != 0) & (segments.dwell[seg] <= 0)
-    v_in, v_out = plan.v_entry[seg], plan.v_exit[seg]
+    length = plan.length[seg]
+    moving = (sign != 0) & (segments.dwell[seg] <= 0) & (span > 0) & (length > 0)
     linked = ((seg[1:] == seg[:-1] + 1) & moving[1:] & moving[:-1] & (master[1:] == master[:-1])
               & (sign[1:] == sign[:-1]) & (events.block_tool[1:] == events.block_tool[:-1])
-              & ~plan.corner[seg[1:]] & (v_in[1:] > MIN_SPEED))
+              & ~plan.corner[seg[1:]])
+    rate = np.divide(span, length, out=np.ones(n_blocks), where=moving)  # master steps per mm of path
+    ratio = np.abs(steps) / np.maximum(np.abs(steps[rows, master]), 1)[:, None]  # Bresenham: slave per master
+    # A vertex may join its two chords only where the slaves' velocity jump stays acceptable.
+    linked &= _jumps_allowed(linked, rate, ratio, plan, seg, kin)
     has_prev = np.concatenate([[False], linked])
     has_next = np.concatenate([linked, [False]])
-    # Master steps per mm of path along each chord, and dt/du at each block's start and end vertex.
-    rate = np.abs(u1 - u0) / np.maximum(plan.length[seg], 1e-300)
-    rate_in = np.where(has_prev, 0.5 * (rate + np.roll(rate, 1)), rate)
-    rate_out = np.where(has_next, 0.5 * (rate + np.roll(rate, -1)), rate)
-    with np.errstate(divide="ignore"):
-        slope_in = 1.0 / (v_in * rate_in)
-        slope_out = 1.0 / (v_out * rate_out)
-    t0 = plan.t_start[seg]
-    t1 = t0 + plan.duration[seg]
-    span = np.abs(u1 - u0)
-    secant = np.divide(t1 - t0, span, out=np.zeros(n_blocks), where=span > 0)
-    # Fritsch-Carlson: slopes at most 3 secants keep t(u) increasing.
-    left = np.where(has_prev, np.minimum(secant, np.roll(secant, 1)), secant)
-    right = np.where(has_next, np.minimum(secant, np.roll(secant, -1)), secant)
-    smooth = moving & (has_prev | has_next) & np.isfinite(slope_in) & np.isfinite(slope_out) & (span > 0)
-    slope_in, slope_out = np.minimum(slope_in, 3.0 * left), np.minimum(slope_out, 3.0 * right)
+    secant = 1.0 / rate  # ds/du of the chord
+    mean = np.divide(2.0, rate[:-1] + rate[1:])  # ds/du at each vertex between two blocks
+    slope_in = np.where(has_prev, np.concatenate([[1.0], mean]), secant)
+    slope_out = np.where(has_next, np.concatenate([mean, [1.0]]), secant)
+    smooth = moving & (has_prev | has_next)
+    smooth &= _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan, seg, kin)
+    if not smooth.any():
+        return events
 
     count = np.diff(events.block_first)
     block = np.repeat(rows, count)
     k = np.arange(len(block)) - events.block_first[block] + 1.0
-    u = np.round(x0[rows, master])[block] + sign[block] * (k - 0.5)  # where each master step happens
-    # Rounding puts a step up to half a step past its chord's end: time it on the neighbouring interval.
+    u = np.round(u0)[block] + sign[block] * (k - 0.5)  # where each master step happens
+    # Rounding puts a step up to half a step past its chord's end: time it on the neighbouring piece.
     d = sign[block] * (u - u0[block])
     before = (d < 0) & has_prev[block]
     after = (d > span[block]) & has_next[block]
     where = block - before + after
     use = smooth[block] & smooth[where]
     j = where[use]
-    h = span[j]
-    tau = sign[block[use]] * (u[use] - u0[j]) / h
-    h00, h10 = (1 + 2 * tau) * (1 - tau) ** 2, tau * (1 - tau) ** 2
-    h01, h11 = tau * tau * (3 - 2 * tau), tau * tau * (tau - 1)
+    tau = np.clip(sign[block[use]] * (u[use] - u0[j]) / span[j], 0.0, 1.0)
+    s = _hermite(tau, span[j], slope_in[j], slope_out[j], length[j])
     time = events.time.copy()
-    time[use] = h00 * t0[j] + h10 * h * slope_in[j] + h01 * t1[j] + h11 * h * slope_out[j]
+    time[use] = plan.time_at(seg[j], np.clip(s, 0.0, length[j]))
     return replace(events, time=time)
+
+
+def _hermite(tau, h, m0, m1, length):
+    """s at tau of the cubic through (0, 0) and (h, length) with slopes m0, m1 (ds/du)."""
+    h10, h01, h11 = tau * (1 - tau) ** 2, tau * tau * (3 - 2 * tau), tau * tau * (tau - 1)
+    return h10 * h * m0 + h01 * length + h11 * h * m1
+
+
+def _slope_extremes(m0, m1, secant, h):
+    """Smallest ds/du on each piece, and the largest |d2s/du2| (linear in tau: at an end)."""
+    # ds/du = m0 + b tau + c tau^2 on tau in [0, 1]
+    b = 6.0 * secant - 4.0 * m0 - 2.0 * m1
+    c = 3.0 * (m0 + m1) - 6.0 * secant
+    least = np.minimum(m0, m1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vertex = np.where(c > 0, -b / (2.0 * c), -1.0)
+    inside = (vertex > 0) & (vertex < 1)
+    least = np.where(inside, np.minimum(least, m0 + b * vertex + c * vertex * vertex), least)
+    bend = np.divide(np.maximum(np.abs(b), np.abs(b + 2.0 * c)), h, out=np.zeros_like(h), where=h > 0)
+    return least, bend
+
+
+def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, seg, kin: Kinematics):
+    """Blocks whose curve timing keeps every motor's velocity and acceleration within its limits."""
+    least, bend = _slope_extremes(slope_in, slope_out, secant, span)
+    ok = least > 0
+    least = np.where(ok, least, 1.0)
+    du_ds = 1.0 / least  # the master's largest steps per mm of path on the piece
+    d2u = bend / least ** 3  # |d2u/ds2| <= |d2s/du2| / (ds/du)^3
+    v = plan.v_peak[seg]
+    changing = plan.s_acc[seg] + plan.s_cruise[seg] < plan.length[seg] * (1 - 1e-12)
+    a = np.where((plan.s_acc[seg] > 0) | changing, plan.accel[seg], 0.0)  # a block at cruise only: none
+    max_rate = kin.limits.max_rate[None, :] * quantisation_factor(steps) * RATE_SHARE
+    max_accel = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE
+    velocity = (v * du_ds)[:, None] * ratio
+    accel = (a * du_ds + v * v * d2u)[:, None] * ratio
+    return ok & np.all(velocity <= max_rate, axis=1) & np.all(accel <= max_accel, axis=1)
+
+
+def _jumps_allowed(linked, rate, ratio, plan: Plan, seg, kin: Kinematics):
+    """At each vertex: a slave's velocity jumps by v * du/ds * (change of its Bresenham ratio) on the curve,
+    by v * (change of its steps per mm) on the chords. Joining is allowed where the curve's jump is no larger
+    than the chords', or within what the motor's acceleration gives over the shorter chord."""
+    v = plan.v_entry[seg[1:]]
+    mean_rate = 0.5 * (rate[:-1] + rate[1:])
+    curve = (v * mean_rate)[:, None] * np.abs(ratio[1:] - ratio[:-1])
+    chord = v[:, None] * np.abs(ratio[1:] * rate[1:, None] - ratio[:-1] * rate[:-1, None])
+    shorter = np.minimum(plan.duration[seg[:-1]], plan.duration[seg[1:]])
+    budget = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE * shorter[:, None]
+    return np.all((curve <= chord * (1 + 1e-9)) | (curve <= budget), axis=1) | ~linked

@@ -208,7 +208,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     with watch("plan"):
         steps = segment_steps(segments, kin)
-        limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us))
+        limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
+                               block_overhead=target.block_overhead_s(motors, pulse_us, setup_us))
         motion = plan(segments, kin, steps, limits)
     with watch("step times"):
         events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
@@ -217,7 +218,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
     with watch("rate runs"):
         compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
                               target.block_gap_ticks(pulse_us, setup_us), window=timing_window(target),
-                              cross_blocks=target.compact_tables)
+                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate)
     with watch("twin"):
         pulses = predict(compressed.schedule)
     result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,

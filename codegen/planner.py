@@ -1,7 +1,7 @@
 """Lookahead planner: constant-acceleration trapezoids over the whole program, vectorised.
 
 Speeds are limited per segment by the feed, every motor's velocity (projected on the motor, with Bresenham's
-step quantisation taken into account), the player's event rate, and on curves by the centripetal acceleration
+step quantisation taken into account), the player's event rate and block load time, and on curves by the centripetal acceleration
 each motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
 backward and forward passes are exact recurrences on v^2 written as running minima (numpy, no Python loop).
 """
@@ -23,6 +23,7 @@ RATE_WINDOW = 7  # step intervals over which motor rates are held (8 consecutive
 class PlannerLimits:
     junction_deviation: float  # mm
     max_event_rate: float = np.inf  # events/s the player sustains
+    block_overhead: float = 0.0  # s a block start costs the player beyond an ordinary event
     margin: float = 0.02  # headroom kept below every motor limit, for step and tick quantisation
     centripetal_share: float = 0.8  # largest share of a motor's acceleration a curve may use sideways
 
@@ -103,8 +104,9 @@ def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Planner
     q = quantisation_factor(steps)
     v_motor = np.min(np.divide(vmax * q, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
     master = np.abs(steps).max(axis=1) if steps.size else np.zeros(n)
-    v_events = np.divide(limits.max_event_rate * keep * length, master,
-                         out=np.full(n, np.inf), where=master > 0)
+    # Every segment is one block: its events at the sustained rate, plus the block load at its start.
+    least_time = master / limits.max_event_rate + limits.block_overhead
+    v_events = np.divide(keep * length, least_time, out=np.full(n, np.inf), where=least_time > 0)
 
     # Junctions j = 1 .. n-1 between segment j-1 and j.
     u_prev, u_next = u[:-1], u[1:]

@@ -51,6 +51,12 @@ class TargetInfo:
         run at every event, so that pushing events apart stays the exception."""
         return self.tick_hz / (1.25 * self.run_gap_ticks(motors, step_pulse_us))
 
+    def block_overhead_s(self, motors: int, step_pulse_us: float = 2.0, dir_setup_us: float = 1.0) -> float:
+        """How much longer than an ordinary event a block's first event takes the player, with the same
+        headroom as `max_event_rate`: the planner gives every block at least this much more time."""
+        extra = self.block_gap_ticks(step_pulse_us, dir_setup_us) - self.run_gap_ticks(motors, step_pulse_us)
+        return 1.25 * max(extra, 0) / self.tick_hz
+
     @property
     def isr_latency_us(self) -> float:
         """From the timer event to the first STEP edge: the player's constant delay."""

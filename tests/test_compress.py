@@ -8,7 +8,7 @@ from codegen.compress import TimingWindow, compress, spread
 from codegen.stepgen import generate
 from codegen.toolpath import Arc, Toolpath
 from codegen.twin import predict
-from tests.helpers import SRC, planned, point, polyline
+from tests.helpers import SRC, machine, planned, point, polyline
 
 TICK = 16_000_000
 MIN_GAP = 200
@@ -61,3 +61,23 @@ def test_circle_block_per_chord_and_exact_totals():
     assert int((p.motor == 0).sum()) == 6400  # x: 20 -> -20 -> 20 mm at 80 steps/mm
     assert int((p.motor == 1).sum()) == 6400
     assert c.schedule.n_blocks == len(events.block_modulus) > 100
+
+
+def test_pushed_events_catch_up_within_every_motors_rate():
+    """A block start that needs more time than the plan leaves before it pushes its event; the events after it
+    catch up no faster than the motors may step (not at the player's own pace)."""
+    mach = machine(x={"vmax": 100.0}, y={"vmax": 100.0})  # 8000 steps/s: 2000 ticks a step, near the limit
+    kin, segments, steps, p = planned(polyline([(0, 0), (10, 0.05), (20, 0.1), (30, 0.15)], feed=100), mach)
+    events = generate(segments, p, kin, steps, max_gap=1.0)
+    block_gap = 3000  # longer than the planned gap at every block start
+    c = compress(events, kin.motors, TICK, MIN_GAP, block_gap, max_rate=kin.limits.max_rate)
+    assert np.any(c.ideal_ticks - events.time * TICK > 500)  # the block starts were pushed
+    pulses = predict(c.schedule)
+    for m in range(2):
+        t = pulses.tick[pulses.motor == m] / TICK
+        if len(t) > 8:
+            assert 7 / np.min(t[7:] - t[:-7]) <= kin.limits.max_rate[m]
+    # Catching up at the player's pace would overspeed x.
+    fast = compress(events, kin.motors, TICK, MIN_GAP, block_gap)
+    t = predict(fast.schedule).tick[predict(fast.schedule).motor == 0] / TICK
+    assert 7 / np.min(t[7:] - t[:-7]) > kin.limits.max_rate[0]
