@@ -86,6 +86,24 @@ def build_toolpath(job, strict: bool = False) -> tuple[Toolpath, list[Diagnostic
     return toolpath, warnings, homes_first
 
 
+def homed_toolpath(job, kin: Kinematics, strict: bool = False) -> tuple[Toolpath, list[Diagnostic], bool]:
+    """`build_toolpath` for a machine that homes at power-up whatever its program says (a delta, or
+    `program.home`): the program starts where homing leaves the tool. An explicit `program.start` there is
+    where the program begins after a tool-off travel move from the home position."""
+    home = home_position(job, kin)
+    source = job.program.start_source
+    start = home.copy()
+    if source is not None:
+        start[:len(job.program.start)] = [float(v) for v in job.program.start]
+    anchored = job.model_copy(update={"program": job.program.model_copy(update={"start": tuple(start[:3])})})
+    toolpath, warnings, homes_first = build_toolpath(anchored, strict)
+    if not homes_first and np.linalg.norm(start - home) > 1e-9:
+        feed = math.inf if job.program.travel_feed is None else job.program.travel_feed / 60.0
+        toolpath.items.insert(0, Line(home, start.copy(), feed, False, source, "travel"))
+        toolpath.start = home
+    return toolpath, warnings, homes_first
+
+
 def settle_homes(toolpath: Toolpath) -> tuple[Toolpath, bool]:
     """Homing before the first move is the firmware's (at power-up) and says where the program starts. A
     later one becomes a straight tool-off move to the home position: where the machine is afterwards (homing
@@ -192,11 +210,12 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
             from None
     kin = make_kinematics(job.machine)
     with watch("toolpath"):
-        toolpath, warnings, homes_first = build_toolpath(job, strict)
+        if homes(job, False):
+            toolpath, warnings, homes_first = homed_toolpath(job, kin, strict)
+        else:
+            toolpath, warnings, homes_first = build_toolpath(job, strict)
     homing: tuple[HomingAxis, ...] = ()
     if homes(job, homes_first):
-        if not homes_first:
-            toolpath.start = home_position(job, kin)
         homing = homing_axes(job, kin, target.tick_hz)
     with watch("segments"):
         segments = drop_empty(flatten(toolpath, job.machine.tolerance))

@@ -119,6 +119,8 @@ def load_job(path: Path, target_override: str | None = None) -> Job:
     job.path = path.resolve()
     for i, shape in enumerate(job.program.shapes or ()):
         shape.source = marks.key(("program", "shapes", i, shape.kind))
+    if "start" in job.program.model_fields_set:
+        job.program.start_source = marks.value(("program", "start"))
     gcode = job.program.gcode
     if gcode is not None:
         where = ("program", "gcode")

@@ -345,6 +345,16 @@ class Program(_Model):
     shapes: Optional[Annotated[list[ShapeItem], Field(min_length=1)]] = None
     gcode: Optional[Text] = None  # a path relative to the job file, or the G-code itself
     _gcode_source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<gcode>"))
+    _start_source: Optional[SourceRef] = PrivateAttr(default=None)
+
+    @property
+    def start_source(self) -> Optional[SourceRef]:
+        """Where the job file gives `start`; None when it does not (the default applies)."""
+        return self._start_source
+
+    @start_source.setter
+    def start_source(self, value: Optional[SourceRef]) -> None:
+        self._start_source = value
 
     @property
     def gcode_source(self) -> SourceRef:

@@ -1,0 +1,81 @@
+"""Where a program starts on a machine that homes at power-up: where homing leaves the tool, unless the job
+gives `start`, which it then reaches by a tool-off travel move from there."""
+
+import numpy as np
+import pytest
+
+from codegen.job import load_job
+from codegen.pipeline import host_build
+from codegen.toolpath import Line
+
+KOSSEL = """
+name: kossel
+machine:
+  kinematics: delta
+  steppers:
+    a: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    b: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    c: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+  delta: {{radius: 105.2, diagonal_rod: 215, height: 250}}
+program:
+{start}  feed: 3000
+  shapes:
+    - points: [[0, 0, 10], [30, 20, 15]]
+    - circle: {{center: [0, 0], radius: 40, z: 10}}
+    - line: {{to: [-20, 30]}}
+"""
+CARTESIAN = """
+name: plotter
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-5, 200]}}
+    y: {{steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-10, 200]}}
+program:
+{start}  home: {home}
+  shapes:
+    - line: {{from: [20, 20], to: [60, 40]}}
+"""
+
+
+def build(tmp_path, text):
+    job = tmp_path / "job.yaml"
+    job.write_text(text)
+    return host_build(load_job(job))
+
+
+def test_a_delta_without_start_starts_where_homing_leaves_it(tmp_path):
+    host = build(tmp_path, KOSSEL.format(start=""))
+    assert host.findings.ok, host.findings.problems
+    assert host.findings.final == host.findings.expected_final
+    home = host.kin.home()
+    assert np.allclose(host.toolpath.start, home)
+    first = host.toolpath.items[0]
+    assert isinstance(first, Line) and not first.tool and np.allclose(first.start, home)
+    assert np.allclose(first.end[:3], [0, 0, 10])  # straight to the first point
+    assert host.start_steps.tolist() == [h.home_steps for h in host.homing]
+
+
+def test_an_explicit_start_is_reached_by_travel_after_homing(tmp_path):
+    host = build(tmp_path, KOSSEL.format(start="  start: [10, 10, 100]\n"))
+    assert host.findings.ok, host.findings.problems
+    travel, to_first = host.toolpath.items[:2]
+    assert np.allclose(travel.start, host.kin.home()) and np.allclose(travel.end[:3], [10, 10, 100])
+    assert not travel.tool and (travel.source.line, travel.source.col) == (11, 10)  # positioned at `start` in the job file
+    assert np.allclose(to_first.start[:3], [10, 10, 100]) and np.allclose(to_first.end[:3], [0, 0, 10])
+
+
+@pytest.mark.parametrize("home", [True, False])
+def test_cartesian_start_with_and_without_homing(tmp_path, home):
+    host = build(tmp_path, CARTESIAN.format(start="", home=str(home).lower()))
+    assert host.findings.ok, host.findings.problems
+    # Homed: the low ends of the ranges (the min switches); not homed: JOB-FORMAT's default, the origin.
+    assert host.toolpath.start[:2].tolist() == ([-5.0, -10.0] if home else [0.0, 0.0])
+    assert host.start_steps.tolist() == ([-400, -800] if home else [0, 0])
+    assert np.allclose(host.toolpath.items[0].start[:2], host.toolpath.start[:2])
+
+
+def test_an_explicit_start_without_homing_is_where_the_tool_is(tmp_path):
+    host = build(tmp_path, CARTESIAN.format(start="  start: [30, 30]\n", home="false"))
+    assert host.toolpath.start[:2].tolist() == [30.0, 30.0] and host.start_steps.tolist() == [2400, 2400]
+    assert np.allclose(host.toolpath.items[0].start[:2], [30, 30])
