@@ -339,3 +339,13 @@ def test_error_lines_do_nothing_but_the_rest_is_checked():
         (9, 11, "'E1' moves e, but the machine has no e motor (motors: x, y)"),
         (10, 8, "'Z1' moves z, but the machine has no z motor (motors: x, y)"),
     ]
+
+
+@pytest.mark.parametrize("mode", ["M82", "M83"])
+def test_m221_scales_the_extruders_moves_from_its_place(mode):
+    """Marlin and Klipper: M221 S<percent> scales every E distance after it; absolute E stays the program's."""
+    absolute = mode == "M82"
+    program = ["G1 X1 E2", "M221 S50", "G1 X2 E4" if absolute else "G1 X2 E2", "G92 E0", "G1 X3 E2",
+             "M221 S100", "G1 X4 E4" if absolute else "G1 X4 E2"]
+    ends = [item.end[3] for item in items("\n".join([mode] + program)) if isinstance(item, Line)]
+    assert ends == [2.0, 3.0, 4.0, 6.0]  # 2, then 2 at 50 %, 2 at 50 % after G92, then 2 at 100 %

@@ -47,7 +47,7 @@ PARAMS = {
     "M2": "", "M30": "", "M3": "", "M4": "", "M5": "", "M82": "", "M83": "",
     "M104": "ST", "M109": "SRT", "M140": "S", "M190": "SR",
     "M106": "SP", "M107": "P",
-    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB",
+    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M221": "ST",
 }
 SUPPORTED = frozenset(PARAMS)
 AXIS_TAKERS = frozenset(c for c, p in PARAMS.items() if any(a in p for a in AXIS_LETTERS))
@@ -59,7 +59,6 @@ HARMLESS = {
     "M118": "host message",
     "M900": "linear advance",
     "M572": "pressure advance",
-    "M221": "flow rate override; E is used as written",
     "M220": "feed rate override; only S100 (no change) is accepted",
     "G29": "bed levelling; there is no probe",
     "M420": "bed levelling state",

@@ -49,6 +49,8 @@ class Interpreter(Moves):
         start[: len(program.start)] = [float(v) for v in program.start]
         self.pos = start
         self.off = [0.0] * 4
+        self.flow = 1.0  # M221: machine E = flow * (program E + offset) + e_shift
+        self.e_shift = 0.0
         self.unit = 1.0
         self.relative = self.e_relative = False
         self.mode = "G0"
@@ -172,8 +174,11 @@ class Interpreter(Moves):
                 tgt[1] = y * unit + off[1]
             if z is not None:
                 tgt[2] = z * unit + off[2]
-        if e is not None:
-            tgt[3] = pos[3] + e * unit if self.e_relative else e * unit + off[3]
+        if e is not None:  # scaled by the flow (M221)
+            if self.e_relative:
+                tgt[3] = pos[3] + e * unit * self.flow
+            else:
+                tgt[3] = (e * unit + off[3]) * self.flow + self.e_shift
         if feed is not None:
             if feed <= 0.0:
                 return self.fail(block, "F", f"feed rate '{self.word(block, 'F')}' must be > 0")

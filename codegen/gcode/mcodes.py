@@ -1,4 +1,5 @@
-"""The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, G4.
+"""The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M221
+flow, G4.
 
 Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
 when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
@@ -128,6 +129,18 @@ def jerk(it, block, params):
 
 
 @_guarded
+def flow(it, block, params):
+    """M221 S (percent): the extruder's moves from here on are scaled by S/100, as Marlin and Klipper do
+    (the program's E stays as written; the machine's E position moves on continuously)."""
+    _only_zero(it, block, params, "T", "extruder")
+    if "S" in params:
+        new = _number(it, block, params, "S") / 100.0
+        program_e = (it.pos[3] - it.e_shift) / it.flow
+        it.flow, it.e_shift = new, it.pos[3] - new * program_e
+    return None
+
+
+@_guarded
 def dwell(it, block, params):
     """G4 P (ms) or S (s; S wins when both are given); no wait without either."""
     if "S" in params:
@@ -152,4 +165,5 @@ HANDLERS = {
     "M203": max_velocity,
     "M204": accelerations,
     "M205": jerk,
+    "M221": flow,
 }

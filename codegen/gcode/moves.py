@@ -46,11 +46,13 @@ class Moves:
         tgt = pos[:]
         for letter, value in params.items():
             i = AXIS_INDEX.get(letter)
-            if i is not None:
-                if self.e_relative if i == 3 else self.relative:
-                    tgt[i] = pos[i] + value * unit
+            if i == 3:  # the extruder's moves scaled by the flow (M221)
+                if self.e_relative:
+                    tgt[3] = pos[3] + value * unit * self.flow
                 else:
-                    tgt[i] = value * unit + off[i]
+                    tgt[3] = (value * unit + off[3]) * self.flow + self.e_shift
+            elif i is not None:
+                tgt[i] = pos[i] + value * unit if self.relative else value * unit + off[i]
         return tgt
 
     def axis_missing(self, block, tgt: list[float]) -> bool:
@@ -141,6 +143,8 @@ class Moves:
             return False
         for i in given:
             self.off[i] = self.pos[i] - params[AXIS_LETTERS[i]] * self.unit
+        if 3 in given:  # the program's E there is the machine's: the flow scales moves from here on
+            self.e_shift = self.pos[3] * (1.0 - self.flow)
         return None
 
     def home(self, block, params: dict[str, float]) -> bool | None:
