@@ -15,7 +15,7 @@ from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build
 from codegen.verify import compare, simulated_switches
-from codegen.report import build_report, human_plan, plan_summary, verify_json, write_json, write_trace
+from codegen.report import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -125,10 +125,14 @@ def cmd_verify(args) -> int:
               f"{result['duration_s']:.4f} s simulated, "
               f"{result['planned_duration_s']:.4f} s planned")
         for name, m in result["motors"].items():
-            print(f"  {name}: {m['steps']} steps, ends at {m['final']} (job: {m['expected_final']}), "
-                  f"timing within {m['max_timing_error_us']:.2f} us of the twin, rate {100 * m['max_rate_ratio']:.1f} %"
+            timing = ("timing not compared" if m["max_timing_error_us"] is None
+                      else f"timing within {m['max_timing_error_us']:.2f} us of the twin")
+            print(f"  {name}: {m['steps']} steps, {motion(m)}, {timing}, rate {100 * m['max_rate_ratio']:.1f} %"
                   f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
-        print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+        if result["max_path_error_mm"] is not None:
+            print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+        for reason in result["not_compared"]:
+            print(f"  not compared: {reason}")
         if result.get("display") is not None:
             print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
         for problem in result["problems"]:

@@ -27,7 +27,7 @@ def plan_summary(host: HostBuild) -> dict:
         "runs": sched.n_runs,
         "events": int(len(host.events.time)),
         "motors": {
-            name: {"steps": f.steps[name], "final": f.final[name], "expected_final": f.expected_final[name],
+            name: {"steps": f.steps[name], **positions(host, f, name),
                    "max_rate_ratio": _round(f.rate_ratio[name], 4), "max_accel_ratio": _round(f.accel_ratio[name], 4)}
             for name in host.kin.motors
         },
@@ -68,6 +68,14 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
     }
 
 
+def positions(host: HostBuild, f, name: str) -> dict:
+    """A motor's end (CLI.md): `final` and `expected_final` count from its position when the program began
+    (after any homing); `end_position` and `expected_end_position` are absolute steps."""
+    start = int(host.start_steps[host.kin.motors.index(name)])
+    return {"final": f.final[name] - start, "expected_final": f.expected_final[name] - start,
+            "end_position": f.final[name], "expected_end_position": f.expected_final[name]}
+
+
 def write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
 
@@ -80,14 +88,15 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         "board": host.target.board,
         "duration_s": _round(verdict.duration_s),
         "planned_duration_s": _round(verdict.planned_duration_s),
-        "max_path_error_mm": _round(f.max_path_error_mm),
+        "max_path_error_mm": _round(f.max_path_error_mm) if verdict.path_measured else None,
         "path_limit_mm": _round(f.path_limit_mm),
+        "not_compared": verdict.not_compared,
         "motors": {
             name: {
                 "steps": f.steps[name],
-                "final": f.final[name],
-                "expected_final": f.expected_final[name],
-                "max_timing_error_us": _round(verdict.timing_error_us.get(name, float("nan")), 3),
+                **positions(host, f, name),
+                "max_timing_error_us": (None if name not in verdict.timing_error_us
+                                        else _round(verdict.timing_error_us[name], 3)),
                 "max_rate_ratio": _round(f.rate_ratio[name], 4),
                 "max_accel_ratio": _round(f.accel_ratio[name], 4),
                 "min_pulse_us": _round(verdict.pulse_width_us.get(name, 0.0), 3),
@@ -120,11 +129,16 @@ def write_trace(path: Path, host: HostBuild, trace) -> None:
             out.write("".join(f"{t},{m},{d},{p}\n" for t, m, d, p in columns))
 
 
+def motion(m: dict) -> str:
+    """A motor's end in words: net steps against the job's, and the absolute position."""
+    return f"net {m['final']:+d} (job: {m['expected_final']:+d}), ends at step {m['end_position']}"
+
+
 def human_plan(summary: dict) -> str:
     lines = [f"{summary['job']}: {summary['duration_s']:.3f} s planned, {summary['segments']} segments, "
              f"{summary['blocks']} blocks, {summary['runs']} runs, {summary['table_bytes']} table bytes"]
     for name, m in summary["motors"].items():
-        lines.append(f"  {name}: {m['steps']} steps, ends at {m['final']} (job: {m['expected_final']}), "
+        lines.append(f"  {name}: {m['steps']} steps, {motion(m)}, "
                      f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
     lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
                  f"timing within {summary['max_timing_error_us']:.2f} us of the plan")

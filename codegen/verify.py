@@ -61,6 +61,12 @@ class Verdict:
     problems: list[str] = field(default_factory=list)
     homing: dict = field(default_factory=dict)
     display: list[str] | None = None  # the status display's text at the end (None: the board has none)
+    not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
+
+    @property
+    def path_measured(self) -> bool:
+        """The path error needs every simulated event matched to the twin's (and so to its segment)."""
+        return not any(reason.startswith("path error") for reason in self.not_compared)
 
     @property
     def ok(self) -> bool:
@@ -84,12 +90,15 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
     start = trace.timer_start_cycle or 0
     sim_s = (cycle - start) / f_cpu  # on the twin's clock
     timing: dict[str, float] = {}
+    not_compared: list[str] = []
     matched = True
     for m, name in enumerate(names):
         mine, theirs = motor == m, twin.motor == m
         got, want = int(mine.sum()), int(theirs.sum())
         if got != want:
             problems.append(f"motor {name}: the simulator made {got} steps, the twin predicted {want}")
+            not_compared.append(f"timing of motor {name}: its steps cannot be paired ({got} simulated, "
+                                f"{want} predicted)")
             matched = False
             continue
         wrong_dir = np.flatnonzero(direction[mine] != twin.dir[theirs])
@@ -122,6 +131,8 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
         segment = host.event_segments()[twin_event]
     else:
         segment = np.zeros(len(positions), dtype=np.int64)
+        not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
+                            "placed on the path's segments")
     trains = trains_from(sim_s, motor, direction, len(names))
     findings = check(trains, positions if matched else positions[:0], segment, host.segments, host.plan,
                      host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance)
@@ -146,7 +157,7 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
     problems.extend(display_problems(host, trace))
     display = None if trace.display is None else list(trace.display.lines)
     return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
-                   homing_problems + problems, homing, display)
+                   homing_problems + problems, homing, display, not_compared)
 
 
 def display_problems(host: HostBuild, trace) -> list[str]:

@@ -240,7 +240,7 @@ def test_delta_seed_51_homes_plays_and_shows_its_positions(tmp_path, capsys):
     code, out, _ = run(capsys, "verify", ROOT / "examples" / "delta-seed-51.yaml", "--out", tmp_path, "--json")
     result = json.loads(out)
     assert code == 0, result["problems"]
-    final = [result["motors"][m]["final"] for m in "abc"]
+    final = [result["motors"][m]["end_position"] for m in "abc"]  # the display shows absolute steps
     assert result["display"] == [f"A{final[0]:>6} B{final[1]:>6} ", f"C{final[2]:>6}" + " " * 9]
     assert set(result["homing"]) == {"a", "b", "c"}
     report = json.loads((tmp_path / "report.json").read_text())
