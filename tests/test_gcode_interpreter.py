@@ -275,10 +275,11 @@ def test_axes_the_machine_cannot_move():
 # ---- messages ----
 
 def test_unsupported_and_tool_errors():
-    assert errors("G38.2 Z-5\nM600\nT1\nG1 Q5\nP5\nG1 F0 X1\nM3 S-1\nM220 S50\nG92\nM106 P1\nM104 S200 T1\n") == [
-        (8, 5, "unsupported G-code 'G38.2'"),
+    assert errors("G38.2 Z-5\nM600\nG10 L3 P1 X0\nG1 Q5\nP5\nG1 F0 X1\nM3 S-1\nM220 S50\nG92\nM106 P1\nM104 S200 T1\n") == [
+        (8, 5, "'G38.2' probes: the move stops where a contact closes, a measurement taken while the machine "
+               "runs, which a plan computed beforehand cannot know"),
         (9, 5, "unsupported G-code 'M600'"),
-        (10, 5, "tool 'T1': the machine has one tool (T0)"),
+        (10, 9, "G10 needs L2 or L20 (work coordinate offsets)"),
         (11, 8, "'Q5' is not a parameter of G1"),
         (12, 5, "'P5' needs a code that takes it"),
         (13, 8, "feed rate 'F0' must be > 0"),

@@ -25,6 +25,7 @@ machine:
 """
 EXTRUDER = "    e: {steps_per_mm: 100, max_velocity: 80, max_accel: 5000}\n"
 FILES = {  # file -> does the machine need an extruder
+    "grbl-cam.gcode": False,
     "parser/circle.gcode": False,
     "parser/circle-inch.gcode": False,
     "parser/spaces.gcode": False,

@@ -48,6 +48,10 @@ PARAMS = {
     "M104": "ST", "M109": "SRT", "M140": "S", "M190": "SR",
     "M106": "SP", "M107": "P",
     "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M221": "ST",
+    # Grbl (codegen/gcode/grbl.py)
+    "G10": "LPXYZ", "G53": "", "G28.1": "", "G30": "XYZ", "G30.1": "", "G92.1": "", "G93": "",
+    "G43.1": "Z", "G49": "", "M7": "", "M8": "", "M9": "",
+    **{f"G5{n}": "" for n in range(4, 10)},
 }
 SUPPORTED = frozenset(PARAMS)
 AXIS_TAKERS = frozenset(c for c, p in PARAMS.items() if any(a in p for a in AXIS_LETTERS))
@@ -62,14 +66,14 @@ HARMLESS = {
     "M220": "feed rate override; only S100 (no change) is accepted",
     "G29": "bed levelling; there is no probe",
     "M420": "bed levelling state",
-    "T0": "tool select; the machine has one tool",
+    "T": "tool select; the machine has one tool",
+    "M6": "tool change; the machine has one tool",
+    "G64": "path blending; corners always blend by the junction deviation",
     "M84": "motors off",
     "M18": "motors off",
     "M17": "motors on",
     "G80": "cancel canned cycle; there are none",
     "G40": "cutter compensation off, the only mode",
-    "G49": "tool length offset off, the only mode",
-    "G54": "work coordinate system 1, the only one",
     "G61": "exact path mode, the only one",
     "M105": "temperature report",
     "M114": "position report",
@@ -97,7 +101,12 @@ def family(name: str) -> str:
 
 
 def harmless_reason(name: str) -> str | None:
+    if name[0] == "T":  # any tool number: Marlin skips a tool change on a one-tool machine
+        return HARMLESS["T"]
     return HARMLESS.get(name) or (HARMLESS.get(family(name)) if name.startswith("M862.") else None)
+
+
+PROBES = frozenset({"G38.2", "G38.3", "G38.4", "G38.5"})
 
 
 _names: dict[tuple[str, str], str | None] = {}

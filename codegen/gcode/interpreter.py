@@ -16,14 +16,16 @@ import math
 
 from codegen.errors import Diagnostic, SourceRef
 from codegen.gcode import mcodes
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, SUPPORTED,
-                                 code_name, group_of, harmless_reason)
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES,
+                                 SUPPORTED, code_name, group_of, harmless_reason)
+from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState
 from codegen.gcode.moves import LINE, Moves
 from codegen.gcode.reader import Block, Origin, columns
 
 MAX_ERRORS = 20
 S_FULL_SCALE = 255.0  # the S of full tool power (Marlin's laser scale), unless the job gives `s_max`
-_ORDER = ("M3", "M4", "M5", *mcodes.HANDLERS, "G4", *PLANES, "G90", "G91", "M82", "M83", "G28", "G92")
+_ORDER = ("G93", "G94", "M3", "M4", "M5", "M7", "M8", "M9", *mcodes.HANDLERS, "G4", *PLANES, *SYSTEMS, "G43.1",
+          "G49", "G90", "G91", "M82", "M83", "G10", "G28.1", "G30.1", "G28", "G30", "G92", "G92.1")
 _MOTION_CODES = {("G", n): "G" + n.lstrip("0") if n.strip("0") else "G0"
                  for n in ("0", "1", "2", "3", "00", "01", "02", "03")}
 _LINEAR = {key: name for key, name in _MOTION_CODES.items() if name in ("G0", "G1")}
@@ -36,7 +38,7 @@ class _Stop(Exception):
     """The program ends here (M2/M30), or there are too many errors."""
 
 
-class Interpreter(Moves):
+class Interpreter(Moves, GrblState):
     def __init__(self, job, origin: Origin, strict: bool = False):
         machine, program = job.machine, job.program
         self.motors = tuple(machine.motor_names)
@@ -70,6 +72,7 @@ class Interpreter(Moves):
         self.items: list = []
         self.errors: list[Diagnostic] = []
         self.warned: dict[str, list] = {}
+        self.grbl_init()
 
     # ---- results ----
 
@@ -143,7 +146,7 @@ class Interpreter(Moves):
         `_common` (any single motion code) and `_general` (everything)."""
         words = block.words
         mode = _LINEAR.get(words[0])
-        if mode is None:
+        if mode is None or self.inverse_time:
             return self._common(block)
         values = [None] * 6  # X Y Z E F S
         index = _FAST_INDEX.get
@@ -209,7 +212,7 @@ class Interpreter(Moves):
         """A G2/G3 line of plain words (most of an arc file); anything else goes to `_general`."""
         words = block.words
         motion = _ARC_CODES.get(words[0])
-        if motion is None:
+        if motion is None or self.inverse_time:
             return self._general(block)
         params: dict[str, float] = {}
         for letter, number in words[1:]:
@@ -288,21 +291,38 @@ class Interpreter(Moves):
             self.unit = 25.4
         elif "G21" in names:
             self.unit = 1.0
-        if "F" in params and self._feed(block, params) is False:
+        inverse = ("G93" in names or self.inverse_time) and "G94" not in names
+        if "F" in params and not inverse and self._feed(block, params) is False:
             return
         if "S" in params and not any("S" in PARAMS[n] for n in names) and self._power(block, params) is False:
             return
+        if "G53" in names and motion not in ("G0", "G1"):
+            return self.fail(block, "G53", "G53 (machine coordinates) moves only with G0 or G1")
         for name in _ORDER:
             if name in names and self._code(block, name, params) is False:
                 return
         if motion is not None:
             self.mode = motion
+            if motion != "G0" and self.inverse_time and self.inverse_time_feed(block, params) is False:
+                return
+            self._move(block, motion, params, machine="G53" in names)
+            self.inverse_feed = None
+        if "M2" in names or "M30" in names:
+            raise _Stop
+
+    def _move(self, block: Block, motion: str, params, machine: bool) -> None:
+        """The line's motion; with G53 in absolute machine coordinates (X, Y, Z) for this move alone."""
+        saved = self.off, self.relative
+        if machine:
+            self.off, self.relative = [0.0, 0.0, 0.0, self.off[3]], False
+        try:
             if motion == "G0" or motion == "G1":
                 self.line_move(block, motion, params)
             else:
                 self.arc_move(block, motion, params)
-        if "M2" in names or "M30" in names:
-            raise _Stop
+        finally:
+            if machine:
+                self.off, self.relative = saved
 
     def _classify(self, block: Block, codes, params, problems):
         """Modal groups, supported and harmless codes, and which code takes each parameter. Returns the motion
@@ -318,7 +338,9 @@ class Interpreter(Moves):
                                  f"'{name}' and '{first}' on one line: both are in the {group} group"))
                 continue
             groups[group] = name
-            if name in SUPPORTED:
+            if name in PROBES:
+                problems.append((k, f"'{name}' {PROBE_REASON}"))
+            elif name in SUPPORTED:
                 names[name] = k
                 if name in MOTION:
                     motion = name
@@ -326,8 +348,6 @@ class Interpreter(Moves):
                     taker = name
             elif (reason := harmless_reason(name)) is not None:
                 harmless.append((name, k, reason))
-            elif name[0] == "T":
-                problems.append((k, f"tool '{name}': the machine has one tool (T0)"))
             else:
                 problems.append((k, f"unsupported G-code '{name}'"))
         if motion is not None and taker is not None:
@@ -382,8 +402,24 @@ class Interpreter(Moves):
             self.plane = PLANES[name]
         elif name == "G92":
             return self.set_position(block, params)
-        elif name == "G28":
+        elif name == "G28" and self.stored["G28"] is None:
             return self.home(block, params)
+        elif name in ("G28", "G30"):
+            return self.go_stored(block, name, params)
+        elif name in ("G28.1", "G30.1"):
+            self.store(name[:3])
+        elif name in SYSTEMS:
+            self.select_system(name)
+        elif name == "G10":
+            return self.set_system(block, params)
+        elif name == "G92.1":
+            self.clear_g92()
+        elif name in ("G43.1", "G49"):
+            return self.set_tool_length(block, params, name)
+        elif name in ("G93", "G94"):
+            self.inverse_time = name == "G93"
+        elif name in ("M7", "M8", "M9"):
+            self.coolant(block, name)
         elif name == "G4":
             return mcodes.dwell(self, block, params)
         else:

@@ -1,6 +1,6 @@
 """The interpreter's positions and moves: targets in machine mm, G0/G1 lines, G2/G3 arcs, G28 and G92.
 
-Machine position = program position + G92 offset. Moves are recorded as indices into one list of points
+Machine position = program position + offset (work system, G92, tool length: codegen/gcode/grbl.py). Moves are recorded as indices into one list of points
 (`flat`, 4 numbers a point); the interpreter turns them into Line/Arc/Home items at the end.
 """
 
@@ -90,11 +90,21 @@ class Moves:
         if mode == "G0":
             feed, tool = self.rapid, False
         else:
-            feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+            length = float(np.linalg.norm(np.subtract(tgt[:3], self.pos[:3]))) or abs(tgt[3] - self.pos[3])
+            feed, tool = self.draw_speed(length), self.spindle
         accel = self.accel_for(tgt)
         start = self.add_point(tgt)
-        self.items.append((LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode,
-                           accel, self.power))
+        self.items.append(self.line_item(block, start, feed, tool, mode, accel))
+
+    def line_item(self, block, start: int, feed: float, tool: bool, mode: str, accel: float) -> tuple:
+        return (LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode, accel,
+                self.power)
+
+    def draw_speed(self, length: float) -> float:
+        """mm/s of a drawing move: its F, or in inverse time (G93) its length over the duration F says."""
+        if self.inverse_feed is not None:
+            return length * self.inverse_feed / 60.0
+        return self.draw_feed if self.feed is None else self.feed
 
     def arc_move(self, block, mode: str, params: dict[str, float]) -> None:
         plane = self.plane
@@ -129,7 +139,9 @@ class Moves:
                 circle = arcs.from_offsets(start, end, offset, mode == "G2", letters)
         except arcs.ArcError as err:
             return self.fail(block, err.letter if err.letter in params else given[0], err.message)
-        feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+        along = [tgt[i] - pos[i] for i in range(3) if i not in plane]
+        feed = self.draw_speed(float(np.hypot(circle.radius * abs(circle.sweep), np.linalg.norm(along))))
+        tool = self.spindle
         accel = self.accel_travel if tgt[3] == pos[3] else self.accel_print
         start_index = self.add_point(tgt)
         self.items.append((ARC, start_index, self.cur, circle, plane, feed, tool, self.source(block), mode, accel,

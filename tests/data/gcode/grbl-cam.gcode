@@ -1,0 +1,36 @@
+(Written for printer-codegen's tests: a small pocket and a bolt circle as Grbl CAM output looks)
+(T1 = 3 mm flat end mill)
+G21 G90 G94 G17 G54
+G10 L2 P1 X20 Y20 Z0
+G10 L20 P2 X0 Y0 Z0
+G53 G0 Z0
+T1 M6
+M3 S12000
+M8
+G0 X0 Y0
+G0 Z5
+G43.1 Z0.5
+G1 Z-1 F300
+G1 X30 F800
+G1 Y20
+G1 X0
+G1 Y0
+G2 X10 Y10 I10 J0
+G3 X20 Y0 I10 J0
+G91 G1 Z-0.5
+G90
+G1 X0 Y0
+G0 Z5
+G28.1
+G55
+G0 X5 Y5
+G93 G1 X10 Y8 F30
+G94
+G2 X5 Y5 R4 F600
+G49
+G53 G0 Z0
+M9
+M5
+G28
+G64
+M30
