@@ -17,10 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.planner import RATE_WINDOW, Plan
+from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, Plan
 from codegen.segments import REF_ARC, Segments
 
-ACCEL_WINDOW_S = 0.020
 CHUNK = 1 << 20
 
 
@@ -128,14 +127,16 @@ def corner_jumps(plan: Plan, segments: Segments, kin: Kinematics) -> tuple[np.nd
     return plan.t_start[j], jump
 
 
-def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, corners_jump: np.ndarray) -> float:
+def accel_ratios(train: MotorTrain, max_accel: float, corners_t: np.ndarray,
+                 corners_jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each pair of consecutive windows: when it starts (s), and its velocity change over what is allowed."""
     if len(train.time) < 3:
-        return 0.0
+        return np.zeros(0), np.zeros(0)
     position = np.cumsum(train.dir)
     t0, t1 = train.time[0], train.time[-1]
     edges = t0 + ACCEL_WINDOW_S * np.arange(int(np.ceil((t1 - t0) / ACCEL_WINDOW_S)) + 1)
     if len(edges) < 3:
-        return 0.0
+        return np.zeros(0), np.zeros(0)
     p = np.interp(edges, train.time, position)
     v = np.diff(p) / ACCEL_WINDOW_S
     dv = np.abs(np.diff(v))
@@ -144,7 +145,12 @@ def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, 
     lo = np.searchsorted(corners_t, edges[:-2], side="left")
     hi = np.searchsorted(corners_t, edges[2:], side="right")
     allowed = max_accel * ACCEL_WINDOW_S + (cum[hi] - cum[lo]) + 2.0 / ACCEL_WINDOW_S
-    return float(np.max(dv / allowed))
+    return edges[:-2], dv / allowed
+
+
+def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, corners_jump: np.ndarray) -> float:
+    _, ratio = accel_ratios(train, max_accel, corners_t, corners_jump)
+    return float(np.max(ratio, initial=0.0))
 
 
 def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,

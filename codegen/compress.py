@@ -183,10 +183,12 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
     `max_rate` (steps/s per motor): pushed events catch up within it."""
     needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
     needed[events.block_first[:-1]] = block_gap_ticks
+    planned = events.time * tick_hz
     push = 1.1 * needed + 2.0
-    if max_rate is not None:
-        push = np.maximum(push, np.repeat(rate_gaps(events, max_rate) * tick_hz, np.diff(events.block_first)))
-    ideal = spread(events.time * tick_hz, push)
+    if max_rate is not None:  # a pushed event's successors: never closer than the motors allow, or the plan
+        rate_gap = np.repeat(rate_gaps(events, max_rate) * tick_hz, np.diff(events.block_first))
+        push = np.maximum(push, np.minimum(rate_gap, np.diff(planned, prepend=0.0)))
+    ideal = spread(planned, push)
     gaps = np.diff(np.concatenate([[0.0], ideal]))
     win = np.clip(window.share * gaps, window.min_ticks, window.max_us * 1e-6 * tick_hz)
     total = len(ideal)

@@ -9,17 +9,17 @@ import math
 import time
 from contextlib import contextmanager
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from codegen.checks import Findings, MotorTrain, check, step_length_mm
+from codegen.checks import Findings, MotorTrain, accel_ratios, check, corner_jumps, step_length_mm
 from codegen.compress import Compressed, TimingWindow, compress
 from codegen.errors import BuildError, Diagnostic, JobError
 from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
-from codegen.planner import Plan, PlannerLimits, plan, segment_lengths
+from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, Plan, PlannerLimits, plan, segment_lengths
 from codegen.stepgen import (Events, generate, quantisation_split, segment_steps, split_at, split_long,
                              staircase_bound, staircase_error)
 from codegen.gcode import toolpath_from_gcode
@@ -34,6 +34,8 @@ from codegen.twin import Pulses, predict
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
+RATE_ROUNDS = 4  # plans at most: a stretch over a motor's rate or acceleration slows its segments, plans again
+RETRY_SHARE = 0.98  # of the rate and acceleration those segments then aim at
 
 
 @dataclass
@@ -101,7 +103,21 @@ def homed_toolpath(job, kin: Kinematics, strict: bool = False) -> tuple[Toolpath
         feed = math.inf if job.program.travel_feed is None else job.program.travel_feed / 60.0
         toolpath.items.insert(0, Line(home, start.copy(), feed, False, source, "travel"))
         toolpath.start = home
+    if job.machine.kinematics == "delta" and toolpath.items:
+        toolpath.items[:1] = descend_first(toolpath.items[0], home)
     return toolpath, warnings, homes_first
+
+
+def descend_first(item, home: np.ndarray) -> list:
+    """A delta's carriages stand at their tops once homed: the travel away from home goes straight down to its
+    end's height first (every carriage moves down alike), then across."""
+    if not (isinstance(item, Line) and not item.tool and np.allclose(item.start, home)):
+        return [item]
+    below = home.copy()
+    below[2] = item.end[2]
+    if item.end[2] >= home[2] or np.allclose(below[:2], item.end[:2]):
+        return [item]
+    return [replace(item, end=below), replace(item, start=below)]
 
 
 def settle_homes(toolpath: Toolpath) -> tuple[Toolpath, bool]:
@@ -194,6 +210,34 @@ class Stopwatch:
         self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - begin
 
 
+def slow_down(result: HostBuild, trains: list[MotorTrain]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the tables' pulses take a motor over its rate (8 consecutive steps) or its acceleration (two 20 ms
+    windows), which a plan per segment cannot see (a coarse motor's window across the Bresenham phases of
+    several blocks, a delta carriage between cut points): the share of their peak speed and of their
+    acceleration the segments under that stretch may keep. None when every window is within its limits."""
+    kin, plan = result.kin, result.plan
+    n = len(result.segments)
+    speed, accel = np.ones(n), np.ones(n)
+    pulse_segment = result.event_segments()[result.pulses.event]
+    corners_t, jumps = corner_jumps(plan, result.segments, kin)
+    for m, train in enumerate(trains):
+        mine = pulse_segment[result.pulses.motor == m]
+        if len(train.time) > RATE_WINDOW:
+            ratio = RATE_WINDOW / np.maximum(train.time[RATE_WINDOW:] - train.time[:-RATE_WINDOW], 1e-12)
+            ratio /= kin.limits.max_rate[m]
+            for k in np.flatnonzero(ratio > 1.0):
+                span = slice(mine[k], mine[k + RATE_WINDOW] + 1)
+                speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio[k])
+        begin, ratio = accel_ratios(train, kin.limits.max_accel[m] * kin.limits.steps_per_mm[m], corners_t,
+                                    jumps[:, m])
+        for k in np.flatnonzero(ratio > 1.0):
+            first, last = np.searchsorted(plan.t_start, [begin[k], begin[k] + 2 * ACCEL_WINDOW_S], side="right") - 1
+            span = slice(max(first, 0), last + 1)
+            speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio[k]))  # bends: v^2
+            accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio[k])
+    return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
+
+
 def timing_window(target: TargetInfo) -> TimingWindow:
     """How far an event may be from its ideal time. The 5 % share of the gap bounds the rate error; on the
     compact tables (8 KB of code memory) the absolute cap is wider, so that slow moves need fewer runs."""
@@ -225,25 +269,31 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None) -> Hos
     start_steps = kin.to_steps(np.asarray(toolpath.start, float)[None, :])[0]
     expected_final = kin.to_steps(np.asarray(toolpath.end(), float)[None, :])[0]
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
-    with watch("plan"):
-        steps = segment_steps(segments, kin)
-        limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
-                               block_overhead=target.block_overhead_s(motors, pulse_us, setup_us))
-        motion = plan(segments, kin, steps, limits)
-    with watch("step times"):
-        events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
-        if target.compact_tables:
-            events = smooth_curve_times(events, segments, motion, kin)
-    with watch("rate runs"):
-        compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
-                              target.block_gap_ticks(pulse_us, setup_us), window=timing_window(target),
-                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate)
-    with watch("twin"):
-        pulses = predict(compressed.schedule)
-    result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
-                       None, start_steps, expected_final, warnings, homing)  # type: ignore[arg-type]
-    with watch("checks"):
-        trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
-        result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
-                                expected_final, start_steps, job.machine.tolerance)
+    steps = segment_steps(segments, kin)
+    limits = PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
+                           block_overhead=target.block_overhead_s(motors, pulse_us, setup_us))
+    for _ in range(RATE_ROUNDS):
+        with watch("plan"):
+            motion = plan(segments, kin, steps, limits)
+        with watch("step times"):
+            events = generate(segments, motion, kin, steps, max_gap=target.max_gap_s)
+            if target.compact_tables:
+                events = smooth_curve_times(events, segments, motion, kin)
+        with watch("rate runs"):
+            compressed = compress(events, kin.motors, target.tick_hz, target.run_gap_ticks(motors, pulse_us),
+                                  target.block_gap_ticks(pulse_us, setup_us), window=timing_window(target),
+                                  cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate)
+        with watch("twin"):
+            pulses = predict(compressed.schedule)
+        result = HostBuild(job, target, kin, toolpath, segments, motion, events, compressed, pulses,
+                           None, start_steps, expected_final, warnings, homing)  # type: ignore[arg-type]
+        with watch("checks"):
+            trains = trains_from(pulses.tick / target.tick_hz, pulses.motor, pulses.dir, len(kin.motors))
+            result.findings = check(trains, pulses.event_position, result.event_segments(), segments, motion, kin,
+                                    expected_final, start_steps, job.machine.tolerance)
+        scale = slow_down(result, trains)
+        if scale is None:
+            break
+        segments = replace(segments, feed=np.minimum(segments.feed, motion.v_peak * scale[0]),
+                           accel=np.minimum(segments.accel, motion.accel * scale[1]))
     return result

@@ -59,9 +59,12 @@ def test_a_delta_without_start_starts_where_homing_leaves_it(tmp_path):
 def test_an_explicit_start_is_reached_by_travel_after_homing(tmp_path):
     host = build(tmp_path, KOSSEL.format(start="  start: [10, 10, 100]\n"))
     assert host.findings.ok, host.findings.problems
-    travel, to_first = host.toolpath.items[:2]
-    assert np.allclose(travel.start, host.kin.home()) and np.allclose(travel.end[:3], [10, 10, 100])
-    assert not travel.tool and (travel.source.line, travel.source.col) == (11, 10)  # positioned at `start` in the job file
+    down, across, to_first = host.toolpath.items[:3]
+    # Straight down from home first (the carriages are at their tops), then across to `start`.
+    assert np.allclose(down.start, host.kin.home()) and np.allclose(down.end[:3], [0, 0, 100])
+    assert np.allclose(across.start[:3], [0, 0, 100]) and np.allclose(across.end[:3], [10, 10, 100])
+    for travel in (down, across):  # tool off, positioned at `start` in the job file
+        assert not travel.tool and (travel.source.line, travel.source.col) == (11, 10)
     assert np.allclose(to_first.start[:3], [10, 10, 100]) and np.allclose(to_first.end[:3], [0, 0, 10])
 
 
