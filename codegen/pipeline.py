@@ -34,8 +34,8 @@ from codegen.twin import Pulses, predict
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
-RATE_ROUNDS = 4  # plans at most: a stretch over a motor's rate or acceleration slows its segments, plans again
-RETRY_SHARE = 0.98  # of the rate and acceleration those segments then aim at
+RATE_ROUNDS = 8  # plans at most: a stretch over a motor's rate or acceleration slows its segments, plans again
+RETRY_SHARE = 0.95  # of the rate and acceleration those segments (and their neighbours) then aim at
 
 
 @dataclass
@@ -226,13 +226,13 @@ def slow_down(result: HostBuild, trains: list[MotorTrain]) -> tuple[np.ndarray, 
             ratio = RATE_WINDOW / np.maximum(train.time[RATE_WINDOW:] - train.time[:-RATE_WINDOW], 1e-12)
             ratio /= kin.limits.max_rate[m]
             for k in np.flatnonzero(ratio > 1.0):
-                span = slice(mine[k], mine[k + RATE_WINDOW] + 1)
+                span = slice(max(mine[k] - 1, 0), mine[k + RATE_WINDOW] + 2)
                 speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio[k])
         begin, ratio = accel_ratios(train, kin.limits.max_accel[m] * kin.limits.steps_per_mm[m], corners_t,
                                     jumps[:, m])
         for k in np.flatnonzero(ratio > 1.0):
             first, last = np.searchsorted(plan.t_start, [begin[k], begin[k] + 2 * ACCEL_WINDOW_S], side="right") - 1
-            span = slice(max(first, 0), last + 1)
+            span = slice(max(first - 1, 0), last + 2)
             speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio[k]))  # bends: v^2
             accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio[k])
     return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
