@@ -73,7 +73,10 @@ def main(argv=None) -> int:
             result = survey(kinematics, target, args.examples, out, args.seed, deadline)
             counts = result["counts"]
             spent = time.monotonic() - begin
-            refused = {k[len("refused: "):]: v for k, v in counts.items() if k.startswith("refused: ")}
+            refused: Counter = Counter()
+            for key, n in counts.items():
+                if key.startswith("refused: "):
+                    refused[re.sub(r"[-+]?\d+(\.\d+)?", "#", key[len("refused: "):])] += n
             print(f"{kinematics:9} {target:5}: {counts['run']} jobs in {spent:.0f} s, {counts['built']} built, "
                   f"{sum(refused.values())} refused, {counts['too big']} too big, {counts['invalid']} invalid, "
                   f"{counts['failed']} failed", flush=True)

@@ -61,11 +61,12 @@ def _coord(draw, box, axis):
 
 
 @st.composite
-def points(draw, box, three, n=1):
+def points(draw, box, three, n=1, full=False):
+    """Points in the box; with `full` always with their height."""
     out = []
     for _ in range(n):
         p = [_coord(draw, box, 0), _coord(draw, box, 1)]
-        if three and draw(st.booleans()):
+        if full or (three and draw(st.booleans())):
             p.append(_coord(draw, box, 2))
         out.append(p)
     return out
@@ -81,22 +82,24 @@ EXPRESSIONS = ["sin(x)", "x**2 / 40", "3 * cos(x / 5)", "sqrt(x + 1)", "exp(x / 
 
 
 @st.composite
-def shape(draw, box, three):
+def shape(draw, box, three, delta=False):
     kind = draw(st.sampled_from(["line", "polyline", "points", "arc", "circle", "ellipse", "sine", "function",
                                  "travel"]))
-    z = f", z: {_num(_coord(draw, box, 2))}" if three and box[2][1] > 0 and draw(st.booleans()) else ""
+    # A delta homes: its 2-D shapes would be drawn at the home height, where it cannot move sideways.
+    given = delta or (three and box[2][1] > 0 and draw(st.booleans()))
+    z = f", z: {_num(_coord(draw, box, 2))}" if given else ""
     feed = f", feed: {draw(st.sampled_from([60, 600, 1500, 6000, 30000]))}" if draw(st.booleans()) else ""
     if kind == "line":
-        (a,) = draw(points(box, three))
-        start = f"from: {_point(draw(points(box, three))[0])}, " if draw(st.booleans()) else ""
+        (a,) = draw(points(box, three, full=delta))
+        start = f"from: {_point(draw(points(box, three, full=delta))[0])}, " if draw(st.booleans()) else ""
         return f"- line: {{{start}to: {_point(a)}{feed}}}"
     if kind in ("polyline", "points"):
-        pts = draw(points(box, three, n=draw(st.integers(2, 5))))
+        pts = draw(points(box, three, n=draw(st.integers(2, 5)), full=delta))
         if kind == "points":
             return "- points: [" + ", ".join(_point(p) for p in pts) + "]"
         return f"- polyline: {{points: [{', '.join(_point(p) for p in pts)}]{feed}}}"
     if kind == "travel":
-        return f"- travel: {{to: {_point(draw(points(box, three))[0])}}}"
+        return f"- travel: {{to: {_point(draw(points(box, three, full=delta))[0])}}}"
     centre = [_coord(draw, box, 0), _coord(draw, box, 1)]
     r = _radius(draw, box, centre)
     if kind == "arc":
@@ -183,7 +186,8 @@ def jobs(draw, kinematics: str, target: str):
         program += ["    " + line for line in text.splitlines()]
     else:
         program.append("  shapes:")
-        program += ["    " + draw(shape(box, three)) for _ in range(draw(st.integers(1, 3)))]
+        delta = kinematics == "delta"
+        program += ["    " + draw(shape(box, three, delta)) for _ in range(draw(st.integers(1, 3)))]
     return "\n".join([f"name: prop", f"target: {target}", machine, *program]) + "\n"
 
 
