@@ -26,3 +26,12 @@ def test_every_accepted_job_builds_or_is_refused_cleanly(kinematics, target):
             outcome(text, Path(folder))
 
     check()
+
+
+FOUND = sorted((Path(__file__).resolve().parent / "data" / "jobs" / "found").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("job", FOUND, ids=lambda p: p.stem)
+def test_jobs_the_generator_found_build(job, tmp_path):
+    """The minimal jobs hypothesis shrank each bug it found to (tests/data/jobs/found): each broke a limit."""
+    assert outcome(job.read_text(), tmp_path) == "built"
