@@ -179,10 +179,8 @@ def test_prusaslicer_benchy():
                        ("bed", 0, False)]
     assert messages(warnings) == [
         "'M73' ignored (print progress); 139 times",
-        "'M205 S' ignored (minimum print feed rate)",
-        "'M205 T' ignored (minimum travel feed rate)",
         "'G29' ignored (bed levelling; there is no probe)",
-        "'M900' ignored (linear advance)",
+        "'M900' ignored (linear advance off (K0), as without it)",
         "'M84' ignored (motors off)",
     ]
 

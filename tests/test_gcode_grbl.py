@@ -66,3 +66,22 @@ def test_coolant_tool_change_probe_and_blending():
     assert errors("G38.2 Z-10 F100\n", motors=MILL) == [(8, 5, "'G38.2' probes: the move stops where a contact "
                                                                "closes, a measurement taken while the machine "
                                                                "runs, which a plan computed beforehand cannot know")]
+
+
+def test_g92_1_keeps_the_extruders_flow_scaled_position():
+    # M221 S50: E 10 is 5 mm of machine E; G92.1 leaves E alone, so E 12 is 1 mm further (6), not 8.5.
+    ends = [i.end.tolist() for i in items("M221 S50\nG1 X1 E10\nG92.1\nG1 X2 E12\n") if isinstance(i, Line)]
+    assert ends == [[1, 0, 0, 5], [2, 0, 0, 6]]
+
+
+def test_back_from_inverse_time_the_feed_is_undefined_until_an_f():
+    # Grbl: after G93 -> G94 the feed rate is undefined; here, as before any F, the job's feed (1200 mm/min).
+    feeds = [i.feed for i in items("G1 X1 F600\nG93 G1 X2 F60\nG94\nG1 X3\nG1 X4 F300\n", motors=MILL)]
+    assert feeds == [10.0, 1.0, 20.0, 5.0]
+
+
+def test_g10_errors():
+    assert errors("G10 L2 P1\nG10 L20 P7 X0\nG10 P1 X0\n", motors=MILL) == [
+        (8, 5, "G10 needs the axis words to set (X, Y, Z)"),
+        (9, 13, "G10 needs P0 (the current system) to P6 (G59)"),
+        (10, 5, "G10 needs L2 or L20 (work coordinate offsets)")]

@@ -275,7 +275,7 @@ def test_axes_the_machine_cannot_move():
 # ---- messages ----
 
 def test_unsupported_and_tool_errors():
-    assert errors("G38.2 Z-5\nM600\nG10 L3 P1 X0\nG1 Q5\nP5\nG1 F0 X1\nM3 S-1\nM220 S50\nG92\nM106 P1\nM104 S200 T1\n") == [
+    assert errors("G38.2 Z-5\nM600\nG10 L3 P1 X0\nG1 Q5\nP5\nG1 F0 X1\nM3 S-1\nM220 S0\nG92\nM106 P1\nM104 S200 T1\n") == [
         (8, 5, "'G38.2' probes: the move stops where a contact closes, a measurement taken while the machine "
                "runs, which a plan computed beforehand cannot know"),
         (9, 5, "unsupported G-code 'M600'"),
@@ -284,7 +284,7 @@ def test_unsupported_and_tool_errors():
         (12, 5, "'P5' needs a code that takes it"),
         (13, 8, "feed rate 'F0' must be > 0"),
         (14, 8, "power 'S-1' must be >= 0"),
-        (15, 10, "'M220 S50': feed rate overrides are not supported (only S100)"),
+        (15, 10, "'S0' must be > 0"),
         (16, 5, "G92 needs the axis words to set (X, Y, Z, E)"),
         (17, 10, "'P1': the machine has one fan (P0)"),
         (18, 15, "'T1': the machine has one hot end (T0)"),
@@ -310,16 +310,15 @@ def test_too_many_errors():
 
 
 def test_warnings_one_per_code():
-    toolpath, warnings = run("M73 P0\nG1 X1\nM73 P50\nT0\nM84\nM205 S0 T0\nM220 S100\nG29\nM862.3 P \"MINI\"\n"
-                             "M117 Hello\nM73 P100\n")
+    toolpath, warnings = run("M73 P0\nG1 X1\nM73 P50\nT0\nM84\nM205 S0 T0 B20000\nM220 S100\nG29\n"
+                             "M862.3 P \"MINI\"\nM117 Hello\nM73 P100\n")
     assert len(toolpath.items) == 1
     assert [(w.severity, w.where.line, w.where.col, w.message) for w in warnings] == [
         ("warning", 8, 5, "'M73' ignored (print progress); 3 times"),
         ("warning", 11, 5, "'T0' ignored (tool select; the machine has one tool)"),
         ("warning", 12, 5, "'M84' ignored (motors off)"),
-        ("warning", 13, 10, "'M205 S' ignored (minimum print feed rate)"),
-        ("warning", 13, 13, "'M205 T' ignored (minimum travel feed rate)"),
-        ("warning", 14, 5, "'M220' ignored (feed rate override; only S100 (no change) is accepted)"),
+        ("warning", 13, 16, "'M205 B' ignored (minimum segment time; Marlin applies it only while its move "
+                            "queue runs low)"),
         ("warning", 15, 5, "'G29' ignored (bed levelling; there is no probe)"),
         ("warning", 16, 5, "'M862.3' ignored (printer check)"),
         ("warning", 17, 5, "'M117' ignored (display message)"),
@@ -327,10 +326,11 @@ def test_warnings_one_per_code():
 
 
 def test_strict_makes_skipped_codes_errors():
-    assert errors("M73 P0\nG1 X1\nM73 P50\nM205 S0\n", strict=True) == [
+    assert errors("M73 P0\nG1 X1\nM73 P50\nM205 S0 B1\n", strict=True) == [
         (8, 5, "'M73' is not accepted with --strict (print progress)"),
         (10, 5, "'M73' is not accepted with --strict (print progress)"),
-        (11, 10, "'M205 S' is not accepted with --strict (minimum print feed rate)"),
+        (11, 13, "'M205 B' is not accepted with --strict (minimum segment time; Marlin applies it only while its "
+                 "move queue runs low)"),
     ]
 
 
@@ -350,3 +350,30 @@ def test_m221_scales_the_extruders_moves_from_its_place(mode):
              "M221 S100", "G1 X4 E4" if absolute else "G1 X4 E2"]
     ends = [item.end[3] for item in items("\n".join([mode] + program)) if isinstance(item, Line)]
     assert ends == [2.0, 3.0, 4.0, 6.0]  # 2, then 2 at 50 %, 2 at 50 % after G92, then 2 at 100 %
+
+
+def test_m220_scales_every_moves_feed_from_its_place():
+    """Marlin and Klipper: M220 S<percent> multiplies the feed rate of every move after it (G0 included, G2/G3
+    too); B saves the factor and R restores it (Marlin)."""
+    found = [(i.label, i.feed) for i in items(
+        "G1 X10 F600\nM220 S50\nG1 X20\nG0 X0\nG2 X10 I5\nM220 B S200\nG1 X20 F60\nM220 R\nG1 X30\n",
+        travel_feed=3000)]
+    assert found == [("G1", 10.0), ("G1", 5.0), ("G0", 25.0), ("G2", 5.0), ("G1", 2.0), ("G1", 0.5)]
+    assert errors("M220 S-5\nM220 Q1\n") == [(8, 10, "'S-5' must be > 0"), (9, 10, "'Q1' is not a parameter of M220")]
+
+
+def test_m205_least_feed_rates():
+    """Marlin's M205 S (moves that extrude) and T (the others): a slower move runs at that speed (mm/s)."""
+    found = [i.feed for i in items("M205 S5 T20\nG1 X1 E1 F60\nG1 X2 F60\nG1 X3 E2 F600\nM205 S0 T0\n"
+                                   "G1 X4 F60\n")]
+    assert found == [5.0, 20.0, 10.0, 1.0]
+
+
+def test_pressure_advance_only_off():
+    """M900 K0 / M572 S0 change nothing and are skipped; a non-zero advance would move the extruder off the plan."""
+    assert [w.message for w in run("M900 K0\nM572 S0\n")[1]] == [
+        "'M900' ignored (linear advance off (K0), as without it)",
+        "'M572' ignored (pressure advance off (S0), as without it)"]
+    assert errors("M900 K0.05\nM572 S0.04\n") == [
+        (8, 10, "'M900 K0.05': pressure (linear) advance is not modelled; only K0 (off)"),
+        (9, 10, "'M572 S0.04': pressure (linear) advance is not modelled; only S0 (off)")]

@@ -47,7 +47,7 @@ PARAMS = {
     "M2": "", "M30": "", "M3": "", "M4": "", "M5": "", "M82": "", "M83": "",
     "M104": "ST", "M109": "SRT", "M140": "S", "M190": "SR",
     "M106": "SP", "M107": "P",
-    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M221": "ST",
+    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M220": "SBR", "M221": "ST",
     # Grbl (codegen/gcode/grbl.py)
     "G10": "LPXYZ", "G53": "", "G28.1": "", "G30": "XYZ", "G30.1": "", "G92.1": "", "G93": "",
     "G43.1": "Z", "G49": "", "M7": "", "M8": "", "M9": "",
@@ -61,9 +61,8 @@ HARMLESS = {
     "M73": "print progress",
     "M117": "display message",
     "M118": "host message",
-    "M900": "linear advance",
-    "M572": "pressure advance",
-    "M220": "feed rate override; only S100 (no change) is accepted",
+    "M900": "linear advance off (K0), as without it",
+    "M572": "pressure advance off (S0), as without it",
     "G29": "bed levelling; there is no probe",
     "M420": "bed levelling state",
     "T": "tool select; the machine has one tool",
@@ -86,9 +85,7 @@ HARMLESS = {
 }
 # Parameters of supported codes that are skipped the same way: (code, letter) -> why.
 HARMLESS_PARAMS = {
-    ("M205", "S"): "minimum print feed rate",
-    ("M205", "T"): "minimum travel feed rate",
-    ("M205", "B"): "minimum segment time",
+    ("M205", "B"): "minimum segment time; Marlin applies it only while its move queue runs low",
 }
 # Codes whose argument is free text (the rest of the line), not words.
 TEXT_CODES = frozenset({"M23", "M28", "M32", "M117", "M118", "M862"})

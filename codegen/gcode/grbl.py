@@ -46,6 +46,9 @@ class GrblState:
         if number not in (0, 1, 2, 3, 4, 5, 6):
             self.fail(block, "P" if "P" in params else "G10", "G10 needs P0 (the current system) to P6 (G59)")
             return False
+        if not any(letter in params for letter in "XYZ"):  # as Grbl: error 26, no axis words
+            self.fail(block, "G10", "G10 needs the axis words to set (X, Y, Z)")
+            return False
         name = self.system if number == 0 else SYSTEMS[int(number) - 1]
         values = list(self.systems[name])
         for i, letter in enumerate("XYZ"):
@@ -62,8 +65,7 @@ class GrblState:
     def clear_g92(self) -> None:
         """G92.1: the G92 offsets go; the work system and tool length offset stay."""
         system = self.systems[self.system]
-        self.off = [system[0], system[1], system[2] + self.tool_length, self.off[3]]
-        self.e_shift = self.pos[3] * (1.0 - self.flow)
+        self.off = [system[0], system[1], system[2] + self.tool_length, self.off[3]]  # E's stays, as its shift
 
     def set_tool_length(self, block, params, name: str) -> bool | None:
         """G43.1 Z<offset> (dynamic tool length offset) or G49 (none)."""
@@ -92,7 +94,8 @@ class GrblState:
             if self.fixed and self.axis_missing(block, final):
                 return False
             start = self.add_point(final)
-            self.items.append(self.line_item(block, start, self.rapid, False, "G0", self.accel_travel))
+            self.items.append(self.line_item(block, start, self.speed(self.rapid, False), False, "G0",
+                                             self.accel_travel))
         return None
 
     def coolant(self, block, name: str) -> None:

@@ -53,6 +53,8 @@ class Interpreter(Moves, GrblState):
         self.off = [0.0] * 4
         self.flow = 1.0  # M221: machine E = flow * (program E + offset) + e_shift
         self.e_shift = 0.0
+        self.speed_factor = self.saved_speed_factor = 1.0  # M220
+        self.min_feed = self.min_travel_feed = 0.0  # M205 S, T (mm/s)
         self.unit = 1.0
         self.relative = self.e_relative = False
         self.mode = "G0"
@@ -195,6 +197,7 @@ class Interpreter(Moves, GrblState):
             feed, tool = self.rapid, False
         else:
             feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
+        feed = self.speed(feed, tgt[3] != pos[3])
         if tgt[3] == pos[3]:
             accel = self.accel_travel
         elif tgt[0] == pos[0] and tgt[1] == pos[1] and tgt[2] == pos[2]:
@@ -278,8 +281,9 @@ class Interpreter(Moves, GrblState):
                 problems.append((tool, f"'T{words[tool][1]}' is not a tool number"))
             else:
                 codes.append((name, tool))
-        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin)
-            if letter not in "XYZ" or not any(name == "G28" for name, _ in codes):
+        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin), M220 its B and R
+            if not ((letter in "XYZ" and any(name == "G28" for name, _ in codes)) or
+                    (letter in "BR" and any(name == "M220" for name, _ in codes))):
                 problems.append((self.word_index(block, letter), f"expected a number after '{letter}'"))
                 del params[letter]
         motion, names = self._classify(block, codes, params, problems)
@@ -292,6 +296,8 @@ class Interpreter(Moves, GrblState):
         elif "G21" in names:
             self.unit = 1.0
         inverse = ("G93" in names or self.inverse_time) and "G94" not in names
+        if "G94" in names and self.inverse_time:
+            self.feed = None  # back from G93 the feed rate is undefined until an F, as in Grbl: the job's feed
         if "F" in params and not inverse and self._feed(block, params) is False:
             return
         if "S" in params and not any("S" in PARAMS[n] for n in names) and self._power(block, params) is False:
@@ -354,9 +360,11 @@ class Interpreter(Moves, GrblState):
             problems.append((max(names[motion], names[taker]),
                              f"'{motion}' and '{taker}' on one line: both take the axis words"))
         if harmless:  # they take every word of the line
-            if any(h[0] == "M220" for h in harmless) and params.get("S", 100.0) != 100.0:
-                problems.append((self.word_index(block, "S"), f"'M220 {self.word(block, 'S')}': feed rate "
-                                                              f"overrides are not supported (only S100)"))
+            for name, k, _ in harmless:  # pressure advance moves the extruder off the plan: only "off" is harmless
+                letter = {"M900": "K", "M572": "S"}.get(name)
+                if letter is not None and params.get(letter, 0.0) != 0.0:
+                    problems.append((self.word_index(block, letter), f"'{name} {self.word(block, letter)}': "
+                                     f"pressure (linear) advance is not modelled; only {letter}0 (off)"))
             if problems:
                 return None, None
             allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])

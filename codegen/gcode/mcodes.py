@@ -1,5 +1,5 @@
-"""The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M221
-flow, G4.
+"""The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M205
+least feed rates, M220 feed rate factor, M221 flow, G4.
 
 Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
 when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
@@ -120,7 +120,12 @@ def accelerations(it, block, params):
 
 @_guarded
 def jerk(it, block, params):
-    """M205 X Y Z E (jerk, mm/s) and J (junction deviation, mm); S T B are skipped by the interpreter."""
+    """M205 X Y Z E (jerk, mm/s), J (junction deviation, mm), S and T (Marlin's least feed rate of the moves
+    that extrude and of the others, mm/s: a slower move runs at it); B is skipped by the interpreter."""
+    if "S" in params:
+        it.min_feed = _number(it, block, params, "S", strict=False) * it.unit
+    if "T" in params:
+        it.min_travel_feed = _number(it, block, params, "T", strict=False) * it.unit
     values = _per_axis(it, block, params, strict=False)
     deviation = _number(it, block, params, "J") * it.unit if "J" in params else None
     if values or deviation is not None:
@@ -137,6 +142,19 @@ def flow(it, block, params):
         new = _number(it, block, params, "S") / 100.0
         program_e = (it.pos[3] - it.e_shift) / it.flow
         it.flow, it.e_shift = new, it.pos[3] - new * program_e
+    return None
+
+
+@_guarded
+def feed_factor(it, block, params):
+    """M220 S (percent): every move's feed rate from here on times S/100, as Marlin and Klipper do; B saves
+    the factor, R restores the saved one (Marlin, in that order, before S)."""
+    if "B" in params:
+        it.saved_speed_factor = it.speed_factor
+    if "R" in params:
+        it.speed_factor = it.saved_speed_factor
+    if "S" in params:
+        it.speed_factor = _number(it, block, params, "S") / 100.0
     return None
 
 
@@ -165,5 +183,6 @@ HANDLERS = {
     "M203": max_velocity,
     "M204": accelerations,
     "M205": jerk,
+    "M220": feed_factor,
     "M221": flow,
 }

@@ -83,6 +83,11 @@ class Moves:
             return self.accel_retract
         return self.accel_print
 
+    def speed(self, feed: float, extrudes: bool) -> float:
+        """A move's speed (mm/s) from its feed: times the M220 factor, at least M205's S (a move that extrudes)
+        or T (any other), as Marlin's planner does."""
+        return max(feed * self.speed_factor, self.min_feed if extrudes else self.min_travel_feed)
+
     def line_move(self, block, mode: str, params: dict[str, float]) -> None:
         tgt = self.target(params)
         if tgt == self.pos or (self.fixed and self.axis_missing(block, tgt)):
@@ -92,6 +97,7 @@ class Moves:
         else:
             length = float(np.linalg.norm(np.subtract(tgt[:3], self.pos[:3]))) or abs(tgt[3] - self.pos[3])
             feed, tool = self.draw_speed(length), self.spindle
+        feed = self.speed(feed, tgt[3] != self.pos[3])
         accel = self.accel_for(tgt)
         start = self.add_point(tgt)
         self.items.append(self.line_item(block, start, feed, tool, mode, accel))
@@ -141,6 +147,7 @@ class Moves:
             return self.fail(block, err.letter if err.letter in params else given[0], err.message)
         along = [tgt[i] - pos[i] for i in range(3) if i not in plane]
         feed = self.draw_speed(float(np.hypot(circle.radius * abs(circle.sweep), np.linalg.norm(along))))
+        feed = self.speed(feed, tgt[3] != pos[3])
         tool = self.spindle
         accel = self.accel_travel if tgt[3] == pos[3] else self.accel_print
         start_index = self.add_point(tgt)
