@@ -22,30 +22,38 @@ SWITCH_DISTANCE_MM = (20.0, 35.0, 50.0)  # where the simulated machine starts: t
 
 
 def simulated_switches(host: HostBuild) -> dict[int, int]:
-    """Each homed motor's switch, in steps from where the simulation starts (the machine starts some way
-    short of its switches, each at another distance)."""
+    """Each homing axis's switch (host.homing[k]), in steps from where the simulation starts, signed in machine
+    coordinates (the machine starts some way short of its switches, each axis at another distance)."""
     spm = host.kin.limits.steps_per_mm
-    return {h.motor: h.direction * round(SWITCH_DISTANCE_MM[i % len(SWITCH_DISTANCE_MM)] * spm[h.motor])
-            for i, h in enumerate(host.homing)}
+    return {k: h.direction * round(SWITCH_DISTANCE_MM[k % len(SWITCH_DISTANCE_MM)] * spm[h.motors[0]])
+            for k, h in enumerate(host.homing)}
 
 
 def homing_report(host: HostBuild, trace, switches: dict[int, int | None]) -> tuple[dict, list[str]]:
-    """Homing steps per motor against what the switch positions imply (fast + back off + slow approach);
-    a switch at None never closes."""
+    """Homing steps per motor against what the switch positions imply: per axis that moves it, fast + back
+    off + slow approach steps, ending at the switch (a corexy's belts home in x and again in y). A switch at
+    None never closes."""
     problems = [f"homing failed: {trace.homing_fault}"] if trace.homing_failed else []
-    report = {}
     home = np.asarray(trace.step_phase) == "home"
-    for h in host.homing:
-        name = host.kin.motors[h.motor]
-        mine = home & (trace.step_motor == h.motor)
-        switch = switches.get(h.motor)
-        expected = h.max_steps if switch is None else sum(homing_steps(h, abs(switch)))
-        net = int(trace.step_dir[mine].sum())
-        report[name] = {"steps": int(mine.sum()), "expected_steps": expected, "net": net,
-                        "switch": h.switch}
-        if not trace.homing_failed and (mine.sum() != expected or net != switch):
-            problems.append(f"motor {name} homed in {int(mine.sum())} steps ending {net} from its start; "
-                            f"its switch implies {expected} steps ending {switches[h.motor]}")
+    expected: dict[int, dict] = {}
+    for k, h in enumerate(host.homing):
+        switch = switches.get(k)
+        towards = None if switch is None else int(switch) * h.direction
+        for m, d in zip(h.motors, h.motor_directions):
+            mine = expected.setdefault(m, {"steps": 0, "net": 0, "switches": []})
+            mine["steps"] += h.max_steps if towards is None else sum(homing_steps(h, abs(towards)))
+            mine["net"] += 0 if towards is None else d * towards
+            mine["switches"].append(h.switch)
+    report = {}
+    for m, want in expected.items():
+        name = host.kin.motors[m]
+        mine = home & (trace.step_motor == m)
+        steps, net = int(mine.sum()), int(trace.step_dir[mine].sum())
+        report[name] = {"steps": steps, "expected_steps": want["steps"], "net": net, "expected_net": want["net"],
+                        "switch": ", ".join(want["switches"])}
+        if not trace.homing_failed and (steps != want["steps"] or net != want["net"]):
+            problems.append(f"motor {name} homed in {steps} steps ending {net} from its start; its switches "
+                            f"({report[name]['switch']}) imply {want['steps']} steps ending {want['net']}")
     return report, problems
 
 

@@ -32,14 +32,14 @@ DELTA_SCHEDULE = make_schedule(("a", "b", "c"), [
 ])
 
 
-def homing(motor, switch, direction, fast, slow, backoff, max_steps=2000, home=0):
-    return HomingAxis(motor=motor, switch=switch, direction=direction, max_steps=max_steps, fast_interval=fast,
-                      slow_interval=slow, backoff_steps=backoff, home_steps=home)
+def homing(motor, switch, direction, fast, slow, backoff, max_steps=2000):
+    return HomingAxis(motors=(motor,), motor_directions=(direction,), switch=switch, direction=direction,
+                      max_steps=max_steps, fast_interval=fast, slow_interval=slow, backoff_steps=backoff)
 
 
 def delta_config(max_steps=2000):
     motors = tuple(MotorPins(n, s) for n, s in zip(("a", "b", "c"), ("X", "Y", "Z")))
-    axes = tuple(homing(m, sw, 1, 4000, 12000, 50, max_steps, 10828) for m, sw in enumerate(DELTA_SWITCHES))
+    axes = tuple(homing(m, sw, 1, 4000, 12000, 50, max_steps) for m, sw in enumerate(DELTA_SWITCHES))
     return FirmwareConfig("delta", "tests/test_avr_homing.py", "avr", "ramps-1.4", motors, homing=axes)
 
 
@@ -56,7 +56,7 @@ def home_steps_of(trace, motor):
 def check_homing(trace, axis, distance):
     """The motor's homing steps: (fast approach, back off, slow approach) counts and directions, the step
     intervals in each phase, the pause between phases, and where it stops (the switch's position)."""
-    cycles, dirs = home_steps_of(trace, axis.motor)
+    cycles, dirs = home_steps_of(trace, axis.motors[0])
     fast, back, slow = homing_steps(axis, distance)
     want = [axis.direction] * fast + [-axis.direction] * back + [axis.direction] * slow
     assert dirs.tolist() == want
@@ -64,7 +64,7 @@ def check_homing(trace, axis, distance):
     for lo, hi, interval in ((0, fast, axis.fast_interval), (fast, fast + back, axis.fast_interval),
                              (fast + back, fast + back + slow, axis.slow_interval)):
         gaps = np.diff(cycles[lo:hi])
-        assert len(gaps) == 0 or np.abs(gaps - interval).max() <= JITTER, f"motor {axis.motor}: step intervals"
+        assert len(gaps) == 0 or np.abs(gaps - interval).max() <= JITTER, f"motor {axis.motors[0]}: step intervals"
     # Each phase starts after a pause: at least pause + interval after the motor's previous step.
     for first, interval in ((fast, axis.fast_interval), (fast + back, axis.slow_interval)):
         if 0 < first < len(cycles):
@@ -94,7 +94,7 @@ def test_delta_homes_to_its_max_switches_then_plays_the_table(tmp_path):
     image, trace = build_and_run(DELTA_SCHEDULE, cfg, tmp_path, distances)
     assert trace.state == "done" and not trace.homing_failed and trace.homing_fault is None
     for axis in cfg.homing:
-        d = distances[axis.motor]
+        d = distances[axis.motors[0]]
         assert homing_steps(axis, d) == (d, 50, 50)
         assert check_homing(trace, axis, d) == d + 2 * 50
     # Every homing step comes before the table's tick 0, every table step after it.
@@ -122,9 +122,9 @@ def test_switches_closed_at_power_up(tmp_path):
     distances = {0: 0, 1: -5, 2: -70}
     image, trace = build_and_run(DELTA_SCHEDULE, cfg, tmp_path, distances)
     assert not trace.homing_failed
-    assert [homing_steps(a, distances[a.motor]) for a in cfg.homing] == [(0, 50, 50), (0, 50, 45), (0, 71, 1)]
+    assert [homing_steps(a, distances[a.motors[0]]) for a in cfg.homing] == [(0, 50, 50), (0, 50, 45), (0, 71, 1)]
     for axis in cfg.homing:
-        check_homing(trace, axis, distances[axis.motor])
+        check_homing(trace, axis, distances[axis.motors[0]])
     check_run(DELTA_SCHEDULE, trace)
     # Without `switches`, the machine starts on its switches (position 0); the budget is the table's alone.
     trace = simulate(image.hex_path, cfg, 1_000_000)

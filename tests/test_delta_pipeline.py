@@ -42,10 +42,9 @@ def test_a_straight_move_whose_carriage_peaks_above_its_tower_is_an_error(tmp_pa
 def test_delta_homes_first_and_ends_exactly(tmp_path):
     host = host_build(load_job(ROOT / "examples" / "delta-seed.yaml"))
     assert host.findings.ok, host.findings.problems
-    assert [h.home_steps for h in host.homing] == [10828, 10828, 10828]  # the seed: 10,828 steps to the top
     assert [h.switch for h in host.homing] == ["x_max", "y_max", "z_max"]
     assert all(h.direction == 1 for h in host.homing)
-    assert host.start_steps.tolist() == [10828, 10828, 10828]
+    assert host.start_steps.tolist() == [10828, 10828, 10828]  # homed: the seed's 10,828 steps to the top
     assert host.findings.final == host.findings.expected_final
 
 

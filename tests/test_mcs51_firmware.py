@@ -223,7 +223,7 @@ def test_compile_error_budget_sockets_and_homing(tmp_path):
     with pytest.raises(BuildError, match="no stepper socket E0"):
         render_sources(make_schedule(("e",), []), config(("e",), ("E0",), board="seed-51"))
     homing = FirmwareConfig("test", "t", "mcs51", "at89c52", cfg.motors,
-                            homing=(HomingAxis(0, "x_min", -1, 100, 500, 1000, 10, 0),))
+                            homing=(HomingAxis((0,), (-1,), "x_min", -1, 100, 500, 1000, 10),))
     with pytest.raises(BuildError, match="does not home"):
         simulate(image.hex_path, homing, 1_000_000)
 

@@ -38,8 +38,8 @@ DELTA_SCHEDULE = make_schedule(("a", "b", "c"), [
 
 
 def homing(motor, switch, direction, fast, slow, backoff, max_steps=2000):
-    return HomingAxis(motor=motor, switch=switch, direction=direction, max_steps=max_steps, fast_interval=fast,
-                      slow_interval=slow, backoff_steps=backoff, home_steps=0)
+    return HomingAxis(motors=(motor,), motor_directions=(direction,), switch=switch, direction=direction,
+                      max_steps=max_steps, fast_interval=fast, slow_interval=slow, backoff_steps=backoff)
 
 
 def delta_config(max_steps=2000, board="at89c52"):
@@ -61,7 +61,7 @@ def home_steps_of(trace, motor):
 def check_homing(trace, axis, distance):
     """The motor's homing steps against homing_steps(): their directions, one interval apart (within JITTER)
     inside each phase, at least the pause and an interval apart from one phase to the next."""
-    cycles, dirs = home_steps_of(trace, axis.motor)
+    cycles, dirs = home_steps_of(trace, axis.motors[0])
     fast, back, slow = homing_steps(axis, distance)
     assert dirs.tolist() == [axis.direction] * fast + [-axis.direction] * back + [axis.direction] * slow
     gaps = np.diff(cycles)
@@ -69,8 +69,8 @@ def check_homing(trace, axis, distance):
     firsts = np.array(sorted({fast, fast + back} - {0, len(cycles)}), dtype=int) - 1  # gaps into a new phase
     inside = np.ones(len(gaps), dtype=bool)
     inside[firsts] = False
-    assert np.abs(gaps[inside] - interval[inside]).max(initial=0) <= JITTER, f"motor {axis.motor}: intervals"
-    assert np.all(gaps[firsts] >= PAUSE_CLOCKS + interval[firsts] - JITTER), f"motor {axis.motor}: pauses"
+    assert np.abs(gaps[inside] - interval[inside]).max(initial=0) <= JITTER, f"motor {axis.motors[0]}: intervals"
+    assert np.all(gaps[firsts] >= PAUSE_CLOCKS + interval[firsts] - JITTER), f"motor {axis.motors[0]}: pauses"
     return len(cycles)
 
 
@@ -80,7 +80,7 @@ def test_delta_homes_to_its_max_keys_then_plays_the_table(tmp_path):
     image, trace = build_and_run(DELTA_SCHEDULE, cfg, tmp_path, distances)
     assert trace.state == "done" and not trace.homing_failed and trace.homing_fault is None
     for axis in cfg.homing:
-        d = distances[axis.motor]
+        d = distances[axis.motors[0]]
         assert homing_steps(axis, d) == (d, 50, 50)
         assert check_homing(trace, axis, d) == d + 2 * 50
     # Every homing step before the player's timer starts, every table step after it; the table as it must play.
@@ -108,9 +108,9 @@ def test_keys_closed_at_power_up(tmp_path):
     distances = {0: 0, 1: -5, 2: -70}
     image, trace = build_and_run(DELTA_SCHEDULE, cfg, tmp_path, distances)
     assert not trace.homing_failed
-    assert [homing_steps(a, distances[a.motor]) for a in cfg.homing] == [(0, 50, 50), (0, 50, 45), (0, 71, 1)]
+    assert [homing_steps(a, distances[a.motors[0]]) for a in cfg.homing] == [(0, 50, 50), (0, 50, 45), (0, 71, 1)]
     for axis in cfg.homing:
-        check_homing(trace, axis, distances[axis.motor])
+        check_homing(trace, axis, distances[axis.motors[0]])
     check_plays(DELTA_SCHEDULE, cfg, trace.run_only())
     # Without `switches`, the machine starts on its keys (position 0); the budget is the table's alone.
     trace = simulate(image.hex_path, cfg, 3_000_000)  # the table: 180,000 ticks
@@ -196,8 +196,10 @@ def test_a_cartesian_job_that_homes_verifies_through_the_cli(tmp_path, capsys):
     assert code == 0 and result["pass"], result["problems"]
     # Keys 20 and 35 mm from the start (codegen.verify), 3 mm of back off at 80 steps/mm, each way.
     assert result["homing"] == {
-        "x": {"steps": 1600 + 2 * 240, "expected_steps": 1600 + 2 * 240, "net": -1600, "switch": "x_min"},
-        "y": {"steps": 2800 + 2 * 240, "expected_steps": 2800 + 2 * 240, "net": -2800, "switch": "y_min"}}
+        "x": {"steps": 1600 + 2 * 240, "expected_steps": 1600 + 2 * 240, "net": -1600, "expected_net": -1600,
+              "switch": "x_min"},
+        "y": {"steps": 2800 + 2 * 240, "expected_steps": 2800 + 2 * 240, "net": -2800, "expected_net": -2800,
+              "switch": "y_min"}}
     for motor in result["motors"].values():
         assert motor["final"] == motor["expected_final"] and motor["max_timing_error_us"] <= 5.0
     phases = [row.split(",")[3] for row in trace.read_text().splitlines()[1:]]

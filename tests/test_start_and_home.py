@@ -53,7 +53,8 @@ def test_a_delta_without_start_starts_where_homing_leaves_it(tmp_path):
     first = host.toolpath.items[0]
     assert isinstance(first, Line) and not first.tool and np.allclose(first.start, home)
     assert np.allclose(first.end[:3], [0, 0, 10])  # straight to the first point
-    assert host.start_steps.tolist() == [h.home_steps for h in host.homing]
+    # Every carriage at the top of its tower: the height plus the rod's rise over the centre, in steps.
+    assert host.start_steps.tolist() == np.rint(host.kin.to_motor(home[None, :3])[0] * 80).astype(int).tolist()
 
 
 def test_an_explicit_start_is_reached_by_travel_after_homing(tmp_path):

@@ -20,17 +20,22 @@ class MotorPins:
 
 @dataclass(frozen=True)
 class HomingAxis:
-    """How one motor homes: towards its switch fast, back off, towards it again slowly; then its position
-    is `home_steps` and the step table starts."""
+    """How one axis homes: its motors step together towards its switch fast, back off, towards it again
+    slowly. A cartesian or delta axis is one motor; a corexy x or y moves both belts (a and b)."""
 
-    motor: int  # index into FirmwareConfig.motors
+    motors: tuple[int, ...]  # indices into FirmwareConfig.motors, stepping at the same events
+    motor_directions: tuple[int, ...]  # per motor, +1 / -1: the way it steps (its own coordinate) towards the switch
     switch: str  # the board's endstop name: x_min, x_max, y_min, y_max, z_min, z_max
-    direction: int  # +1 / -1: the way the motor moves (in machine coordinates) to reach the switch
+    direction: int  # +1 / -1: the way the axis moves (in machine coordinates) to reach the switch
     max_steps: int  # a switch that has not closed after this many steps stops the machine in an error state
     fast_interval: int  # timer ticks between steps on the first approach
     slow_interval: int  # timer ticks between steps on the second approach
     backoff_steps: int  # steps away from the switch between the approaches
-    home_steps: int  # the motor's position (steps) where its switch closes on the slow approach
+    round: int = 0  # rounds home one after another (corexy: x, then y), the axes of one round together
+
+    def label(self, motor_names) -> str:
+        """The axis in messages and generated names: its motor's name, or for several its switch's axis (x)."""
+        return motor_names[self.motors[0]] if len(self.motors) == 1 else self.switch.split("_")[0]
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ class FirmwareConfig:
     motors: tuple[MotorPins, ...]  # in the schedule's motor order
     step_pulse_us: float = 2.0
     dir_setup_us: float = 1.0
-    homing: tuple[HomingAxis, ...] = ()  # motors homed at power-up, together, before the table plays
+    homing: tuple[HomingAxis, ...] = ()  # axes homed at power-up, round by round, before the table plays
     start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
 
 

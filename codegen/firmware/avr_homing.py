@@ -1,16 +1,17 @@
 """Homing at power-up for the ATmega2560 image: check `FirmwareConfig.homing` against the board and the MCU,
 and give templates/avr/homing.c.j2 (and config.h.j2) what they need.
 
-The firmware's sequence (homing.c.j2), all homed motors together, each phase ending when every motor has
-finished it, and each starting with the DIR pins set and a PHASE_PAUSE_US standstill:
+The firmware's sequence (homing.c.j2), round by round (`HomingAxis.round`: a corexy homes x, then y), the axes
+of a round together, each phase ending when every axis of the round has finished it, and each starting with the
+DIR pins set and a PHASE_PAUSE_US standstill. An axis steps all its motors at once (a corexy's x: both belts):
   1. fast approach: towards the switch, one step per `fast_interval` ticks, until the switch reads closed
      (at most `max_steps` steps);
   2. back off: away from it at `fast_interval`, `backoff_steps` steps, then on while the switch still reads
      closed, at most `backoff_limit(axis)` steps in all;
   3. slow approach: towards the switch, one step per `slow_interval` ticks, until it reads closed again
      (at most `max_steps` steps); the position there is `home_steps`.
-A motor reads its switch when its next step is due. With a switch that closes d >= 1 steps away (towards it)
-and opens again one step short of that, the motor makes exactly d + backoff_steps + backoff_steps steps;
+An axis reads its switch when its next step is due. With a switch that closes d >= 1 steps away (towards it)
+and opens again one step short of that, the axis makes exactly d + backoff_steps + backoff_steps steps;
 `homing_steps` gives the counts in every case. The 8051 image homes the same way (mcs51_homing.py uses the
 sequence's figures and the board-free checks here)."""
 
@@ -46,44 +47,67 @@ def homing_steps(axis: HomingAxis, distance: int) -> tuple[int, int, int]:
 
 
 def homing_ticks_bound(config: FirmwareConfig, distances: dict[int, int | None], f_cpu: int) -> int:
-    """At most how long homing takes (timer ticks = CPU cycles) when motor m's switch closes `distances[m]`
-    steps away towards it (None or no entry: never), failures included."""
-    phases = [[0], [0], [0]]
-    for h in config.homing:
-        d = distances.get(h.motor)
-        steps = (h.max_steps, 0, 0) if d is None else homing_steps(h, d)
-        limits = (h.max_steps, backoff_limit(h), h.max_steps)
-        for phase, (n, limit, interval) in enumerate(zip(steps, limits, (h.fast_interval,) * 2 + (h.slow_interval,))):
-            phases[phase].append((min(n, limit) + 1) * interval)
+    """At most how long homing takes (timer ticks = CPU cycles) when axis k's switch (config.homing[k]) closes
+    `distances[k]` steps away towards it (None or no entry: never), failures included."""
+    total = 0
     pause = math.ceil(PHASE_PAUSE_US * f_cpu / 1e6)
-    return sum(2 * pause + max(p) for p in phases)  # a pause's worth of slack per phase
+    for round_ in sorted({h.round for h in config.homing}):
+        phases = [[0], [0], [0]]
+        for k, h in enumerate(config.homing):
+            if h.round != round_:
+                continue
+            d = distances.get(k)
+            steps = (h.max_steps, 0, 0) if d is None else homing_steps(h, d)
+            limits = (h.max_steps, backoff_limit(h), h.max_steps)
+            intervals = (h.fast_interval, h.fast_interval, h.slow_interval)
+            for phase, (n, limit, interval) in enumerate(zip(steps, limits, intervals)):
+                phases[phase].append((min(n, limit) + 1) * interval)
+        total += sum(2 * pause + max(p) for p in phases)  # a pause's worth of slack per phase
+    return total
+
+
+def stepping_motors(config: FirmwareConfig) -> int:
+    """The most motors that step at one homing event: those of the busiest round."""
+    rounds: dict[int, int] = {}
+    for h in config.homing:
+        rounds[h.round] = rounds.get(h.round, 0) + len(h.motors)
+    return max(rounds.values(), default=1)
 
 
 def min_interval_cycles(mcu: dict, f_cpu: int, n_motors: int, step_pulse_us: float) -> int:
-    """The shortest homing step interval with `n_motors` homed: one event's work and the STEP pulse. (DIR pins
-    change only before a phase's pause, far ahead of the next step.)"""
+    """The shortest homing step interval with `n_motors` stepping at once: one event's work and the STEP pulse.
+    (DIR pins change only before a phase's pause, far ahead of the next step.)"""
     work = mcu["homing_event_cycles"]
     return int(work[min(n_motors, len(work)) - 1]) + math.ceil(step_pulse_us * f_cpu / 1e6)
 
 
-def homed_motors(config: FirmwareConfig, motors: list[dict], problems: list[str]
-                 ) -> Iterator[tuple[str, HomingAxis, dict]]:
-    """Each homing axis with its entry of `motors` and its name in messages (`homing[k] (motor x)`). A motor
-    index out of range (the axis is left out), a motor homed twice or too long a DIR setup for the pause adds
-    to `problems`."""
+def homed_axes(config: FirmwareConfig, motors: list[dict], problems: list[str]
+               ) -> Iterator[tuple[str, int, HomingAxis, list[dict]]]:
+    """Each homing axis with its index, its motors' entries of `motors` and its name in messages
+    (`homing[k] (axis x: motors a, b)`). A motor index out of range (the axis is left out), a motor in two axes
+    of one round, or too long a DIR setup for the pause adds to `problems`."""
     if config.dir_setup_us > PHASE_PAUSE_US / 2:
         problems.append(f"dir_setup_us = {config.dir_setup_us} is too long for homing's {PHASE_PAUSE_US:g} us pause")
     seen = set()
     for k, h in enumerate(config.homing):
-        if not 0 <= h.motor < len(motors):
-            problems.append(f"homing[{k}]: motor index {h.motor} out of range (the image has {len(motors)} motors)")
+        bad = [m for m in h.motors if not 0 <= m < len(motors)]
+        if bad:
+            problems.append(f"homing[{k}]: motor index {bad[0]} out of range (the image has {len(motors)} motors)")
+        if not h.motors or len(h.motor_directions) != len(h.motors):
+            problems.append(f"homing[{k}]: {len(h.motors)} motors with {len(h.motor_directions)} directions")
+        if bad or not h.motors or len(h.motor_directions) != len(h.motors):
             continue
-        m = motors[h.motor]
-        where = f"homing[{k}] (motor {m['name']})"
-        if h.motor in seen:
-            problems.append(f"{where}: the motor is homed twice")
-        seen.add(h.motor)
-        yield where, h, m
+        mine = [motors[m] for m in h.motors]
+        names = ", ".join(m["name"] for m in mine)
+        where = f"homing[{k}] (motor {names})" if len(mine) == 1 else \
+            f"homing[{k}] (axis {h.label([m['name'] for m in motors])}: motors {names})"
+        for m in h.motors:
+            if (h.round, m) in seen:
+                problems.append(f"{where}: motor {motors[m]['name']} is homed twice in round {h.round}")
+            seen.add((h.round, m))
+        if any(d not in (1, -1) for d in h.motor_directions):
+            problems.append(f"{where}: motor directions must be +1 or -1, not {list(h.motor_directions)}")
+        yield where, k, h, mine
 
 
 def axis_problems(where: str, h: HomingAxis, shortest: int) -> list[str]:
@@ -101,38 +125,58 @@ def axis_problems(where: str, h: HomingAxis, shortest: int) -> list[str]:
     return problems
 
 
+def axis_context(k: int, h: HomingAxis, mine: list[dict], motor_names: list[str]) -> dict:
+    """The template's entry of one homing axis (its switch's pin added by the target)."""
+    label = h.label(motor_names)
+    return {"name": label, "id": _ident(label).upper(), "var": f"axis{k}", "flag": 1 << k, "round": h.round,
+            "switch": h.switch, "direction": h.direction, "names": ", ".join(m["name"] for m in mine),
+            "motors": [{**{key: m[key] for key in ("name", "id", "step", "dir")},
+                        "towards_high": (d > 0) != m["invert"]} for m, d in zip(mine, h.motor_directions)],
+            "fast_interval": h.fast_interval, "slow_interval": h.slow_interval, "max_steps": h.max_steps,
+            "backoff_steps": h.backoff_steps, "backoff_limit": backoff_limit(h)}
+
+
+def rounds_context(axes: list[dict]) -> list[dict]:
+    """The rounds in order, each with the axes it homes together."""
+    return [{"index": r, "axes": [a for a in axes if a["round"] == r],
+             "mask": " | ".join(f"HOME_{a['id']}" for a in axes if a["round"] == r)}
+            for r in sorted({a["round"] for a in axes})]
+
+
+def _ident(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name)
+
+
 def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], mcu: dict) -> dict:
     """Template variables for homing (`homing` is empty without it); BuildError lists every problem."""
     f_cpu = int(mcu["f_cpu"])
-    context = {"homing": [], "homing_step_ports": [],
+    context = {"homing": [], "homing_rounds": [], "homing_step_ports": [],
                "switch_reread_cycles": math.ceil(SWITCH_REREAD_US * f_cpu / 1e6),
                "pause_ticks": math.ceil(PHASE_PAUSE_US * f_cpu / 1e6), "pause_us": f"{PHASE_PAUSE_US:g}"}
     if not config.homing:
         return context
-    shortest = min_interval_cycles(mcu, f_cpu, len(config.homing), config.step_pulse_us)
+    shortest = min_interval_cycles(mcu, f_cpu, stepping_motors(config), config.step_pulse_us)
     problems, axes, seen_switches = [], [], set()
-    for where, h, m in homed_motors(config, motors, problems):
+    names = [m["name"] for m in motors]
+    for where, k, h, mine in homed_axes(config, motors, problems):
         switch = pins.endstop(h.switch)
         if switch is None:
-            names = ", ".join(e.name for e in pins.endstops) or "none"
-            problems.append(f"{where}: board {config.board} has no endstop `{h.switch}` (has {names})")
+            endstops = ", ".join(e.name for e in pins.endstops) or "none"
+            problems.append(f"{where}: board {config.board} has no endstop `{h.switch}` (has {endstops})")
         elif h.switch in seen_switches:
-            problems.append(f"{where}: switch {h.switch} is used by two motors")
+            problems.append(f"{where}: switch {h.switch} is used by two axes")
         seen_switches.add(h.switch)
         problems += axis_problems(where, h, shortest)
         if switch is None or problems:
             continue
         us = (lambda ticks: f"{ticks / f_cpu * 1e6:g}")
-        axes.append({**{key: m[key] for key in ("name", "id", "var", "flag", "step", "dir")},
-                     "switch": h.switch, "pin": switch.pin.__dict__, "closed_high": switch.closed_high,
-                     "direction": h.direction, "towards_high": (h.direction > 0) != m["invert"],
-                     "fast_interval": h.fast_interval, "slow_interval": h.slow_interval,
-                     "fast_us": us(h.fast_interval), "slow_us": us(h.slow_interval), "max_steps": h.max_steps,
-                     "backoff_steps": h.backoff_steps, "backoff_limit": backoff_limit(h), "home_steps": h.home_steps})
+        axes.append({**axis_context(k, h, mine, names), "pin": switch.pin.__dict__,
+                     "closed_high": switch.closed_high, "fast_us": us(h.fast_interval), "slow_us": us(h.slow_interval)})
     if problems:
         raise BuildError("bad homing configuration: " + "; ".join(problems))
     ports = []
-    for port in sorted({a["step"]["port"] for a in axes}):
-        group = [a for a in axes if a["step"]["port"] == port]
-        ports.append({"port": port, "var": port.lower(), "axes": group, "names": ", ".join(a["name"] for a in group)})
-    return {**context, "homing": axes, "homing_step_ports": ports}
+    for port in sorted({m["step"]["port"] for a in axes for m in a["motors"]}):
+        group = [(a, m) for a in axes for m in a["motors"] if m["step"]["port"] == port]
+        ports.append({"port": port, "var": port.lower(), "entries": group,
+                      "names": ", ".join(dict.fromkeys(m["name"] for _, m in group))})
+    return {**context, "homing": axes, "homing_rounds": rounds_context(axes), "homing_step_ports": ports}

@@ -15,13 +15,14 @@ from dataclasses import dataclass
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr_homing import PHASE_PAUSE_US, axis_problems, backoff_limit, homed_motors
+from codegen.firmware.avr_homing import (PHASE_PAUSE_US, axis_context, axis_problems, homed_axes, rounds_context,
+                                         stepping_motors)
 from codegen.firmware.mcs51 import Pin, board_data, parse_pin
 
 ARM_STOP_TICKS = 8  # cycles Timer1 stands still in timer1_wait: clr TR1 .. setb TR1 (calibrated in s51)
 PULSE_BASE_TICKS = 2  # machine cycles a STEP pin stays high in homing_pulse besides the hold, per STEP port
-STATUS_PHASE_SHIFT = 4  # the fault status: phase << 4 | the motor's bit
-MAX_MOTOR_BITS = 0x0F
+STATUS_PHASE_SHIFT = 4  # the fault status: phase << 4 | the axis's bit
+MAX_AXIS_BITS = 0x0F
 
 
 @dataclass(frozen=True)
@@ -46,8 +47,8 @@ def endstops(board: str) -> dict[str, Endstop]:
 
 
 def decode_status(status: int) -> tuple[int, int]:
-    """The fault status homing_fault() gets: (the motor bits, the phase 1..3)."""
-    return status & MAX_MOTOR_BITS, status >> STATUS_PHASE_SHIFT
+    """The fault status homing_fault() gets: (the axis bits, the phase 1..3)."""
+    return status & MAX_AXIS_BITS, status >> STATUS_PHASE_SHIFT
 
 
 def shortest_interval(mcu: dict, n_motors: int, pulse_ticks: int) -> int:
@@ -63,18 +64,20 @@ def homing_context(config: FirmwareConfig, pins: dict, motors: list[dict], pulse
     `pins` is mcs51.board_pins(config), `motors` the player's motor entries."""
     _, mcu = board_data(config.board)
     tick_hz = int(mcu["tick_hz"])
-    context = {"homing": [], "homing_step_ports": [], "switch_ports": [], "arm_stop_ticks": ARM_STOP_TICKS,
+    context = {"homing": [], "homing_rounds": [], "homing_step_ports": [], "switch_ports": [],
+               "arm_stop_ticks": ARM_STOP_TICKS,
                "pause_ticks": math.ceil(PHASE_PAUSE_US * tick_hz / 1e6), "pause_us": f"{PHASE_PAUSE_US:g}"}
     if not config.homing:
         return context
     keys = endstops(config.board)
     outputs = {p.name for m in pins["motors"] for p in (m["step"], m["dir"], m["enable"])}
     outputs |= {pins["tool"].name} | {h["pin"].name for h in pins["held"]}
-    shortest = shortest_interval(mcu, len(config.homing), pulse_ticks)
+    shortest = shortest_interval(mcu, stepping_motors(config), pulse_ticks)
     problems, axes, seen_pins = [], [], {}
-    for where, h, m in homed_motors(config, motors, problems):
-        if m["flag"] > MAX_MOTOR_BITS:
-            problems.append(f"{where}: only the first four motors can home (the fault status has four motor bits)")
+    names = [m["name"] for m in motors]
+    for where, k, h, mine in homed_axes(config, motors, problems):
+        if 1 << k > MAX_AXIS_BITS:
+            problems.append(f"{where}: at most four axes can home (the fault status has four axis bits)")
         key = keys.get(h.switch)
         if key is None:
             problems.append(f"{where}: board {config.board} has no endstop `{h.switch}` "
@@ -82,33 +85,31 @@ def homing_context(config: FirmwareConfig, pins: dict, motors: list[dict], pulse
         elif key.pin.name in outputs:
             problems.append(f"{where}: endstop {h.switch} is on {key.pin.name}, which the board drives as an output")
         elif key.pin.name in seen_pins:
-            problems.append(f"{where}: endstop {h.switch} is on {key.pin.name}, the key of motor "
+            problems.append(f"{where}: endstop {h.switch} is on {key.pin.name}, the key of "
                             f"{seen_pins[key.pin.name]} too")
         else:
-            seen_pins[key.pin.name] = m["name"]
+            seen_pins[key.pin.name] = f"{'motor' if len(h.motors) == 1 else 'axis'} {h.label(names)}"
         problems += axis_problems(where, h, shortest)
         if key is None or problems:
             continue
         us = (lambda ticks: f"{ticks * 1e6 / tick_hz:g}")
-        axes.append({**{name: m[name] for name in ("name", "id", "var", "flag", "step", "dir")},
-                     "switch": h.switch, "pin": {"name": key.pin.name, "sfr": key.pin.sfr, "mask": key.pin.mask,
-                                                 "sbit": f"P{key.pin.port}_{key.pin.bit}"},
-                     "closed_high": key.closed_high, "towards_high": (h.direction > 0) != m["invert"],
-                     "fast_interval": h.fast_interval, "slow_interval": h.slow_interval,
-                     "fast_us": us(h.fast_interval), "slow_us": us(h.slow_interval), "max_steps": h.max_steps,
-                     "backoff_steps": h.backoff_steps, "backoff_limit": backoff_limit(h)})
+        axes.append({**axis_context(k, h, mine, names),
+                     "pin": {"name": key.pin.name, "sfr": key.pin.sfr, "mask": key.pin.mask,
+                             "sbit": f"P{key.pin.port}_{key.pin.bit}"},
+                     "closed_high": key.closed_high, "fast_us": us(h.fast_interval), "slow_us": us(h.slow_interval)})
     if problems:
         raise BuildError("bad homing configuration: " + "; ".join(problems))
     step_ports, switch_ports = [], []
-    for sfr in sorted({a["step"]["sfr"] for a in axes}):
-        group = [a for a in axes if a["step"]["sfr"] == sfr]
-        step_ports.append({"sfr": sfr, "var": group[0]["step"]["var"], "axes": group,
-                           "pins": sum(a["step"]["mask"] for a in group),
-                           "names": ", ".join(a["name"] for a in group)})
+    for sfr in sorted({m["step"]["sfr"] for a in axes for m in a["motors"]}):
+        group = [(a, m) for a in axes for m in a["motors"] if m["step"]["sfr"] == sfr]
+        motors_here = {m["name"]: m["step"]["mask"] for _, m in group}  # a corexy's belts serve two axes
+        step_ports.append({"sfr": sfr, "var": group[0][1]["step"]["var"], "entries": group,
+                           "pins": sum(motors_here.values()), "names": ", ".join(motors_here)})
     for sfr in sorted({a["pin"]["sfr"] for a in axes}):
         group = [a for a in axes if a["pin"]["sfr"] == sfr]
         switch_ports.append((sfr, sum(a["pin"]["mask"] for a in group),
                              ", ".join(f"{a['switch']} on {a['pin']['name']}" for a in group)))
     hold = max(0, pulse_ticks - PULSE_BASE_TICKS * len(step_ports))
-    return {**context, "homing": axes, "homing_step_ports": step_ports, "switch_ports": switch_ports,
+    return {**context, "homing": axes, "homing_rounds": rounds_context(axes), "homing_step_ports": step_ports,
+            "switch_ports": switch_ports,
             "hold_ticks": hold}

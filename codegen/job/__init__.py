@@ -117,6 +117,8 @@ def load_job(path: Path, target_override: str | None = None) -> Job:
         unique = {(d.where.line, d.where.col, d.message): d for d in diagnostics}
         raise JobError(sorted(unique.values(), key=lambda d: (d.where.line, d.where.col)))
     job.path = path.resolve()
+    for name, stepper in job.machine.steppers.items():
+        stepper.steps_source = marks.value(("machine", "steppers", name, "steps_per_mm"))
     for i, shape in enumerate(job.program.shapes or ()):
         shape.source = marks.key(("program", "shapes", i, shape.kind))
     if "start" in job.program.model_fields_set:

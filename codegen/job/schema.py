@@ -120,6 +120,16 @@ class Stepper(_Model):
     max_accel: Positive  # mm/s^2
     range: Optional[XY] = None  # (min, max) in mm
     invert_dir: Flag = False  # the DIR pin is inverted on this motor
+    _steps_source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<job>"))
+
+    @property
+    def steps_source(self) -> SourceRef:
+        """Where the job file gives `steps_per_mm` (set by the loader)."""
+        return self._steps_source
+
+    @steps_source.setter
+    def steps_source(self, value: SourceRef) -> None:
+        self._steps_source = value
 
     @field_validator("range")
     @classmethod

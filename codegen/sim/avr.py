@@ -3,7 +3,8 @@
 simavr 1.6 has no usable trace output, so a small C harness (simavr_harness.c, linked with libsimavr) is built
 on first use into a cache directory and logs every real pin level change as binary records. For an image that
 homes, the harness also plays the endstop switches: it follows each homed motor's position from its STEP and
-DIR edges and closes the motor's switch where `simulate(..., switches=)` puts it.
+DIR edges and closes each axis's switch where `simulate(..., switches=)` puts it (a corexy's x and y switches
+from both belts' positions).
 """
 
 from __future__ import annotations
@@ -97,43 +98,51 @@ def _rises_falls(rec: np.ndarray, pin: int) -> tuple[np.ndarray, np.ndarray]:
     return cycles[mine["level"] == 1], cycles[mine["level"] == 0]
 
 
-def _switch_args(config: FirmwareConfig, pins, switches: dict[int, int | None]) -> list[str]:
-    """The harness's switch=... arguments: one per homed motor (a switch with no position never closes)."""
-    homed = {h.motor: h for h in config.homing}
-    stray = sorted(set(switches) - set(homed))
+def switch_thresholds(config: FirmwareConfig, switches: dict[int, int | None]) -> dict[int, int | None]:
+    """Each homing axis's switch position counted towards it (steps of each of its motors), from `switches`
+    (axis index -> signed position in machine coordinates; None or missing: never closes)."""
+    stray = sorted(set(switches) - set(range(len(config.homing))))
     if stray:
-        raise ValueError(f"switches for motors {stray} that the config does not home (homed: {sorted(homed)})")
+        raise ValueError(f"switches for axes {stray} that the config does not home (it homes {len(config.homing)})")
+    return {k: None if switches.get(k) is None else int(switches[k]) * h.direction
+            for k, h in enumerate(config.homing)}
+
+
+def _switch_args(config: FirmwareConfig, pins, switches: dict[int, int | None]) -> list[str]:
+    """The harness's switch=... arguments, one per homing axis: closed once the sum over its motors of (their
+    direction towards it x their position) reaches (the switch's distance towards it x the number of motors)."""
     args = []
-    for motor, h in sorted(homed.items()):
+    for k, towards in switch_thresholds(config, switches).items():
+        h = config.homing[k]
         endstop = pins.endstop(h.switch)
         if endstop is None:
             raise BuildError(f"board {config.board} has no endstop `{h.switch}`")
-        at = switches.get(motor)
-        args.append(f"switch={endstop.pin.port}{endstop.pin.bit},{int(endstop.closed_high)},{2 * motor},"
-                    f"{2 * motor + 1},{int(pins.motors[motor].invert_dir)},{h.direction},"
-                    f"{'never' if at is None else int(at)}")
+        at = "never" if towards is None else str(towards * len(h.motors))
+        terms = "".join(f",{2 * m},{2 * m + 1},{int(pins.motors[m].invert_dir)},{d}"
+                        for m, d in zip(h.motors, h.motor_directions))
+        args.append(f"switch={endstop.pin.port}{endstop.pin.bit},{int(endstop.closed_high)},{at}{terms}")
     return args
 
 
-def _homing_fault(config: FirmwareConfig, status: int, motor_bits: int, phase: int) -> str | None:
+def _homing_fault(config: FirmwareConfig, status: int, axis_bits: int, phase: int) -> str | None:
     """What homing.c's status bytes say (GPIOR0, GPIOR1, GPIOR2); None unless homing failed."""
     if not status & HOMING_FAILED:
         return None
-    switch = {h.motor: h.switch for h in config.homing}
-    motors = ", ".join(f"motor {m.name} (switch {switch.get(i, '?')})" for i, m in enumerate(config.motors)
-                       if motor_bits >> i & 1) or "an unknown motor"
+    names = [m.name for m in config.motors]
+    axes = ", ".join(f"{'motor' if len(h.motors) == 1 else 'axis'} {h.label(names)} (switch {h.switch})"
+                     for k, h in enumerate(config.homing) if axis_bits >> k & 1) or "an unknown axis"
     verb = "did not open within its back off limit" if phase == 2 else "did not close within max_steps"
-    return f"homing failed in the {HOMING_PHASES.get(phase, f'phase {phase}')}: {motors}: the switch {verb}"
+    return f"homing failed in the {HOMING_PHASES.get(phase, f'phase {phase}')}: {axes}: the switch {verb}"
 
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
              switches: dict[int, int | None] | None = None) -> SimTrace:
     """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget.
 
-    `switches` maps a homed motor's index (config.motors) to the position, in steps from where the simulation
-    starts, signed in machine coordinates, at which its switch closes: the switch reads closed while the motor
-    is there or beyond it in the motor's homing direction, open otherwise. A homed motor without an entry (or
-    with None) has a switch that never closes. Without `switches` at all, the machine starts on its switches
+    `switches` maps a homing axis's index (config.homing) to the position, in steps (of each of its motors) from
+    where the simulation starts, signed in machine coordinates, at which its switch closes: the switch reads
+    closed while the axis is there or beyond it in its homing direction, open otherwise. An axis without an
+    entry (or with None) has a switch that never closes. Without `switches` at all, the machine starts on its switches
     (every one at position 0: where a job that homes says the machine starts), so homing backs off and comes
     back. `cycle_budget` is for the step table: an image that homes gets a bound on its homing time on top.
     A failed homing is not an error here: see `homing_failed`."""
@@ -141,11 +150,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])
     if switches is None:
-        switches = {h.motor: 0 for h in config.homing}
-    towards = {h.motor: None if switches.get(h.motor) is None else int(switches[h.motor]) * h.direction
-               for h in config.homing}
+        switches = {k: 0 for k in range(len(config.homing))}
     if config.homing:
-        cycle_budget = int(cycle_budget) + homing_ticks_bound(config, towards, f_cpu)
+        cycle_budget = int(cycle_budget) + homing_ticks_bound(config, switch_thresholds(config, switches), f_cpu)
     watched = [p for w in pins.motors for p in (w.step, w.dir)] + [pins.tool]
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"

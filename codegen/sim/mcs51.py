@@ -15,8 +15,9 @@ Endstop keys (an image that homes): ucsim keeps a port's latch (`P3`, what the f
 levels outside circuits put on its pins (the variable `pin3`, alias `port3_pin`; the firmware reads latch AND
 pins). The script keeps each homed motor's position in a simulator variable (`var hq0`, in ucsim's own variable
 memory, not the 8051's) and, in the commands of the write breakpoints of its STEP port, one expression adds +-1
-at each rising STEP edge (the latch against its last value, `hl1`, with the DIR latch giving the way) and puts the
-key's level on `pin<port>`: closed from the switch position on, open short of it. The firmware's fault routine
+at each rising STEP edge (the latch against its last value, `hl1`, with the DIR latch giving the way) and puts
+each key its motor moves on `pin<port>`: closed from the switch position on, open short of it (a corexy's x key
+from the sum of both belts' positions, its y key from their difference). The firmware's fault routine
 (`_homing_fault`, from firmware.map) gets a fetch breakpoint that prints the status it is called with (DPL).
 """
 
@@ -37,13 +38,13 @@ from codegen.firmware.mcs51 import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECT
 from codegen.firmware.mcs51_homing import decode_status, endstops
 from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
-from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault
+from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault, switch_thresholds
 
 TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT = 16, 17, 18, 19  # record tags beyond the port tags 0..3
 MAX_CONDITION = (1 << 32) - 1  # sim_ticks is 32-bit: longer budgets rely on the wall-clock timeout
 SIM_CLOCKS_PER_S = 20e6  # a pessimistic s51 speed with breakpoints, for the wall-clock timeout
-POSITION_BIAS = 1 << 30  # s51 compares unsigned: positions (steps towards the switch) are kept this far above 0
-SWITCH_REACH = 1 << 29  # switch positions beyond +-this many steps are as good as never reached
+POSITION_BIAS = 1 << 28  # s51 compares unsigned: positions (steps) are kept this far above 0
+SWITCH_REACH = 1 << 26  # switch positions beyond +-this many steps are as good as never reached
 
 
 def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget: int, *,
@@ -100,28 +101,37 @@ def _levels(rec: np.ndarray, port: int, bit: int) -> tuple[np.ndarray, np.ndarra
 def _switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | None],
                   ) -> tuple[tuple[str, ...], dict[int, str]]:
     """The script's prelude and per-port expressions that play the endstop keys (see the top of this file):
-    motor m's key closes once the motor has made `switches[m]` steps (signed, machine coordinates) from where
-    the run starts; None: it never closes."""
+    axis k's key closes once the axis has made `switches[k]` steps (signed, machine coordinates) from where the
+    run starts; None: it never closes. Each motor's position is B + its steps (B = POSITION_BIAS); an axis's
+    key is closed while the sum over its motors of B + (direction towards the key) x steps reaches n B + n x
+    the key's distance (n motors; a term with direction -1 is 2 B - the position, keeping every value >= 0)."""
     keys = endstops(config.board)
     prelude, updates, levels = [], {}, {}
     pin_levels = {}  # port -> the pins' level at the start
-    for h in config.homing:
-        wiring, key, at = pins["motors"][h.motor], keys[h.switch], switches.get(h.motor)
-        step, dirp, q = wiring["step"], wiring["dir"], f"hq{h.motor}"
-        towards_high = (h.direction > 0) != wiring["invert"]
+    homed = sorted({m for h in config.homing for m in h.motors})
+    for m in homed:
+        wiring, q = pins["motors"][m], f"hq{m}"
+        step, dirp = wiring["step"], wiring["dir"]
         prelude += [f"var {q}", f"expression /X {q}={POSITION_BIAS}"]
         rise = f"P{step.port}&~hl{step.port}&{step.mask}"
-        way = f"(P{dirp.port}&{dirp.mask})?{2 if towards_high else 0}:{0 if towards_high else 2}"
+        plus_high = not wiring["invert"]  # the DIR level of a step in the motor's + direction
+        way = f"(P{dirp.port}&{dirp.mask})?{2 if plus_high else 0}:{0 if plus_high else 2}"
         updates.setdefault(step.port, []).append(f"{q}={q}+(({rise})?({way}):1)-1")
+    for k, towards in switch_thresholds(config, switches).items():
+        h, key = config.homing[k], keys[config.homing[k].switch]
         port, closed = key.pin.port, key.pin.mask if key.closed_high else 0
         start = pin_levels.get(port, 0xFF) & ~key.pin.mask
-        if at is None:  # never closes
+        if towards is None:  # never closes
             pin_levels[port] = start | (key.pin.mask ^ closed)
             continue
-        threshold = POSITION_BIAS + max(-SWITCH_REACH, min(SWITCH_REACH, int(at) * h.direction))
-        pin_levels[port] = start | (closed if threshold <= POSITION_BIAS else key.pin.mask ^ closed)
-        levels.setdefault(step.port, []).append(
-            f"pin{port}=(pin{port}&{0xFF & ~key.pin.mask})|(({q}>={threshold})?{closed}:{key.pin.mask ^ closed})")
+        n = len(h.motors)
+        threshold = n * (POSITION_BIAS + max(-SWITCH_REACH, min(SWITCH_REACH, towards)))
+        pin_levels[port] = start | (closed if towards <= 0 else key.pin.mask ^ closed)
+        total = "+".join(f"hq{m}" if d > 0 else f"({2 * POSITION_BIAS}-hq{m})" for m, d in zip(h.motors,
+                                                                                                h.motor_directions))
+        level = f"pin{port}=(pin{port}&{0xFF & ~key.pin.mask})|((({total})>={threshold})?{closed}:{key.pin.mask ^ closed})"
+        for step_port in sorted({pins["motors"][m]["step"].port for m in h.motors}):
+            levels.setdefault(step_port, []).append(level)
     for port in sorted(updates):
         prelude += [f"var hl{port}", f"expression /X hl{port}=255"]  # the latch after reset
     prelude += [f"expression /X pin{port}={level}" for port, level in sorted(pin_levels.items())]
@@ -134,10 +144,10 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     """Run `hex_path` until the firmware reaches halt() (or homing's fault state); BuildError on a crash or past
     the budget (CPU clocks).
 
-    `switches` maps a homed motor's index (config.motors) to the position, in steps from where the simulation
-    starts, signed in machine coordinates, at which its key closes: closed while the motor is there or beyond it
-    in its homing direction, open otherwise. A homed motor without an entry (or with None) has a key that never
-    closes. Without `switches` at all, the machine starts on its keys (every one at position 0). `cycle_budget`
+    `switches` maps a homing axis's index (config.homing) to the position, in steps (of each of its motors) from
+    where the simulation starts, signed in machine coordinates, at which its key closes: closed while the axis
+    is there or beyond it in its homing direction, open otherwise. An axis without an entry (or with None) has a
+    key that never closes. Without `switches` at all, the machine starts on its keys (every one at position 0). `cycle_budget`
     is for the step table: an image that homes gets a bound on its homing time on top. A failed homing is not an
     error here: see SimTrace.homing_failed."""
     if shutil.which("s51") is None:
@@ -150,16 +160,11 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     pins = board_pins(config)
     mem = memories(config.board)
     f_cpu = int(mem["f_cpu"])
-    homed = {h.motor for h in config.homing}
-    stray = sorted(set(switches or {}) - homed)
-    if stray:
-        raise ValueError(f"switches for motors {stray} that the config does not home (homed: {sorted(homed)})")
+    if switches is None:
+        switches = {k: 0 for k in range(len(config.homing))}
+    towards = switch_thresholds(config, switches)  # ValueError for an axis the image does not home
     extra: dict = {}
     if config.homing:
-        if switches is None:
-            switches = {m: 0 for m in homed}
-        towards = {h.motor: None if switches.get(h.motor) is None else int(switches[h.motor]) * h.direction
-                   for h in config.homing}
         cycle_budget = int(cycle_budget) + homing_ticks_bound(config, towards, int(mem["tick_hz"])) * int(
             sym["clocks_per_tick"])
         prelude, on_write = _switch_model(config, pins, switches)
@@ -200,8 +205,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
                          f"({cycle_budget / f_cpu:.3f} s simulated; {hex_path})")
     fault = None
     if ends[0, 1] == TAG_FAULT:
-        motor_bits, phase = decode_status(int(ends[0, 2]))
-        fault = _homing_fault(config, HOMING_FAILED, motor_bits, phase)
+        axis_bits, phase = decode_status(int(ends[0, 2]))
+        fault = _homing_fault(config, HOMING_FAILED, axis_bits, phase)
     clocks = int(sym["clocks_per_tick"])
     starts = rec[rec[:, 1] == TAG_TIMER, 0]
     timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None

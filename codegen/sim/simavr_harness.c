@@ -2,12 +2,13 @@
  * drive endstop switches from the simulated motor positions.
  *
  * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [SWITCH...] PIN...     (PIN like F0, L3, B5)
- *   SWITCH: switch=PIN,CLOSED,STEP,DIR,INVERT,TOWARDS,AT   e.g. switch=E4,0,0,1,0,1,400
- *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open; the motor whose
- *     STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT is 1) moves
- *     towards the switch in direction TOWARDS (+1/-1). The harness counts the motor's position in steps from
- *     0 at every STEP rising edge, and the switch is closed while the position is at AT or beyond it in
- *     direction TOWARDS, open otherwise (AT = "never": always open). It changes at once, without bounce.
+ *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
+ *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open, moved by one or two
+ *     motors: each motor's STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT
+ *     is 1). The harness counts each motor's position in steps from 0 at every STEP rising edge, and the switch
+ *     is closed while the sum of COEF x position over its motors is AT or more, open otherwise (AT = "never":
+ *     always open). A corexy's x switch: both belts with COEF -1 (x = (a + b) / 2, homing to x_min). It changes
+ *     at once, without bounce.
  *
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
  *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8.
@@ -29,6 +30,7 @@
 
 #define MAX_PINS 32
 #define MAX_SWITCHES 8
+#define MAX_SWITCH_MOTORS 2 /* a corexy's belts */
 #define TCCR1B_ADDR 0x81 /* data-space address of Timer1's clock select register */
 #define TIMER1_CLOCK_BITS 0x07 /* CS12..CS10: non-zero once the timer runs */
 #define TIMSK1_ADDR 0x6F /* Timer1 interrupt mask: the player enables one before it starts the timer, homing none */
@@ -37,15 +39,20 @@
 #define GPIOR2_ADDR 0x4B
 
 typedef struct {
-    avr_irq_t *irq;        /* the switch's input pin */
-    uint8_t closed_level;  /* pin level while closed */
-    int step, dir;         /* the motor's watched STEP and DIR pins */
-    int invert;            /* DIR level 1 means - */
-    int towards;           /* +1 / -1 */
-    int never;             /* never closes */
-    long long at;          /* closed at this position and beyond, towards the switch */
-    long long position;    /* steps, from 0 at the start */
-    uint8_t driven;        /* the level the harness drives */
+    int step, dir;      /* the motor's watched STEP and DIR pins */
+    int invert;         /* DIR level 1 means - */
+    int coef;           /* its weight in the switch's sum */
+    long long position; /* steps, from 0 at the start */
+} switch_motor_t;
+
+typedef struct {
+    avr_irq_t *irq;       /* the switch's input pin */
+    uint8_t closed_level; /* pin level while closed */
+    int never;            /* never closes */
+    long long at;         /* closed while the weighted sum of positions is this or more */
+    switch_motor_t motors[MAX_SWITCH_MOTORS];
+    int n_motors;
+    uint8_t driven; /* the level the harness drives */
 } endstop_t;
 
 static avr_t *avr;
@@ -55,10 +62,14 @@ static long long timer_start = -1;
 static endstop_t endstops[MAX_SWITCHES];
 static int n_endstops;
 static int reassert; /* a PORT write (the pull-up) overrode a driven switch level */
+static int moved;    /* a motor stepped: the switches follow once the instruction is over */
 
 static void drive(endstop_t *s)
 {
-    int closed = !s->never && (s->towards > 0 ? s->position >= s->at : s->position <= s->at);
+    long long sum = 0;
+    for (int i = 0; i < s->n_motors; i++)
+        sum += s->motors[i].coef * s->motors[i].position;
+    int closed = !s->never && sum >= s->at;
     uint8_t level = closed ? s->closed_level : !s->closed_level;
     if (level == s->driven)
         return;
@@ -79,10 +90,13 @@ static void step_edge(uint8_t index)
 {
     for (int i = 0; i < n_endstops; i++) {
         endstop_t *s = &endstops[i];
-        if (s->step != index)
-            continue;
-        s->position += (last_level[s->dir] ^ s->invert) ? 1 : -1;
-        drive(s);
+        for (int j = 0; j < s->n_motors; j++) {
+            switch_motor_t *m = &s->motors[j];
+            if (m->step != index)
+                continue;
+            m->position += (last_level[m->dir] ^ m->invert) ? 1 : -1;
+            moved = 1;
+        }
     }
 }
 
@@ -159,18 +173,31 @@ static avr_irq_t *port_pin(const char *text)
     return irq;
 }
 
-/* switch=PIN,CLOSED,STEP,DIR,INVERT,TOWARDS,AT */
+/* switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF] */
 static int parse_switch(const char *spec, int n_pins)
 {
     char pin[4], at[32];
     endstop_t *s = &endstops[n_endstops];
-    int closed;
+    int closed, used = 0;
     memset(s, 0, sizeof *s);
     if (n_endstops == MAX_SWITCHES
-        || sscanf(spec, "switch=%3[^,],%d,%d,%d,%d,%d,%31s", pin, &closed, &s->step, &s->dir, &s->invert,
-                  &s->towards, at) != 7
-        || s->step < 0 || s->step >= n_pins || s->dir < 0 || s->dir >= n_pins || (closed != 0 && closed != 1)) {
+        || sscanf(spec, "switch=%3[^,],%d,%31[^,]%n", pin, &closed, at, &used) != 3 || (closed != 0 && closed != 1)) {
         fprintf(stderr, "bad switch %s\n", spec);
+        return -1;
+    }
+    for (const char *rest = spec + used; *rest; s->n_motors++) {
+        switch_motor_t *m = &s->motors[s->n_motors];
+        int more = 0;
+        if (s->n_motors == MAX_SWITCH_MOTORS
+            || sscanf(rest, ",%d,%d,%d,%d%n", &m->step, &m->dir, &m->invert, &m->coef, &more) != 4
+            || m->step < 0 || m->step >= n_pins || m->dir < 0 || m->dir >= n_pins) {
+            fprintf(stderr, "bad switch motor in %s\n", spec);
+            return -1;
+        }
+        rest += more;
+    }
+    if (s->n_motors == 0) {
+        fprintf(stderr, "switch without motors: %s\n", spec);
         return -1;
     }
     if (!(s->irq = port_pin(pin)))
@@ -233,6 +260,11 @@ int main(int argc, char **argv)
     int state = cpu_Running;
     while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget) {
         state = avr_run(avr);
+        if (moved) { /* after the whole port write: belts that step together move a corexy's switch once */
+            moved = 0;
+            for (int i = 0; i < n_endstops; i++)
+                drive(&endstops[i]);
+        }
         if (reassert) {
             reassert = 0;
             for (int i = 0; i < n_endstops; i++)
