@@ -94,7 +94,7 @@ class Schedule:
     def table_bytes(self) -> int:
         """Size of the encoded stream, end marker included."""
         if self.runs_cross_blocks:
-            from codegen.firmware.mcs51_table import encode  # the compact stream (its module imports this one)
+            from codegen.tables import encode  # the compact stream (its module imports this one)
             return len(encode(self).data)
         return self.n_blocks * self.header_bytes() + self.n_runs * RUN_BYTES + 3
 
@@ -127,7 +127,7 @@ class Schedule:
     def encode(self) -> bytes:
         """The byte stream described in the module docstring (vectorised)."""
         if self.runs_cross_blocks:
-            raise ValueError("runs that cross block starts need the compact encoding (codegen.firmware.mcs51_table)")
+            raise ValueError("runs that cross block starts need the compact encoding (codegen.tables)")
         self.validate()
         motors = len(self.motors)
         n_runs = np.diff(self.block_runs)

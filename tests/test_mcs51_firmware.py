@@ -11,7 +11,7 @@ import pytest
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen.firmware import mcs51_table
+from codegen import tables
 from codegen.firmware.mcs51 import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
 from codegen.schedule import Schedule
 from codegen.sim.mcs51 import simulate
@@ -279,7 +279,7 @@ def test_runs_go_on_across_blocks_in_short_and_long_records(tmp_path):
         ((-1, -1, -1), (40, 40, 39), 40, (0, 39, 20), False, 40),
     ]
     sched = make_schedule(("x", "y", "z"), blocks, final_tool=True, runs=runs)
-    table = mcs51_table.encode(sched)
+    table = tables.encode(sched)
     assert table.counts() == {"short_blocks": 4, "long_blocks": 2, "short_runs": 2, "long_runs": 2}
     # short block = 2 x motors bytes; its flags carry the master in bits 4-5
     assert table.data[0] == 0x40 | 0b101 and table.data[1] == 10 and list(table.data[2:6]) == [4, 0, 2, 5]

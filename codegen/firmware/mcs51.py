@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from codegen import tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr import load_target
 from codegen.render import render
-from codegen.firmware import mcs51_table
 from codegen.schedule import TOOL_BIT, Schedule
 
 LINE_BYTES = 16  # table bytes per line of table.c
@@ -157,7 +157,7 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
 
     pins = board_pins(config)
     mem = memories(config.board)
-    table = mcs51_table.encode(schedule)
+    table = tables.encode(schedule)
     data = table.data
     motors = []
     for index, w in enumerate(pins["motors"]):
@@ -219,11 +219,11 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         "held": [{**_pin_dict(h["pin"]), "level": h["level"], "what": h["what"]} for h in pins["held"]],
         "stop_ticks": STOP_TICKS, "start_ticks": START_TICKS, "step_pulse_us": config.step_pulse_us,
         "step_pulse_ticks": pulse_ticks, "step_path_ticks": min(path.values()), "pads": pads,
-        "short_run_bytes": mcs51_table.SHORT_RUN_BYTES, "long_run_bytes": mcs51_table.LONG_RUN_BYTES,
-        "short_block_bytes": mcs51_table.short_block_bytes(len(motors)),
-        "long_block_bytes": mcs51_table.long_block_bytes(len(motors)),
+        "short_run_bytes": tables.SHORT_RUN_BYTES, "long_run_bytes": tables.LONG_RUN_BYTES,
+        "short_block_bytes": tables.short_block_bytes(len(motors)),
+        "long_block_bytes": tables.long_block_bytes(len(motors)),
         "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs, **table.counts(),
-        "lines": mcs51_table.table_lines(table, schedule, LINE_BYTES),
+        "lines": tables.table_lines(table, schedule, LINE_BYTES),
     }
     sources = {name: render(f"mcs51/{name}.j2", **context) for name in ("config.h", "table.h", "table.c")}
     from codegen.firmware.mcs51_homing import homing_context  # here: that module builds on this one

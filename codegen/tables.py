@@ -1,5 +1,5 @@
-"""The compact table stream of the 8051 player: short records where the numbers are small, and rate runs that go on
-across block starts (8 KB of code memory holds the whole job).
+"""The table stream every player reads: short records where the numbers are small, and rate runs that go on across
+block starts (8 KB of 8051 code memory holds the whole job; each byte is a byte less to send down a serial line).
 
 Semantics are codegen/schedule.py's, with two differences: a block lasts exactly `modulus` events (a dwell is a
 block of `events` step-less events), and the runs form one sequence over all events, independent of the blocks.
