@@ -98,20 +98,46 @@ def _axis_cap(per_axis: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.min(np.divide(per_axis, share, out=np.full_like(share, np.inf), where=share > 0), axis=1)
 
 
+@dataclass
+class Profile:
+    """The speed limits of a stretch of segments, before the passes: per segment and per junction (junction j
+    is before segment j; 0 and n are the stretch's ends)."""
+
+    length: np.ndarray  # (n,) mm
+    direction: np.ndarray  # (n, 4)
+    moving: np.ndarray  # (n,) bool
+    dwell: np.ndarray  # (n,) s
+    w_nominal: np.ndarray  # (n,) (mm/s)^2: the segment's own speed limit, squared
+    accel: np.ndarray  # (n,) mm/s^2
+    w_max: np.ndarray  # (n + 1,) (mm/s)^2: the junction's limit; 0 at stops and at the stretch's ends
+    smooth: np.ndarray  # (n + 1,) bool: the junction is part of a curve (False at the ends)
+    jump: np.ndarray  # (n + 1, M): each motor's velocity jump at the junction per mm/s of entry speed
+    jump_limit: np.ndarray  # (M,) the largest jump a curve's vertex may make (half a window's acceleration)
+
+    def __len__(self) -> int:
+        return len(self.length)
+
+    @property
+    def gain(self) -> np.ndarray:
+        """v^2 gained over each segment at full acceleration."""
+        return 2.0 * self.accel * self.length
+
+    def part(self, lo: int, hi: int) -> "Profile":
+        """Segments lo..hi-1 with their junctions lo..hi (the ends keep their limits)."""
+        return Profile(self.length[lo:hi], self.direction[lo:hi], self.moving[lo:hi], self.dwell[lo:hi],
+                       self.w_nominal[lo:hi], self.accel[lo:hi], self.w_max[lo:hi + 1], self.smooth[lo:hi + 1],
+                       self.jump[lo:hi + 1], self.jump_limit)
+
+
 @np.errstate(over="ignore")  # a motor's share of a move can be ~1e-300: its cap overflows to inf, no cap
-def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
+def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: PlannerLimits) -> Profile:
     """`steps` (n, M): signed motor steps of every segment (from positions rounded once)."""
     n = len(segments)
-    if n == 0:
-        empty = np.zeros(0)
-        return Plan(empty, np.zeros((0, 4)), empty, empty, empty, empty, empty, empty, empty, empty, empty,
-                    empty, np.ones(1, dtype=bool))
     length, u = segment_lengths(segments)
     moving = length > 0
     motor = kin.limits
     keep = 1.0 - limits.margin
     vmax, amax = motor.max_velocity * keep, motor.max_accel * keep
-
     # (n, M) motor mm per path mm: the larger of the two ends (they differ where the kinematics is not linear)
     factors = np.maximum(kin.motor_factors(u, segments.start), kin.motor_factors(u, segments.end))
     factors = np.maximum(factors, bresenham_factors(factors, steps, motor.steps_per_mm))
@@ -181,8 +207,20 @@ def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Planner
     inner = np.minimum.reduce([w_nom[:-1], w_nom[1:], w_jd, w_curve_j])
     stops = (~moving[:-1]) | (~moving[1:]) | (segments.tool[:-1] != segments.tool[1:])
     w_max[1:-1] = np.where(stops, 0.0, inner)
+    smooth_at = np.zeros(n + 1, dtype=bool)
+    smooth_at[1:-1] = smooth
+    jump = np.zeros((n + 1, len(motor.names)))
+    jump[1:-1] = kin.motor_factors(u_next - u_prev, segments.start[1:])
+    return Profile(length, u, moving, segments.dwell, w_nom, accel, w_max, smooth_at, jump,
+                   0.5 * amax / keep * ACCEL_WINDOW_S)
 
-    gain = 2.0 * accel * length  # v^2 gained over each segment at full acceleration
+
+
+def passes(prof: Profile, w_first: float = 0.0, w_last: float = 0.0) -> np.ndarray:
+    """v^2 at every junction: as fast as every limit allows, starting at `w_first` and ending at `w_last`."""
+    w_max = prof.w_max.copy()
+    w_max[0], w_max[-1] = w_first, w_last
+    gain = prof.gain
     # Backward pass: w[j] = min(w_max[j], w[j+1] + gain[j])  <=>  w[j] - D[j] = min_{k>=j} (w_max[k] - D[k]).
     suffix = np.concatenate([np.cumsum(gain[::-1])[::-1], [0.0]])
     w_back = np.minimum.accumulate((w_max - suffix)[::-1])[::-1] + suffix
@@ -190,10 +228,23 @@ def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Planner
     prefix = np.concatenate([[0.0], np.cumsum(gain)])
     w = np.minimum.accumulate(w_back - prefix) + prefix
     w = np.clip(np.minimum(w, w_back), 0.0, None)
-    w[0] = w[-1] = 0.0
+    w[0], w[-1] = w_first, min(w[-1], w_last)
+    return w
 
+
+def settled(prof: Profile) -> np.ndarray:
+    """The junctions whose backward-pass speed no continuation of the stretch can change: the rest of the
+    stretch gains at least their own limit, so a stop at its end never reaches back to them."""
+    suffix = np.concatenate([np.cumsum(prof.gain[::-1])[::-1], [0.0]])
+    return suffix >= prof.w_max
+
+
+def finish(prof: Profile, w: np.ndarray, t0: float = 0.0) -> Plan:
+    """The trapezoids through junction speeds `w` (v^2), starting at time `t0`."""
+    n = len(prof)
+    moving, accel, length, gain = prof.moving, prof.accel, prof.length, prof.gain
     w0, w1 = w[:-1], w[1:]
-    w_peak = np.minimum(w_nom, 0.5 * (gain + w0 + w1))
+    w_peak = np.minimum(prof.w_nominal, 0.5 * (gain + w0 + w1))
     w_peak = np.maximum(w_peak, np.maximum(w0, w1))
     s_acc = np.where(moving, (w_peak - w0) / (2.0 * accel), 0.0)
     s_dec = np.where(moving, (w_peak - w1) / (2.0 * accel), 0.0)
@@ -202,12 +253,21 @@ def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Planner
     t_acc = np.where(moving, (vp - v0) / accel, 0.0)
     t_dec = np.where(moving, (vp - v1) / accel, 0.0)
     t_cruise = np.divide(s_cruise, vp, out=np.zeros(n), where=vp > 0)
-    duration = t_acc + t_cruise + t_dec + segments.dwell
-    t_start = np.concatenate([[0.0], np.cumsum(duration)[:-1]])
-    corner = np.ones(n + 1, dtype=bool)
+    duration = t_acc + t_cruise + t_dec + prof.dwell
+    t_start = t0 + np.concatenate([[0.0], np.cumsum(duration)[:-1]])
     # A vertex of a curve where some motor's velocity jumps by more than half what its acceleration gives it in
     # one window is a corner (its jump bounded by the junction deviation), not a bend spread over the curve.
-    jump = v0[1:, None] * kin.motor_factors(u_next - u_prev, segments.start[1:])
-    spread = np.all(jump <= 0.5 * amax[None, :] / keep * ACCEL_WINDOW_S, axis=1)
-    corner[1:-1] = ~(smooth & spread)
-    return Plan(length, u, v0, vp, v1, accel, s_acc, s_cruise, t_acc, t_cruise, t_start, duration, corner)
+    spread = np.all(np.sqrt(w)[:, None] * prof.jump <= prof.jump_limit[None, :], axis=1)
+    corner = ~(prof.smooth & spread)
+    return Plan(length, prof.direction, v0, vp, v1, accel, s_acc, s_cruise, t_acc, t_cruise, t_start, duration,
+                corner)
+
+
+def plan(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: PlannerLimits) -> Plan:
+    """The whole program at once, from rest to rest."""
+    if len(segments) == 0:
+        empty = np.zeros(0)
+        return Plan(empty, np.zeros((0, 4)), empty, empty, empty, empty, empty, empty, empty, empty, empty,
+                    empty, np.ones(1, dtype=bool))
+    prof = profile(segments, kin, steps, limits)
+    return finish(prof, passes(prof))

@@ -47,6 +47,24 @@ class Segments:
         fields.update(fine=self.fine, **replace)
         return Segments(**fields)
 
+    def compact(self) -> "Segments":
+        """The same segments with only the curve samples they use."""
+        used = self.ref_fine >= 0
+        ref_fine = np.full(len(self), -1, dtype=np.int64)
+        ref_fine[used] = np.arange(int(used.sum()))
+        fields = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        return Segments(**{**fields, "ref_fine": ref_fine, "fine": self.fine[self.ref_fine[used]]})
+
+
+def concat(a: Segments, b: Segments) -> Segments:
+    """`a` followed by `b`."""
+    fields = {name: np.concatenate([getattr(a, name), getattr(b, name)])
+              for name in a.__dataclass_fields__ if name not in ("fine", "ref_fine")}
+    if a.fine is b.fine:
+        return Segments(**fields, fine=a.fine, ref_fine=np.concatenate([a.ref_fine, b.ref_fine]))
+    moved = np.where(b.ref_fine >= 0, b.ref_fine + len(a.fine), -1)
+    return Segments(**fields, fine=np.concatenate([a.fine, b.fine]), ref_fine=np.concatenate([a.ref_fine, moved]))
+
 
 def arc_chord_count(radius: float, sweep: float, tolerance: float) -> int:
     """Fewest equal chords whose sagitta stays within `tolerance`."""

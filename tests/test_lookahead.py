@@ -1,0 +1,98 @@
+"""The lookahead plans a program a window at a time, and the windows join into the whole program's plan: the
+same junction speeds, peaks and durations (to rounding), and the same corners."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import codegen.lookahead as lookahead
+import codegen.pipeline as pipeline
+from codegen.job import load_job
+from codegen.lookahead import Lookahead
+from codegen.planner import plan
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "tests" / "data" / "gcode"
+MACHINE = """
+name: windows
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
+    e: {{steps_per_mm: 100, max_velocity: 80, max_accel: 5000}}
+program:
+  gcode: {gcode}
+"""
+
+
+class Planned(Exception):
+    pass
+
+
+def planner_input(monkeypatch, job):
+    """What host_build hands the planner first: segments, kinematics, steps, limits."""
+    def capture(*args):
+        raise Planned(args)
+    monkeypatch.setattr(pipeline, "plan", capture)
+    with pytest.raises(Planned) as got:
+        pipeline.host_build(load_job(job))
+    return got.value.args[0]
+
+
+def windowed(segments, kin, steps, limits, chunk):
+    ahead, windows = Lookahead(kin, limits), []
+    for lo in range(0, len(segments), chunk):
+        part = np.arange(lo, min(lo + chunk, len(segments)))
+        windows += ahead.push(segments.take(part), steps[part])
+    return windows + ahead.close()
+
+
+def assert_joins_into(windows, whole):
+    sizes = [len(w.segments) for w in windows]
+    assert [w.first for w in windows] == np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
+    assert sum(sizes) == len(whole.length)
+    # The whole program's passes sum the gains of every segment before: v^2 to ~1e-8 of that sum, the
+    # windows' sums are shorter (and their rounding smaller).
+    for field in ("v_entry", "v_peak", "v_exit"):
+        joined = np.concatenate([getattr(w.plan, field) for w in windows])
+        np.testing.assert_allclose(joined ** 2, getattr(whole, field) ** 2, rtol=1e-8, atol=1e-6, err_msg=field)
+    for field in ("duration", "t_start"):
+        joined = np.concatenate([getattr(w.plan, field) for w in windows])
+        np.testing.assert_allclose(joined, getattr(whole, field), rtol=1e-7, atol=1e-7, err_msg=field)
+    corners = np.concatenate([w.plan.corner[:-1] for w in windows] + [windows[-1].plan.corner[-1:]])
+    assert np.array_equal(corners, whole.corner)
+    for before, after in zip(windows, windows[1:]):  # each window starts as the one before ends
+        assert before.plan.v_exit[-1] == after.plan.v_entry[0]
+        assert before.plan.corner[-1] and after.plan.corner[0]
+
+
+@pytest.mark.parametrize("name, chunk", [
+    ("plotter/shapes.gcode", 1), ("plotter/shapes.gcode", 37), ("slicer/puzzle-cura.gcode", 37),
+    ("slicer/puzzle-cura.gcode", 4096), ("laser/hiking.gcode", 37), ("slicer/benchy-arcs-arcwelder.gcode", 4096)])
+def test_windows_of_real_gcode_join_into_the_whole_plan(monkeypatch, tmp_path, name, chunk):
+    job = tmp_path / "job.yaml"
+    job.write_text(MACHINE.format(gcode=DATA / name))
+    segments, kin, steps, limits = planner_input(monkeypatch, job)
+    windows = windowed(segments, kin, steps, limits, chunk)
+    assert len(windows) > (1 if chunk == 4096 else 3)
+    assert_joins_into(windows, plan(segments, kin, steps, limits))
+
+
+@pytest.mark.parametrize("example", ["examples/kossel-mini.yaml", "examples/star.yaml", "examples/plotter-set.yaml",
+                                     "examples/function.yaml", "examples/delta-seed.yaml"])
+def test_windows_of_shapes_join_into_the_whole_plan(monkeypatch, example):
+    segments, kin, steps, limits = planner_input(monkeypatch, ROOT / example)
+    assert_joins_into(windowed(segments, kin, steps, limits, 5), plan(segments, kin, steps, limits))
+
+
+def test_a_long_curve_is_cut_at_a_settled_junction(monkeypatch):
+    segments, kin, steps, limits = planner_input(monkeypatch, ROOT / "examples/kossel-mini.yaml")
+    monkeypatch.setattr(lookahead, "MAX_HELD", 8)
+    windows = windowed(segments, kin, steps, limits, 3)
+    assert any(w.curve_cut for w in windows)
+    whole = plan(segments, kin, steps, limits)
+    joined = np.concatenate([w.plan.v_entry for w in windows])
+    np.testing.assert_allclose(joined, whole.v_entry, rtol=1e-8, atol=1e-7)
