@@ -19,7 +19,7 @@ import numpy as np
 from codegen.checks import MotorTrain, check
 from codegen.compress import compress
 from codegen.kinematics import make_kinematics
-from codegen.pipeline import refine
+from codegen.pieces import refine
 from codegen.planner import PlannerLimits, plan
 from codegen.stepgen import generate, segment_steps, split_long
 from codegen.targets import target_info

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, Plan
+from codegen.motor_checks import AccelCheck, RateCheck
+from codegen.planner import Plan
 from codegen.segments import REF_ARC, Segments
 
 CHUNK = 1 << 20
@@ -111,13 +112,6 @@ def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments, near: flo
     return out
 
 
-def max_rate_ratio(train: MotorTrain, max_rate: float) -> float:
-    if len(train.time) <= RATE_WINDOW:
-        return 0.0
-    span = train.time[RATE_WINDOW:] - train.time[:-RATE_WINDOW]
-    return float(RATE_WINDOW / max(span.min(), 1e-12) / max_rate)
-
-
 def corner_jumps(plan: Plan, segments: Segments, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
     """Times (s) of corners and each motor's planned velocity jump there (steps/s), (J,) and (J, M)."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
@@ -127,70 +121,77 @@ def corner_jumps(plan: Plan, segments: Segments, kin: Kinematics) -> tuple[np.nd
     return plan.t_start[j], jump
 
 
-def accel_ratios(train: MotorTrain, max_accel: float, corners_t: np.ndarray,
-                 corners_jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each pair of consecutive windows: when it starts (s), and its velocity change over what is allowed."""
-    if len(train.time) < 3:
-        return np.zeros(0), np.zeros(0)
-    position = np.cumsum(train.dir)
-    t0, t1 = train.time[0], train.time[-1]
-    edges = t0 + ACCEL_WINDOW_S * np.arange(int(np.ceil((t1 - t0) / ACCEL_WINDOW_S)) + 1)
-    if len(edges) < 3:
-        return np.zeros(0), np.zeros(0)
-    p = np.interp(edges, train.time, position)
-    v = np.diff(p) / ACCEL_WINDOW_S
-    dv = np.abs(np.diff(v))
-    # Corners inside the span of both windows (edges[j] .. edges[j + 2]) may jump the velocity.
-    cum = np.concatenate([[0.0], np.cumsum(corners_jump)])
-    lo = np.searchsorted(corners_t, edges[:-2], side="left")
-    hi = np.searchsorted(corners_t, edges[2:], side="right")
-    allowed = max_accel * ACCEL_WINDOW_S + (cum[hi] - cum[lo]) + 2.0 / ACCEL_WINDOW_S
-    return edges[:-2], dv / allowed
+class Checker:
+    """The checks over a pulse train that comes a window at a time (the motor checks carry what they need of
+    the windows before); `findings` once the train has ended."""
 
+    def __init__(self, kin: Kinematics, start_steps: np.ndarray, tolerance: float):
+        self.kin, self.start_steps = kin, np.asarray(start_steps, dtype=np.int64)
+        spm = kin.limits.steps_per_mm
+        self.rates = [RateCheck(float(r)) for r in kin.limits.max_rate]
+        self.accels = [AccelCheck(float(a)) for a in kin.limits.max_accel * spm]
+        self.steps = np.zeros(len(kin.motors), dtype=np.int64)
+        self.net = np.zeros(len(kin.motors), dtype=np.int64)
+        self.path_limit = step_length_mm(kin) + tolerance
+        self.worst_path, self.worst_at = 0.0, None
 
-def max_accel_ratio(train: MotorTrain, max_accel: float, corners_t: np.ndarray, corners_jump: np.ndarray) -> float:
-    _, ratio = accel_ratios(train, max_accel, corners_t, corners_jump)
-    return float(np.max(ratio, initial=0.0))
+    def add(self, trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
+            segments: Segments, corners_t: np.ndarray, jumps: np.ndarray, last: bool = False) -> list:
+        """`positions` (P, M): motor steps (relative to the start) after each event (the pulses one interrupt
+        makes together); `position_segment` (P,): the segment (of `segments`) each event belongs to;
+        `corners_t`, `jumps`: the plan's corners in these pulses' time (`corner_jumps`). Returns, per motor,
+        the rate hits (index of the pulse ending 8 fast steps, ratio) and the acceleration hits (start of
+        the windows, ratio)."""
+        spm = self.kin.limits.steps_per_mm
+        for lo in range(0, len(positions), CHUNK):  # in chunks: the positions of a print are millions of rows
+            seg = position_segment[lo:lo + CHUNK]
+            axes = self.kin.to_axes((positions[lo:lo + CHUNK] + self.start_steps) / spm, segments.start[seg])
+            errors = path_errors(axes, seg, segments, near=0.5 * self.path_limit)
+            worst = int(np.argmax(errors))
+            if errors[worst] > self.worst_path or self.worst_at is None:
+                self.worst_path, self.worst_at = float(errors[worst]), axes[worst, :3]
+        hits = []
+        for m, train in enumerate(trains):
+            self.steps[m] += len(train.time)
+            self.net[m] += int(train.dir.sum())
+            rate = self.rates[m].add(train.time)
+            accel = self.accels[m].add(train.time, train.dir, corners_t, jumps[:, m], last)
+            hits.append((rate, accel))
+        return hits
+
+    def findings(self, expected_final: np.ndarray) -> Findings:
+        names = self.kin.motors
+        final = self.net + self.start_steps
+        findings = Findings(
+            final=dict(zip(names, final.tolist())),
+            expected_final=dict(zip(names, np.asarray(expected_final).tolist())),
+            steps=dict(zip(names, self.steps.tolist())),
+            max_path_error_mm=self.worst_path,
+            path_limit_mm=self.path_limit,
+            rate_ratio={n: c.worst for n, c in zip(names, self.rates)},
+            accel_ratio={n: c.worst for n, c in zip(names, self.accels)},
+        )
+        for name, got, want in zip(names, final, expected_final):
+            if got != want:
+                findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")
+        if self.worst_at is not None and self.worst_path > self.path_limit + 1e-9:
+            findings.problems.append(
+                f"the tool strays {self.worst_path:.4f} mm from the path (limit {self.path_limit:.4f} mm: "
+                f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in self.worst_at)})")
+        for name in names:
+            rate, accel = findings.rate_ratio[name], findings.accel_ratio[name]
+            if rate > 1.0:
+                findings.problems.append(f"motor {name} exceeds its rate over 8 steps by {100 * (rate - 1):.1f} %")
+            if accel > 1.0:
+                findings.problems.append(f"motor {name} exceeds its acceleration by {100 * (accel - 1):.1f} %")
+        return findings
 
 
 def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
           segments: Segments, plan: Plan, kin: Kinematics, expected_final: np.ndarray,
           start_steps: np.ndarray, tolerance: float) -> Findings:
-    """`positions` (P, M): motor steps (relative to the start) after each event (the pulses one interrupt
-    makes together); `position_segment` (P,): the segment each event belongs to."""
-    names = kin.motors
-    spm = kin.limits.steps_per_mm
-    final = np.array([int(t.dir.sum()) for t in trains], dtype=np.int64) + start_steps
-    findings = Findings(
-        final=dict(zip(names, final.tolist())),
-        expected_final=dict(zip(names, expected_final.tolist())),
-        steps={n: len(t.time) for n, t in zip(names, trains)},
-        max_path_error_mm=0.0,
-        path_limit_mm=step_length_mm(kin) + tolerance,
-        rate_ratio={}, accel_ratio={},
-    )
-    for name, got, want in zip(names, final, expected_final):
-        if got != want:
-            findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")
-    worst_at = None
-    for lo in range(0, len(positions), CHUNK):  # in chunks: the positions of a print are millions of rows
-        seg = position_segment[lo:lo + CHUNK]
-        axes = kin.to_axes((positions[lo:lo + CHUNK] + start_steps) / spm, segments.start[seg])
-        errors = path_errors(axes, seg, segments, near=0.5 * findings.path_limit_mm)
-        worst = int(np.argmax(errors))
-        if errors[worst] > findings.max_path_error_mm or worst_at is None:
-            findings.max_path_error_mm, worst_at = float(errors[worst]), axes[worst, :3]
-    if worst_at is not None and findings.max_path_error_mm > findings.path_limit_mm + 1e-9:
-        findings.problems.append(
-            f"the tool strays {findings.max_path_error_mm:.4f} mm from the path (limit "
-            f"{findings.path_limit_mm:.4f} mm: 1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in worst_at)})")
+    """The checks of a whole train at once (the simulator's)."""
+    checker = Checker(kin, start_steps, tolerance)
     corners_t, jumps = corner_jumps(plan, segments, kin)
-    for m, (name, train) in enumerate(zip(names, trains)):
-        rate = max_rate_ratio(train, kin.limits.max_rate[m])
-        accel = max_accel_ratio(train, kin.limits.max_accel[m] * spm[m], corners_t, jumps[:, m])
-        findings.rate_ratio[name], findings.accel_ratio[name] = rate, accel
-        if rate > 1.0:
-            findings.problems.append(f"motor {name} exceeds its rate over 8 steps by {100 * (rate - 1):.1f} %")
-        if accel > 1.0:
-            findings.problems.append(f"motor {name} exceeds its acceleration by {100 * (accel - 1):.1f} %")
-    return findings
+    checker.add(trains, positions, position_segment, segments, corners_t, jumps, last=True)
+    return checker.findings(expected_final)

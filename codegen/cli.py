@@ -48,9 +48,9 @@ def _image_from_report(out_dir: Path, data: dict) -> Image:
                  data["flash_capacity"], data["ram_capacity"], dict(data["sections"]), dict(data["flash_parts"]))
 
 
-def _host(job, strict: bool) -> HostBuild:
+def _host(job, strict: bool, keep: bool = True) -> HostBuild:
     """The host side of the build; the front end's warnings go to stderr."""
-    host = host_build(job, strict)
+    host = host_build(job, strict, keep=keep)
     if host.warnings:
         print(render_all(host.warnings), file=sys.stderr)
     return host
@@ -142,7 +142,7 @@ def cmd_verify(args) -> int:
 
 def cmd_plan(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host = _host(job, args.strict)
+    host = _host(job, args.strict, keep=False)
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
     return 0 if summary["pass"] else 1

@@ -35,6 +35,12 @@ class Window:
     curve_cut: bool = False  # the window ends inside a curve (more than MAX_HELD segments without a corner)
 
 
+def merge(a: Window, b: Window) -> Window:
+    """Two consecutive windows as one."""
+    return Window(a.first, concat(a.segments, b.segments), np.concatenate([a.steps, b.steps]),
+                  Plan.join([a.plan, b.plan]), b.curve_cut)
+
+
 class Lookahead:
     """`push` segments as they come (with their steps), `close` at the program's end; each returns the
     windows whose plan is final, in order."""
@@ -58,9 +64,13 @@ class Lookahead:
     def close(self) -> list[Window]:
         return self._commit(final=True)
 
-    def lower_entry(self, w: float) -> None:
-        """The window before was planned again, slower: the next one starts at v^2 = `w` at most."""
-        self.w_first = min(self.w_first, w)
+    def resume(self, w: float, t0: float) -> None:
+        """The window before was planned again, slower: the next one starts at v^2 = `w` at most, at `t0`."""
+        self.w_first, self.t0 = min(self.w_first, w), t0
+
+    def next_segment(self) -> Segments | None:
+        """The first segment after the windows so far (its geometry is final, its plan is not)."""
+        return self.held.take(np.arange(1, 2)) if self.held is not None and len(self.held) > 1 else None
 
     def _commit(self, final: bool) -> list[Window]:
         held = 0 if self.held is None else len(self.held) - self.context

@@ -45,6 +45,13 @@ class Plan:
     duration: np.ndarray  # s, dwell included
     corner: np.ndarray  # (n + 1,) bool: junction j (before segment j) is a corner, not a curve
 
+    @staticmethod
+    def join(plans: list["Plan"]) -> "Plan":
+        """Consecutive plans as one: each one's last junction is the next one's first."""
+        fields = {name: np.concatenate([getattr(p, name) for p in plans])
+                  for name in Plan.__dataclass_fields__ if name != "corner"}
+        return Plan(**fields, corner=np.concatenate([p.corner[:-1] for p in plans] + [plans[-1].corner[-1:]]))
+
     @property
     def total(self) -> float:
         return float(self.t_start[-1] + self.duration[-1]) if len(self.duration) else 0.0

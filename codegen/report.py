@@ -16,16 +16,15 @@ def _round(value: float, digits: int = 6) -> float:
 
 
 def plan_summary(host: HostBuild) -> dict:
-    f = host.findings
-    sched = host.schedule
+    f, totals = host.findings, host.totals
     return {
         "job": host.job.name,
-        "duration_s": _round(host.plan.total),
-        "table_bytes": sched.table_bytes(),
-        "segments": len(host.segments),
-        "blocks": sched.n_blocks,
-        "runs": sched.n_runs,
-        "events": int(len(host.events.time)),
+        "duration_s": _round(totals.duration_s),
+        "table_bytes": totals.table_bytes,
+        "segments": totals.segments,
+        "blocks": totals.blocks,
+        "runs": totals.runs,
+        "events": totals.events,
         "motors": {
             name: {"steps": f.steps[name], **positions(host, f, name),
                    "max_rate_ratio": _round(f.rate_ratio[name], 4), "max_accel_ratio": _round(f.accel_ratio[name], 4)}
@@ -33,9 +32,7 @@ def plan_summary(host: HostBuild) -> dict:
         },
         "max_path_error_mm": _round(f.max_path_error_mm),
         "path_limit_mm": _round(f.path_limit_mm),
-        "max_timing_error_us": _round(float(np.max(np.abs(
-            host.compressed.emitted_ticks - host.events.time * host.target.tick_hz), initial=0.0))
-            / host.target.tick_hz * 1e6, 3),
+        "max_timing_error_us": _round(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
         "pass": f.ok,
         "problems": list(f.problems),
     }

@@ -36,11 +36,12 @@ class Pulses:
         return np.zeros(self.event_position.shape[1], dtype=np.int64)
 
 
-def event_ticks(schedule: Schedule) -> np.ndarray:
-    """Tick of every event: floor(pos / 256) with pos the running 24.8 sum of the intervals."""
+def event_ticks(schedule: Schedule, origin_fx: int = 0) -> np.ndarray:
+    """Tick of every event: floor(pos / 256) with pos the running 24.8 sum of the intervals, from `origin_fx`
+    (1/256 tick: where the player's clock stands when the schedule begins)."""
     n, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
     span = interval * n + add * (n * (n - 1) // 2)
-    origin = np.concatenate([[0], np.cumsum(span)[:-1]]).astype(np.int64)
+    origin = origin_fx + np.concatenate([[0], np.cumsum(span)[:-1]]).astype(np.int64)
     run = np.repeat(np.arange(len(n)), n)
     k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n) + 1
     pos = origin[run] + k * interval[run] + add[run] * (k * (k - 1) // 2)
@@ -69,8 +70,8 @@ def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
     return block, stepped, position
 
 
-def predict(schedule: Schedule) -> Pulses:
-    ticks = event_ticks(schedule)
+def predict(schedule: Schedule, origin_fx: int = 0) -> Pulses:
+    ticks = event_ticks(schedule, origin_fx)
     counts = schedule.events_per_block()
     signed = schedule.block_steps * schedule.block_dirs.astype(np.int64)
     block, stepped, position = bresenham(signed, schedule.block_modulus, schedule.block_init, counts)

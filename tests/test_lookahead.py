@@ -7,10 +7,15 @@ import numpy as np
 import pytest
 
 import codegen.lookahead as lookahead
-import codegen.pipeline as pipeline
 from codegen.job import load_job
 from codegen.lookahead import Lookahead
+from codegen.kinematics import make_kinematics
+from codegen.pieces import pieces
+from codegen.pipeline import planner_limits
 from codegen.planner import plan
+from codegen.program import Program
+from codegen.segments import concat
+from codegen.targets import target_info
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "gcode"
@@ -28,18 +33,13 @@ program:
 """
 
 
-class Planned(Exception):
-    pass
-
-
-def planner_input(monkeypatch, job):
-    """What host_build hands the planner first: segments, kinematics, steps, limits."""
-    def capture(*args):
-        raise Planned(args)
-    monkeypatch.setattr(pipeline, "plan", capture)
-    with pytest.raises(Planned) as got:
-        pipeline.host_build(load_job(job))
-    return got.value.args[0]
+def planner_input(path):
+    """The planner's input for the whole program: segments, kinematics, steps, limits."""
+    job = load_job(path)
+    kin = make_kinematics(job.machine)
+    chunks = list(pieces(job, kin, Program(job, kin)))
+    segments, steps = concat(*(c[0] for c in chunks)), np.concatenate([c[1] for c in chunks])
+    return segments, kin, steps, planner_limits(job, kin, target_info(job.board))
 
 
 def windowed(segments, kin, steps, limits, chunk):
@@ -72,10 +72,10 @@ def assert_joins_into(windows, whole):
 @pytest.mark.parametrize("name, chunk", [
     ("plotter/shapes.gcode", 1), ("plotter/shapes.gcode", 37), ("slicer/puzzle-cura.gcode", 37),
     ("slicer/puzzle-cura.gcode", 4096), ("laser/hiking.gcode", 37), ("slicer/benchy-arcs-arcwelder.gcode", 4096)])
-def test_windows_of_real_gcode_join_into_the_whole_plan(monkeypatch, tmp_path, name, chunk):
+def test_windows_of_real_gcode_join_into_the_whole_plan(tmp_path, name, chunk):
     job = tmp_path / "job.yaml"
     job.write_text(MACHINE.format(gcode=DATA / name))
-    segments, kin, steps, limits = planner_input(monkeypatch, job)
+    segments, kin, steps, limits = planner_input(job)
     windows = windowed(segments, kin, steps, limits, chunk)
     assert len(windows) > (1 if chunk == 4096 else 3)
     assert_joins_into(windows, plan(segments, kin, steps, limits))
@@ -83,13 +83,13 @@ def test_windows_of_real_gcode_join_into_the_whole_plan(monkeypatch, tmp_path, n
 
 @pytest.mark.parametrize("example", ["examples/kossel-mini.yaml", "examples/star.yaml", "examples/plotter-set.yaml",
                                      "examples/function.yaml", "examples/delta-seed.yaml"])
-def test_windows_of_shapes_join_into_the_whole_plan(monkeypatch, example):
-    segments, kin, steps, limits = planner_input(monkeypatch, ROOT / example)
+def test_windows_of_shapes_join_into_the_whole_plan(example):
+    segments, kin, steps, limits = planner_input(ROOT / example)
     assert_joins_into(windowed(segments, kin, steps, limits, 5), plan(segments, kin, steps, limits))
 
 
 def test_a_long_curve_is_cut_at_a_settled_junction(monkeypatch):
-    segments, kin, steps, limits = planner_input(monkeypatch, ROOT / "examples/kossel-mini.yaml")
+    segments, kin, steps, limits = planner_input(ROOT / "examples/kossel-mini.yaml")
     monkeypatch.setattr(lookahead, "MAX_HELD", 8)
     windows = windowed(segments, kin, steps, limits, 3)
     assert any(w.curve_cut for w in windows)

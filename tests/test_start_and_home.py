@@ -6,6 +6,7 @@ import pytest
 
 from codegen.job import load_job
 from codegen.pipeline import host_build
+from codegen.program import whole_toolpath
 from codegen.toolpath import Line
 
 KOSSEL = """
@@ -38,10 +39,20 @@ program:
 """
 
 
+class Built:
+    """The host build and the whole toolpath of a job."""
+
+    def __init__(self, path):
+        job = load_job(path)
+        self.host = host_build(job)
+        self.toolpath = whole_toolpath(job, self.host.kin)[0]
+        self.findings, self.kin, self.start_steps = self.host.findings, self.host.kin, self.host.start_steps
+
+
 def build(tmp_path, text):
     job = tmp_path / "job.yaml"
     job.write_text(text)
-    return host_build(load_job(job))
+    return Built(job)
 
 
 def test_a_delta_without_start_starts_where_homing_leaves_it(tmp_path):

@@ -70,7 +70,7 @@ class Interpreter(Moves, GrblState):
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.origin, self.strict = origin, strict
         self.flat = list(start)
-        self.count, self.cur = 1, 0
+        self.count, self.cur, self.base = 1, 0, 0
         self.items: list = []
         self.errors: list[Diagnostic] = []
         self.warned: dict[str, list] = {}
@@ -78,7 +78,8 @@ class Interpreter(Moves, GrblState):
 
     # ---- results ----
 
-    def run(self, blocks) -> None:
+    def run(self, blocks) -> bool:
+        """Interpret the blocks; False once there are too many errors to go on."""
         try:
             for block in blocks:
                 if type(block) is Block:
@@ -86,7 +87,8 @@ class Interpreter(Moves, GrblState):
                 else:
                     self._error(block.where, block.message)
         except _Stop:
-            pass
+            return False
+        return True
 
     def warnings(self) -> list[Diagnostic]:
         return [Diagnostic(where, f"'{key}' ignored ({reason})" + (f"; {n} times" if n > 1 else ""), "warning")

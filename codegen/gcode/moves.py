@@ -1,7 +1,7 @@
 """The interpreter's positions and moves: targets in machine mm, G0/G1 lines, G2/G3 arcs, G28 and G92.
 
 Machine position = program position + offset (work system, G92, tool length: codegen/gcode/grbl.py). Moves are recorded as indices into one list of points
-(`flat`, 4 numbers a point); the interpreter turns them into Line/Arc/Home items at the end.
+(`flat`, 4 numbers a point, from point `base` of the program on); `take` turns them into Line/Arc/Home items.
 """
 
 from __future__ import annotations
@@ -20,26 +20,34 @@ OFFSET_LETTERS = {(0, 1): "IJ", (2, 0): "KI", (1, 2): "JK"}  # the I/J/K of the 
 class Moves:
     """Mixed into the Interpreter: uses its state (pos, off, unit, modes, feeds, tool) and diagnostics."""
 
-    def toolpath(self) -> Toolpath:
-        """The items: every point a row of one read-only array, each Line/Arc/Home holding views of its rows."""
+    def take(self) -> list:
+        """The items made since the last `take`: every point a row of one read-only array, each Line/Arc/Home
+        holding views of its rows. Only the current point stays (the next move starts there)."""
         array = np.array(self.flat, dtype=float).reshape(-1, 4)
         array.flags.writeable = False
-        rows = list(array)
+        rows, base = list(array), self.base  # point i of the program is rows[i - base]
         items = []
         for it in self.items:
             if type(it) is not tuple:
                 items.append(it)
             elif it[0] == LINE:
                 _, a, b, feed, tool, src, label, accel, power = it
-                items.append(Line(rows[a], rows[b], feed, tool, src, label, accel, power))
+                items.append(Line(rows[a - base], rows[b - base], feed, tool, src, label, accel, power))
             elif it[0] == ARC:
                 _, a, b, c, plane, feed, tool, src, label, accel, power = it
-                items.append(Arc(rows[a], rows[b], c.center, c.radius, c.start_angle, c.sweep, feed, tool, src,
-                                 plane, label, accel, power))
+                items.append(Arc(rows[a - base], rows[b - base], c.center, c.radius, c.start_angle, c.sweep, feed,
+                                 tool, src, plane, label, accel, power))
             else:
                 _, axes, a, src = it
-                items.append(Home(axes, rows[a], src))
-        return Toolpath(array[0].copy(), items)
+                items.append(Home(axes, rows[a - base], src))
+        self.items = []
+        self.flat = self.flat[4 * (self.cur - base):]
+        self.base = self.cur
+        return items
+
+    def toolpath(self) -> Toolpath:
+        """Every item at once, from the program's start (before any `take`)."""
+        return Toolpath(np.array(self.flat[:4], dtype=float), self.take())
 
     def target(self, params: dict[str, float]) -> list[float]:
         pos, unit, off = self.pos, self.unit, self.off

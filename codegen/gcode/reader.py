@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass
 from functools import reduce
 from operator import xor
-from typing import Iterator, NamedTuple
+from typing import Iterable, Iterator, NamedTuple
 
 from codegen.errors import Diagnostic, SourceRef
 from codegen.gcode.codes import TEXT_CODES, code_name, family
@@ -61,10 +61,14 @@ def columns(block: Block) -> list[int]:
     return cols
 
 
-def read(text: str, origin: Origin) -> Iterator[Block | Diagnostic]:
-    lines = text.split("\n")
-    if lines and not lines[-1]:
-        lines.pop()
+def read(text: str | Iterable[str], origin: Origin) -> Iterator[Block | Diagnostic]:
+    """`text`: the whole G-code, or its lines as a file yields them (opened with newline="\n")."""
+    if isinstance(text, str):
+        lines = text.split("\n")
+        if lines and not lines[-1]:
+            lines.pop()
+    else:
+        lines = (line[:-1] if line[-1:] == "\n" else line for line in text)
     opened = started = False
     fullmatch, findall, make = LINE_OF_WORDS.fullmatch, WORD.findall, tuple.__new__
     for index, line in enumerate(lines):

@@ -1,0 +1,84 @@
+"""The windows' results joined into the whole program's (for a build whose tables go into one image, and
+for `verify`, which compares every pulse): segment, block, run and event indices counted over the program.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codegen.compress import Compressed
+from codegen.planner import Plan
+from codegen.schedule import FRAC_ONE, Schedule
+from codegen.segments import Segments, concat
+from codegen.stepgen import Events
+from codegen.twin import Pulses
+from codegen.windows import Played
+
+
+def _offsets(sizes: list[int]) -> list[int]:
+    return np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64).tolist() if sizes else []
+
+
+def _cat(parts: list, name: str) -> np.ndarray:
+    return np.concatenate([getattr(p, name) for p in parts])
+
+
+def join_segments(played: list[Played]) -> Segments:
+    return concat(*(p.window.segments for p in played))
+
+
+def join_plan(played: list[Played]) -> Plan:
+    return Plan.join([p.window.plan for p in played])
+
+
+def join_events(played: list[Played]) -> Events:
+    events = [p.events for p in played]
+    segment_at = _offsets([len(p.window.segments) for p in played])
+    event_at = _offsets([len(e.time) for e in events])
+    return Events(
+        block_segment=np.concatenate([e.block_segment + s for e, s in zip(events, segment_at)]),
+        block_steps=_cat(events, "block_steps"), block_modulus=_cat(events, "block_modulus"),
+        block_init=_cat(events, "block_init"), block_tool=_cat(events, "block_tool"),
+        block_first=np.concatenate([e.block_first[:-1] + k for e, k in zip(events, event_at)]
+                                   + [[sum(len(e.time) for e in events)]]).astype(np.int64),
+        time=_cat(events, "time"), phase=_cat(events, "phase"),
+    )
+
+
+def join_schedule(played: list[Played], final_tool: bool) -> Schedule:
+    schedules = [p.compressed.schedule for p in played]
+    segment_at = _offsets([len(p.window.segments) for p in played])
+    run_at = _offsets([s.n_runs for s in schedules])
+    first = schedules[0]
+    return Schedule(
+        motors=first.motors, tick_hz=first.tick_hz,
+        block_dirs=_cat(schedules, "block_dirs"), block_steps=_cat(schedules, "block_steps"),
+        block_modulus=_cat(schedules, "block_modulus"), block_init=_cat(schedules, "block_init"),
+        block_tool=_cat(schedules, "block_tool"),
+        block_runs=np.concatenate([s.block_runs[:-1] + r for s, r in zip(schedules, run_at)]
+                                  + [[sum(s.n_runs for s in schedules)]]).astype(np.int64),
+        block_segment=np.concatenate([s.block_segment + k for s, k in zip(schedules, segment_at)]),
+        run_interval=_cat(schedules, "run_interval"), run_add=_cat(schedules, "run_add"),
+        run_count=_cat(schedules, "run_count"), final_tool=final_tool,
+        block_events=None if first.block_events is None else _cat(schedules, "block_events"),
+    )
+
+
+def join_pulses(played: list[Played]) -> Pulses:
+    pulses = [p.pulses for p in played]
+    event_at = _offsets([len(p.event_tick) for p in pulses])
+    block_at = _offsets([p.compressed.schedule.n_blocks for p in played])
+    return Pulses(
+        tick=_cat(pulses, "tick"), motor=_cat(pulses, "motor"), dir=_cat(pulses, "dir"),
+        event=np.concatenate([p.event + k for p, k in zip(pulses, event_at)]),
+        event_tick=_cat(pulses, "event_tick"),
+        event_block=np.concatenate([p.event_block + k for p, k in zip(pulses, block_at)]),
+        event_position=np.concatenate([p.event_position for p in pulses]),
+    )
+
+
+def join_compressed(played: list[Played], final_tool: bool, pulses: Pulses) -> Compressed:
+    """The ideal ticks on the program's clock; the emitted ones are the twin's (the player's own)."""
+    ideal = np.concatenate([p.compressed.ideal_ticks + p.origin_fx / FRAC_ONE for p in played])
+    return Compressed(join_schedule(played, final_tool), ideal, pulses.event_tick,
+                      np.concatenate([p.compressed.window_ticks for p in played]))

@@ -1,0 +1,107 @@
+"""The program's items -> the planner's segments, a batch at a time: straight pieces within the tolerance,
+none the player cannot play in one block, every point reachable and within each motor's `range`.
+
+An unreachable point is an error at the shape or G-code line that leaves it (the first of each; at most 20
+in all), reported once the whole program has been read (with its G-code errors, which come first); after the
+first, no more segments go on to the planner.
+"""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import numpy as np
+
+from codegen.checks import step_length_mm
+from codegen.errors import Diagnostic, JobError
+from codegen.kinematics.base import Kinematics
+from codegen.planner import segment_lengths
+from codegen.program import Program
+from codegen.segments import Flattener, Segments
+from codegen.stepgen import quantisation_split, segment_steps, split_at, split_long, staircase_bound, staircase_error
+
+STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
+REFINE_ROUNDS = 4
+REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
+MAX_REACH_ERRORS = 20
+CHUNK_EVENTS = 1 << 17
+
+
+def pieces(job, kin: Kinematics, program: Program) -> Iterator[tuple[Segments, np.ndarray]]:
+    """Segments and their motor steps, a batch of the program's items at a time."""
+    flattener, problems = None, []
+    for batch in program.batches():
+        if flattener is None:
+            flattener = Flattener(program.start, job.machine.tolerance)
+        first = flattener.items
+        segments = drop_empty(flattener(batch))
+        found = reach_problems(job, kin, batch, first, segments)
+        if not found:
+            segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
+            found = reach_problems(job, kin, batch, first, segments)  # a carriage may peak between samples
+        problems += found
+        if not problems and len(segments):
+            steps = segment_steps(segments, kin)
+            # Parts of about CHUNK_EVENTS master steps: the windows after the planner, and their memory, stay small.
+            events = np.cumsum(np.abs(steps).max(axis=1, initial=0))
+            cuts = np.searchsorted(events, np.arange(CHUNK_EVENTS, events[-1], CHUNK_EVENTS), side="right")
+            for part in np.split(np.arange(len(segments)), np.unique(cuts[(cuts > 0) & (cuts < len(segments))])):
+                yield segments.take(part), steps[part]
+    if problems:
+        raise JobError(sorted(problems, key=lambda d: (d.where.file, d.where.line, d.where.col))[:MAX_REACH_ERRORS])
+
+
+def drop_empty(segments: Segments) -> Segments:
+    """Remove moves of zero length (nothing to plan, nothing to step)."""
+    length, _ = segment_lengths(segments)
+    keep = (length > 0) | (segments.dwell > 0)
+    if np.all(keep):
+        return segments
+    return segments.take(np.flatnonzero(keep))
+
+
+def refine(segments: Segments, kin: Kinematics) -> Segments:
+    """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
+    two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
+    limit = STAIRCASE_LIMIT * step_length_mm(kin)
+    look = np.flatnonzero(staircase_bound(segments, kin) > limit)  # the others provably stay close
+    for _ in range(REFINE_ROUNDS):
+        bad = look[staircase_error(segments, kin, look) > limit]
+        if len(bad) == 0:
+            break
+        segments = split_at(segments, bad, quantisation_split(segments, kin, bad))
+        pieces = bad + np.arange(len(bad))  # where the cut segments' first halves now stand
+        look = np.unique(np.concatenate([pieces, pieces + 1]))  # in order: the next round's cuts count on it
+    return segments
+
+
+def reach_problems(job, kin: Kinematics, batch: list, offset: int, segments: Segments) -> list[Diagnostic]:
+    """Every point of the path reachable and within each motor's `range`: an error at the item (of `batch`,
+    whose first is the program's item `offset`) that leaves it, at its first such point."""
+    if not len(segments):
+        return []
+    # Every piece's end; where motors are not linear in the axes (a delta's carriages rise and fall along a
+    # straight line) also points along each piece.
+    share = np.linspace(0.0, 1.0, 2 if kin.linear else REACH_SAMPLES + 1)[1:]
+    points = np.concatenate([segments.start[:1], (segments.start[:, None, :] + share[None, :, None] * (
+        segments.end - segments.start)[:, None, :]).reshape(-1, 4)])
+    items = np.concatenate([segments.item[:1], np.repeat(segments.item, len(share))])
+    motor = kin.to_motor(points)
+    ends = np.concatenate([segments.end[:1], np.repeat(segments.end, len(share), axis=0)])
+    at = lambda p: ", ".join(f"{c:.3f}" for c in p[:3])  # noqa: E731
+    problems = [(np.flatnonzero(kin.unreachable(points)),
+                 lambda k: f"the machine cannot reach ({at(points[k])})" + (
+                     "" if np.allclose(points[k], ends[k]) else f" on the way to ({at(ends[k])})"))]
+    for m, name in enumerate(kin.motors):
+        span = job.machine.steppers[name].range
+        if span:
+            outside = np.flatnonzero((motor[:, m] < span[0] - 1e-9) | (motor[:, m] > span[1] + 1e-9))
+            problems.append((outside, lambda k, m=m, name=name, span=span:
+                             f"motor {name} would go to {motor[k, m]:.3f} mm, outside its range "
+                             f"[{span[0]:g}, {span[1]:g}]"))
+    diagnostics = []
+    for where, message in problems:
+        _, first = np.unique(items[where], return_index=True)
+        diagnostics += [Diagnostic(batch[items[k] - offset].source, message(k))
+                        for k in where[np.sort(first)][:MAX_REACH_ERRORS]]
+    return diagnostics

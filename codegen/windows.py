@@ -1,0 +1,226 @@
+"""The stages after the planner, one lookahead window at a time: step times, curve timing, rate runs, the twin
+and its checks.
+
+A window hands the next one what the player carries across: its clock (the last event's time, to 1/256
+tick: the next window's runs count from there) and the motors' positions; and what the checks need of the
+pulses before (codegen/motor_checks.py). Windows end at corners, so curve timing never joins two windows'
+blocks; rate runs start afresh at every window (one run more per window than a run over the whole program
+might need). The path check measures a window's first and last steps against the neighbouring windows'
+segments too.
+
+Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
+several blocks, a delta carriage between cut points), the window is planned again with the segments under
+that stretch slowed (its entry speed stays: the window before is final), and the next window starts no
+faster than it now ends.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from codegen.checks import Checker, MotorTrain, corner_jumps
+from codegen.compress import Compressed, TimingWindow, compress
+from codegen.curve_timing import smooth_curve_times
+from codegen.kinematics.base import Kinematics
+from codegen.lookahead import Lookahead, Window, merge
+from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
+from codegen.schedule import FRAC_BITS
+from codegen.segments import Segments, concat
+from codegen.stepgen import Events, generate
+from codegen.targets import TargetInfo
+from codegen.twin import Pulses, predict
+
+RATE_ROUNDS = 8  # plans of a window at most: a stretch over a motor's rate or acceleration slows it
+RETRY_SHARE = 0.95  # of the rate and acceleration those segments (and their neighbours) then aim at
+
+
+@dataclass
+class Played:
+    """One window's results, on the program's clock: event times in s, ticks and positions absolute."""
+
+    window: Window
+    compressed: Compressed  # ideal and emitted ticks counted from `origin_fx`
+    origin_fx: int  # 1/256 tick: the player's clock when the window begins
+    events_count: int
+    timing_error_ticks: float  # the largest distance of an emitted event from its planned time
+    events: Events | None  # these two only when the stages keep them
+    pulses: Pulses | None  # ticks absolute, event_position counted from the program's start
+
+
+@dataclass
+class Totals:
+    """What `plan` reports of the whole program, summed over its windows."""
+
+    duration_s: float = 0.0
+    segments: int = 0
+    blocks: int = 0
+    runs: int = 0
+    events: int = 0
+    table_bytes: int = 0  # the end marker included
+    max_timing_error_ticks: float = 0.0  # the largest distance of an emitted event from its planned time
+
+    def add(self, played: Played) -> None:
+        sched = played.compressed.schedule
+        end = 2 if sched.runs_cross_blocks else 3  # the end marker, counted once for the whole program
+        self.duration_s = played.window.plan.total if len(played.window.plan.duration) else self.duration_s
+        self.segments += len(played.window.segments)
+        self.blocks += sched.n_blocks
+        self.runs += sched.n_runs
+        self.events += played.events_count
+        self.table_bytes += sched.table_bytes() - (end if self.table_bytes else 0)
+        self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
+
+
+def timing_window(target: TargetInfo) -> TimingWindow:
+    """How far an event may be from its ideal time. The 5 % share of the gap bounds the rate error; on the
+    compact tables (8 KB of code memory) the absolute cap is wider, so that slow moves need fewer runs."""
+    return TimingWindow(max_us=100.0) if target.compact_tables else TimingWindow()
+
+
+@dataclass
+class _Carried:
+    """What a window hands the next: the checks' state, the player's clock and positions, its last segment."""
+
+    checker: Checker
+    origin_fx: int  # 1/256 tick: the last event's time
+    position: np.ndarray  # (M,) steps after the last event, from the program's start
+    before: Segments | None  # the last segment
+
+
+class Stages:
+    """`play` each window of the lookahead in order; each call hands out the windows that are final (a window
+    stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
+
+    def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
+                 lookahead: Lookahead, keep: bool):
+        """`keep`: the windows handed out keep their events and pulses (for `join`)."""
+        self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
+        self.keep = keep
+        self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
+                                np.zeros(len(kin.motors), dtype=np.int64), None)
+        self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
+        self.totals = Totals()
+        motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
+        self.gaps = (target.run_gap_ticks(motors, pulse_us),
+                     target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
+
+    @property
+    def checker(self) -> Checker:
+        return self.carried.checker
+
+    def play(self, window: Window, after: Segments | None, last: bool) -> list[Played]:
+        """Window `window`, followed by segment `after` (None at the program's end; `last` then)."""
+        before = self.carried
+        out = []
+        played, carried, scale = self._attempt(window, after, last, before)
+        if scale is not None and self.open is not None:  # play the open window and this one again, as one
+            window, before = merge(self.open[0].window, window), self.open[1]
+            self.open = None
+            played, carried, scale = self._attempt(window, after, last, before)
+        w_exit = None
+        for _ in range(RATE_ROUNDS - 1):
+            if scale is None:
+                break
+            window, w_exit = self._plan_again(window, *scale)
+            played, carried, scale = self._attempt(window, after, last, before)
+        if w_exit is not None:
+            self.lookahead.resume(w_exit, window.plan.total)
+        if self.open is not None:
+            out.append(self.open[0])
+        self.open, self.carried = (played, before), carried
+        if last:
+            out.append(played)
+            self.open = None
+        for p in out:
+            self.totals.add(p)
+        return out
+
+    def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
+        """Play the window from what came before: its results, what it hands on, and how to slow it down where
+        the checks found a motor over its limits (None: nowhere)."""
+        kin, target = self.kin, self.target
+        events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s)
+        if target.compact_tables:
+            events = smooth_curve_times(events, window.segments, window.plan, kin)
+        origin_s = before.origin_fx / (1 << FRAC_BITS) / target.tick_hz
+        relative = replace(events, time=events.time - origin_s)
+        compressed = compress(relative, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
+                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate)
+        pulses = predict(compressed.schedule, before.origin_fx)
+        pulses.event_position += before.position
+        error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
+        played = Played(window, compressed, before.origin_fx, len(events.time), error,
+                        events if self.keep else None, pulses if self.keep else None)
+        # The checks see the neighbouring windows' segments around this one's.
+        parts = [p for p in (before.before, window.segments, after) if p is not None]
+        around = concat(*parts)
+        shift = 0 if before.before is None else 1
+        event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
+        trains = [MotorTrain(pulses.tick[pulses.motor == m] / target.tick_hz, pulses.dir[pulses.motor == m])
+                  for m in range(len(kin.motors))]
+        corners_t, jumps = self._corners(window, before.before)
+        checker = copy.deepcopy(before.checker)
+        hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+        n = len(window.segments)
+        position = pulses.event_position[-1] if len(pulses.event_position) else before.position
+        carried = _Carried(checker, _end_fx(played), position,
+                           window.segments.take(np.arange(n - 1, n)) if n else before.before)
+        return played, carried, self._slow_down(window.plan, event_segment - shift, pulses, hits)
+
+    def _corners(self, window: Window, last: Segments | None) -> tuple[np.ndarray, np.ndarray]:
+        """The window's corners (`corner_jumps`), the one where it meets the window before (whose last segment
+        is `last`) included."""
+        plan, segments = window.plan, window.segments
+        if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
+            return corner_jumps(plan, segments, self.kin)
+        _, before = segment_lengths(last)
+        joined = concat(last, segments)
+        both = replace(plan, direction=np.concatenate([before, plan.direction]),
+                       v_entry=np.concatenate([[0.0], plan.v_entry]),
+                       t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
+                       corner=np.concatenate([[True], plan.corner]))
+        return corner_jumps(both, joined, self.kin)
+
+    @staticmethod
+    def _slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list):
+        """The share of their peak speed and acceleration the segments under a stretch over a limit keep
+        (None where the checks found nothing); `event_segment`: the window's segment of every event."""
+        if not any(len(rate[0]) or len(accel[0]) for rate, accel in hits):
+            return None
+        n = len(plan.duration)
+        speed, accel = np.ones(n), np.ones(n)
+        for m, ((rate_end, rate_ratio), (begin, accel_ratio)) in enumerate(hits):
+            mine = event_segment[pulses.event[pulses.motor == m]]
+            for end, ratio in zip(rate_end, rate_ratio):
+                span = slice(max(mine[max(end - RATE_WINDOW, 0)] - 1, 0), mine[end] + 2)
+                speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio)
+            for t, ratio in zip(begin, accel_ratio):
+                first, last = np.searchsorted(plan.t_start, [t, t + 2 * ACCEL_WINDOW_S], side="right") - 1
+                span = slice(max(first - 1, 0), last + 2)
+                speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio))  # bends: v^2
+                accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio)
+        return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
+
+    def _plan_again(self, window: Window, speed: np.ndarray, accel: np.ndarray) -> tuple[Window, float]:
+        """The window with its segments slowed: the same entry speed, an exit no faster than before (v^2)."""
+        plan, segments = window.plan, window.segments
+        entry = plan.v_entry[0]
+        cap = np.maximum(plan.v_peak * speed, np.where(np.arange(len(speed)) == 0, entry, 0.0))
+        slowed = replace(segments, feed=np.minimum(segments.feed, cap),
+                         accel=np.minimum(segments.accel, plan.accel * accel))
+        prof = profile(slowed, self.kin, window.steps, self.limits)
+        w_last = min(plan.v_exit[-1] ** 2, prof.w_nominal[-1])
+        w = passes(prof, entry ** 2, w_last)
+        again = finish(prof, w, plan.t_start[0])
+        again.corner[0], again.corner[-1] = plan.corner[0], plan.corner[-1]
+        return replace(window, segments=slowed, plan=again), float(w[-1])
+
+
+def _end_fx(played: Played) -> int:
+    """1/256 tick: when the window's last event happens, as the player counts."""
+    sched = played.compressed.schedule
+    n, interval, add = sched.run_count, sched.run_interval, sched.run_add
+    return played.origin_fx + int(np.sum(interval * n + add * (n * (n - 1) // 2)))
