@@ -12,12 +12,14 @@ The same functions judge the twin against the plan (`build`) and the simulated p
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motor_checks import AccelCheck, RateCheck
+from codegen.native import library
 from codegen.planner import Plan
 from codegen.segments import REF_ARC, Segments
 
@@ -99,7 +101,45 @@ def reference_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> np.n
 def path_errors(axes: np.ndarray, seg: np.ndarray, segments: Segments, near: float = 0.0) -> np.ndarray:
     """Distance (mm, xyz) from each position to the job's path: its own segment, or for positions further
     than `near` from it, either neighbour too (a step just past a corner is measured against the path it is
-    on)."""
+    on). In C (codegen/native/pathcheck.c) where the helper could be built."""
+    lib = library("pathcheck")
+    if lib is None or len(segments) == 0:
+        return path_errors_numpy(axes, seg, segments, near)
+    return _native_path_errors(lib, np.ascontiguousarray(axes, dtype=np.float64), None, seg, segments, near)
+
+
+def step_path_errors(steps: np.ndarray, origin: np.ndarray, kin: Kinematics, seg: np.ndarray,
+                     segments: Segments, near: float = 0.0) -> np.ndarray:
+    """`path_errors` of motor positions in steps (less `origin`; axes no motor drives taken from each position's
+    segment). Linear kinematics map the steps to axes in C as well."""
+    lib = library("pathcheck")
+    if lib is None or not kin.linear or len(segments) == 0:
+        axes = kin.to_axes((steps + origin) / kin.limits.steps_per_mm, segments.start[seg])
+        return path_errors(axes, seg, segments, near)
+    to_axes = np.zeros((4, len(kin.motors)))
+    to_axes[kin.driven_axes] = kin.inverse / kin.limits.steps_per_mm[None, :]
+    return _native_path_errors(lib, None, (np.ascontiguousarray(steps, np.int64), np.asarray(origin, np.int64),
+                                           to_axes), seg, segments, near)
+
+
+def _native_path_errors(lib, axes, steps, seg, segments: Segments, near: float) -> np.ndarray:
+    f64, i64 = (lambda a: np.ascontiguousarray(a, dtype=np.float64)), (lambda a: np.ascontiguousarray(a, np.int64))
+    path = [f64(segments.start), f64(segments.end), i64(segments.ref_kind), f64(segments.ref_center),
+            f64(segments.ref_radius), i64(segments.ref_plane), i64(segments.ref_fine), f64(segments.fine)]
+    seg = i64(seg)
+    out = np.empty(len(seg))
+    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+    steps, origin, to_axes = (None, None, None) if steps is None else steps
+    motors = 0 if steps is None else steps.shape[1]
+    lib.path_errors(ctypes.c_int64(len(seg)), ptr(axes), ptr(steps), ctypes.c_int64(motors), ptr(origin),
+                    ptr(None if to_axes is None else f64(to_axes)), ptr(seg), ctypes.c_double(near),
+                    ctypes.c_int64(len(segments)), *map(ptr, path), ctypes.c_int64(segments.fine.shape[1]),
+                    ptr(out))
+    return out
+
+
+def path_errors_numpy(axes: np.ndarray, seg: np.ndarray, segments: Segments, near: float = 0.0) -> np.ndarray:
+    """`path_errors`, vectorised."""
     out = np.empty(len(axes))
     last = len(segments) - 1
     for lo in range(0, len(axes), CHUNK):
@@ -144,12 +184,13 @@ class Checker:
         the windows, ratio)."""
         spm = self.kin.limits.steps_per_mm
         for lo in range(0, len(positions), CHUNK):  # in chunks: the positions of a print are millions of rows
-            seg = position_segment[lo:lo + CHUNK]
-            axes = self.kin.to_axes((positions[lo:lo + CHUNK] + self.start_steps) / spm, segments.start[seg])
-            errors = path_errors(axes, seg, segments, near=0.5 * self.path_limit)
+            seg, steps = position_segment[lo:lo + CHUNK], positions[lo:lo + CHUNK]
+            errors = step_path_errors(steps, self.start_steps, self.kin, seg, segments, near=0.5 * self.path_limit)
             worst = int(np.argmax(errors))
             if errors[worst] > self.worst_path or self.worst_at is None:
-                self.worst_path, self.worst_at = float(errors[worst]), axes[worst, :3]
+                one = slice(worst, worst + 1)
+                at = self.kin.to_axes((steps[one] + self.start_steps) / spm, segments.start[seg[one]])
+                self.worst_path, self.worst_at = float(errors[worst]), at[0, :3]
         hits = []
         for m, train in enumerate(trains):
             self.steps[m] += len(train.time)

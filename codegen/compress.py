@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.planner import quantisation_factor
-from codegen.schedule import FRAC_ONE, MAX_ADD, MAX_COUNT, Schedule
+from codegen.runfit import fit_runs
+from codegen.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
 from codegen.stepgen import Events
 
 
@@ -43,10 +44,13 @@ class Compressed:
     window_ticks: np.ndarray  # (E,)
 
 
-def spread(ticks: np.ndarray, gap: np.ndarray | float) -> np.ndarray:
-    """e[k] = max(t[k], e[k-1] + gap[k]), e[-1] = 0: pushes events apart, as a running maximum."""
+def spread(ticks: np.ndarray, gap: np.ndarray | float, start: float = -np.inf) -> np.ndarray:
+    """e[k] = max(t[k], e[k-1] + gap[k]), e[-1] = `start`: pushes events apart, as a running maximum."""
     total = np.cumsum(np.broadcast_to(np.asarray(gap, dtype=float), ticks.shape))
-    return np.maximum.accumulate(ticks - total) + total
+    pushed = np.maximum.accumulate(ticks - total)
+    if np.isfinite(start):
+        pushed = np.maximum(pushed, start)
+    return pushed + total
 
 
 def run_limits(ticks: np.ndarray, window: np.ndarray, phase: np.ndarray) -> np.ndarray:
@@ -131,38 +135,6 @@ def _fit_within(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, neede
     raise RuntimeError("rate runs did not converge to the timing window")
 
 
-def _bad_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray):
-    """Fit, and the runs with an event outside the window or closer to its predecessor than the player can go."""
-    interval, add, n = fit(starts, ideal * FRAC_ONE)
-    out = emitted(starts, interval, add, n) >> 8
-    bad = (np.abs(out - ideal) > window) | (np.diff(np.concatenate([[0], out])) < needed)
-    return np.unique(np.searchsorted(starts, np.flatnonzero(bad), side="right") - 1), n
-
-
-MAX_SWEEPS = 64  # each sweep can halve the runs: far more than enough
-
-
-def _merge_runs(starts: np.ndarray, ideal: np.ndarray, window: np.ndarray, needed: np.ndarray,
-                fixed: np.ndarray) -> np.ndarray:
-    """Join neighbouring runs, pair by pair, wherever the joined run still keeps every event in its window
-    (the run limits are estimates; this measures). Runs starting at `fixed` events stay."""
-    quiet = 0  # sweeps in a row that joined nothing: after both pairings, nothing more will join
-    for sweep in range(MAX_SWEEPS):
-        pair = np.arange(sweep % 2, len(starts) - 1, 2)
-        pair = pair[~fixed[starts[pair + 1]]]
-        ok = np.zeros(len(pair), dtype=bool)
-        if len(pair):
-            trial = np.delete(starts, pair + 1)
-            joined = np.searchsorted(trial, starts[pair])
-            bad, n = _bad_runs(trial, ideal, window, needed)
-            ok = ~np.isin(joined, bad) & (n[joined] <= MAX_COUNT)
-            starts = np.delete(starts, pair[ok] + 1)
-        quiet = 0 if ok.any() else quiet + 1
-        if quiet == 2:
-            break
-    return starts
-
-
 def rate_gaps(events: Events, max_rate: np.ndarray, share: float = RATE_SHARE) -> np.ndarray:
     """Per block, the shortest gap (s) between its events that keeps every motor within `share` of its rate
     over any 8 of its steps (a slave steps on at most `steps / modulus` of the events, Bresenham-spread)."""
@@ -175,39 +147,31 @@ def rate_gaps(events: Events, max_rate: np.ndarray, share: float = RATE_SHARE) -
 
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
              window: TimingWindow = TimingWindow(), final_tool: bool = False,
-             cross_blocks: bool = False, max_rate: np.ndarray | None = None) -> Compressed:
+             cross_blocks: bool = False, max_rate: np.ndarray | None = None, origin_fx: int = 0) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
     one that starts a block (both include reading the table; plain events inside a run are cheaper).
-    `cross_blocks`: the player keeps a run going across block starts (the compact tables), so only motion
-    phases cut runs; otherwise every block has runs of its own and its first event is a run by itself.
-    `max_rate` (steps/s per motor): pushed events catch up within it."""
+    `cross_blocks`: the player keeps a run going across block starts (the compact tables): runs are fitted
+    greedily (codegen/runfit.py); otherwise every block has runs of its own and its first event is a run by
+    itself. `max_rate` (steps/s per motor): pushed events catch up within it. `origin_fx` (1/256 tick): where
+    the player's clock stands before the first event (the event before, in the window before); every tick
+    here counts from the player's tick 0."""
     needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
     needed[events.block_first[:-1]] = block_gap_ticks
     planned = events.time * tick_hz
+    origin = origin_fx / FRAC_ONE
     push = 1.1 * needed + 2.0
     if max_rate is not None:  # a pushed event's successors: never closer than the motors allow, or the plan
         rate_gap = np.repeat(rate_gaps(events, max_rate) * tick_hz, np.diff(events.block_first))
-        push = np.maximum(push, np.minimum(rate_gap, np.diff(planned, prepend=0.0)))
-    ideal = spread(planned, push)
-    gaps = np.diff(np.concatenate([[0.0], ideal]))
+        push = np.maximum(push, np.minimum(rate_gap, np.diff(planned, prepend=origin)))
+    ideal = spread(planned, push, origin)
+    gaps = np.diff(ideal, prepend=origin)
     win = np.clip(window.share * gaps, window.min_ticks, window.max_us * 1e-6 * tick_hz)
-    total = len(ideal)
-    breaks = np.zeros(total, dtype=bool)
-    first = events.block_first[:-1]
     if cross_blocks:
-        breaks[:1] = True
+        n, interval, add, out = _greedy_runs(ideal, win, needed, origin_fx)
+        starts = np.cumsum(n) - n
     else:
-        breaks[first] = True
-        breaks[np.minimum(first + 1, total - 1)] = True  # a block's first event is a run of its own
-    breaks[1:] |= events.phase[1:] != events.phase[:-1]
-    limit = run_limits(ideal, win, events.phase)
-    starts = segment_runs(breaks, limit)
-    if cross_blocks:
-        starts, *_ = _fit_within(starts, ideal, win, needed)
-        fixed = np.zeros(total, dtype=bool)
-        fixed[:1] = True
-        starts = _merge_runs(starts, ideal, win, needed, fixed)
-    starts, interval, add, n, out = _fit_within(starts, ideal, win, needed)
+        starts, interval, add, n, out = _block_runs(events, ideal - origin, win, needed)
+        out += origin_fx >> 8
     block_runs = np.searchsorted(starts, events.block_first)
     schedule = Schedule(
         motors=motors,
@@ -226,3 +190,25 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
         block_events=np.diff(events.block_first).astype(np.int64) if cross_blocks else None,
     )
     return Compressed(schedule, ideal, out, win)
+
+
+def _greedy_runs(ideal: np.ndarray, win: np.ndarray, needed: np.ndarray, origin_fx: int):
+    """(count, interval, add) of every run and every event's tick, each event within its window."""
+    base = origin_fx >> FRAC_BITS  # positions count from this tick: small numbers for the search
+    lo = FRAC_ONE * np.ceil(ideal - win - base).astype(np.int64)
+    hi = FRAC_ONE * np.floor(ideal + win - base).astype(np.int64) + FRAC_ONE - 1
+    n, interval, add, tick = fit_runs(lo, hi, needed, origin_fx - FRAC_ONE * base, 0, MAX_COUNT, MAX_ADD,
+                                      MAX_INTERVAL)
+    return n, interval, add, tick + base
+
+
+def _block_runs(events: Events, ideal: np.ndarray, win: np.ndarray, needed: np.ndarray):
+    """Runs of their own for every block (the older table format): estimated lengths, halved until each fits."""
+    total = len(ideal)
+    breaks = np.zeros(total, dtype=bool)
+    first = events.block_first[:-1]
+    breaks[first] = True
+    breaks[np.minimum(first + 1, total - 1)] = True  # a block's first event is a run of its own
+    breaks[1:] |= events.phase[1:] != events.phase[:-1]
+    starts = segment_runs(breaks, run_limits(ideal, win, events.phase))
+    return _fit_within(starts, ideal, win, needed)

@@ -71,6 +71,9 @@ class JobError(Exception):
     def render(self) -> str:
         return render_all(self.diagnostics)
 
+    def __reduce__(self):  # from a child process (codegen/overlap.py): rebuilt from its diagnostics
+        return JobError, (self.diagnostics,)
+
 
 class BuildError(Exception):
     """The build failed, the image does not fit, or a check found a difference; exit code 1."""

@@ -8,7 +8,7 @@ import numpy as np
 
 from codegen.compress import Compressed
 from codegen.planner import Plan
-from codegen.schedule import FRAC_ONE, Schedule
+from codegen.schedule import Schedule
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events
 from codegen.twin import Pulses
@@ -78,7 +78,7 @@ def join_pulses(played: list[Played]) -> Pulses:
 
 
 def join_compressed(played: list[Played], final_tool: bool, pulses: Pulses) -> Compressed:
-    """The ideal ticks on the program's clock; the emitted ones are the twin's (the player's own)."""
-    ideal = np.concatenate([p.compressed.ideal_ticks + p.origin_fx / FRAC_ONE for p in played])
+    """The emitted ticks are the twin's (the player's own)."""
+    ideal = np.concatenate([p.compressed.ideal_ticks for p in played])
     return Compressed(join_schedule(played, final_tool), ideal, pulses.event_tick,
                       np.concatenate([p.compressed.window_ticks for p in played]))

@@ -15,6 +15,7 @@ import numpy as np
 from codegen.checks import step_length_mm
 from codegen.errors import Diagnostic, JobError
 from codegen.kinematics.base import Kinematics
+from codegen.overlap import overlapped
 from codegen.planner import segment_lengths
 from codegen.program import Program
 from codegen.segments import Flattener, Segments
@@ -25,6 +26,20 @@ REFINE_ROUNDS = 4
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
 MAX_REACH_ERRORS = 20
 CHUNK_EVENTS = 1 << 17
+
+
+def front_end(job, kin: Kinematics, program: Program) -> Iterator[tuple[Segments, np.ndarray]]:
+    """`pieces`, made in a child process on another core where there is one (codegen/overlap.py); `program`
+    knows what the child's copy of it knew when each part was made."""
+    def produce():
+        for part in pieces(job, kin, program):
+            yield part, program.state()
+        yield None, program.state()
+
+    for part, state in overlapped(produce):
+        program.restore(state)
+        if part is not None:
+            yield part
 
 
 def pieces(job, kin: Kinematics, program: Program) -> Iterator[tuple[Segments, np.ndarray]]:

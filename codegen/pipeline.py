@@ -22,7 +22,7 @@ from codegen.join import join_compressed, join_events, join_plan, join_pulses, j
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
 from codegen.lookahead import Lookahead, Window
-from codegen.pieces import pieces
+from codegen.pieces import front_end
 from codegen.planner import Plan, PlannerLimits, plan
 from codegen.program import Program
 from codegen.segments import Flattener, Segments
@@ -116,7 +116,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     ahead = Lookahead(kin, limits)
     stages: Stages | None = None
     played: list[Played] = []
-    chunks = pieces(job, kin, program)
+    chunks = front_end(job, kin, program)
     while True:
         with watch("toolpath + segments"):
             chunk = next(chunks, None)

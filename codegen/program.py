@@ -47,10 +47,20 @@ class Program:
         self.start: np.ndarray | None = None
         self.end: np.ndarray | None = None
         self.homes_first = False
+        self._warnings: list[Diagnostic] | None = None  # as a child process read them (`restore`)
 
     @property
     def warnings(self) -> list[Diagnostic]:
+        if self._warnings is not None:
+            return self._warnings
         return [] if self.gcode is None else self.gcode.warnings
+
+    def state(self) -> tuple:
+        """What the batches have found out so far, for a copy of the program in another process."""
+        return self.start, self.end, self.homes_first, list(self.warnings)
+
+    def restore(self, state: tuple) -> None:
+        self.start, self.end, self.homes_first, self._warnings = state
 
     def batches(self) -> Iterator[list]:
         raw = self._raw()

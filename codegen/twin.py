@@ -2,15 +2,18 @@
 
 It reads only the Schedule (what the tables say), never the plan, and follows the semantics documented in
 codegen/schedule.py to the bit: 24.8 fixed-point event times, `interval += add`, Bresenham with
-per-block accumulator starts.
+per-block accumulator starts. `predict` plays the events in C (codegen/native/twin.c, one pass) where the
+helper could be built; `predict_numpy` is the same prediction vectorised, and the tests compare the two.
 """
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.native import library
 from codegen.schedule import FRAC_BITS, Schedule
 
 
@@ -25,8 +28,15 @@ class Pulses:
     event_tick: np.ndarray  # (E,) tick of every event
     event_block: np.ndarray  # (E,) block of every event
     event_position: np.ndarray  # (E, M) motor positions in steps after each event (relative to the start)
+    # Each motor's pulses together (motor m's from motor_first[m] on), where the player in C made them.
+    motor_tick: np.ndarray | None = None
+    motor_dir: np.ndarray | None = None
+    motor_first: np.ndarray | None = None  # (M + 1,)
 
     def of_motor(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.motor_first is not None:
+            span = slice(self.motor_first[m], self.motor_first[m + 1])
+            return self.motor_tick[span], self.motor_dir[span]
         sel = self.motor == m
         return self.tick[sel], self.dir[sel]
 
@@ -70,10 +80,48 @@ def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
     return block, stepped, position
 
 
-def predict(schedule: Schedule, origin_fx: int = 0) -> Pulses:
+def predict(schedule: Schedule, origin_fx: int = 0, position: np.ndarray | None = None) -> Pulses:
+    """Every pulse of the schedule, its clock starting at `origin_fx` (1/256 tick) and the motors at `position`
+    (steps; default 0)."""
+    lib = library("twin")
+    if lib is None:
+        return predict_numpy(schedule, origin_fx, position)
+    motors = len(schedule.motors)
+    counts = schedule.events_per_block()
+    signed = np.ascontiguousarray(schedule.block_steps * schedule.block_dirs.astype(np.int64), dtype=np.int64)
+    modulus = np.ascontiguousarray(schedule.block_modulus, dtype=np.int64)
+    init = np.ascontiguousarray(schedule.block_init, dtype=np.int64)
+    # Each motor's pulses: after n events of a block, ceil((n * steps - init) / modulus) (codegen/schedule.py).
+    made = -((init - counts[:, None] * np.abs(signed)) // modulus[:, None])
+    per_motor = np.maximum(made, 0).sum(axis=0)
+    motor_first = np.concatenate([[0], np.cumsum(per_motor)]).astype(np.int64)
+    events, pulses = int(counts.sum()), int(motor_first[-1])
+    here = np.zeros(motors, dtype=np.int64) if position is None else np.asarray(position, dtype=np.int64)
+    out = Pulses(tick=np.empty(pulses, np.int64), motor=np.empty(pulses, np.int64), dir=np.empty(pulses, np.int64),
+                 event=np.empty(pulses, np.int64), event_tick=np.empty(events, np.int64),
+                 event_block=np.empty(events, np.int64), event_position=np.empty((events, motors), np.int64),
+                 motor_tick=np.empty(pulses, np.int64), motor_dir=np.empty(pulses, np.int64), motor_first=motor_first)
+    keep = [signed, modulus, init, np.ascontiguousarray(counts, dtype=np.int64), here]
+    runs = [np.ascontiguousarray(a, dtype=np.int64) for a in (schedule.run_count, schedule.run_interval,
+                                                                schedule.run_add)]
+    i64 = ctypes.c_int64
+    lib.play(i64(schedule.n_blocks), i64(motors), *map(_pointer, keep[:4]), i64(len(runs[0])),
+             *map(_pointer, runs), i64(origin_fx), _pointer(here), _pointer(out.event_tick),
+             _pointer(out.event_block), _pointer(out.event_position), _pointer(out.tick), _pointer(out.motor),
+             _pointer(out.dir), _pointer(out.event), _pointer(motor_first), _pointer(out.motor_tick),
+             _pointer(out.motor_dir))
+    return out
+
+
+def _pointer(a: np.ndarray):
+    return a.ctypes.data_as(ctypes.POINTER(ctypes.c_int64))
+
+
+def predict_numpy(schedule: Schedule, origin_fx: int = 0, position: np.ndarray | None = None) -> Pulses:
     ticks = event_ticks(schedule, origin_fx)
     counts = schedule.events_per_block()
     signed = schedule.block_steps * schedule.block_dirs.astype(np.int64)
+    start = position
     block, stepped, position = bresenham(signed, schedule.block_modulus, schedule.block_init, counts)
     event_idx, motor = np.nonzero(stepped)
     return Pulses(
@@ -83,5 +131,5 @@ def predict(schedule: Schedule, origin_fx: int = 0) -> Pulses:
         event=event_idx,
         event_tick=ticks,
         event_block=block,
-        event_position=position.reshape(len(block), len(schedule.motors)),
+        event_position=position.reshape(len(block), len(schedule.motors)) + (0 if start is None else start),
     )

@@ -27,7 +27,6 @@ from codegen.curve_timing import smooth_curve_times
 from codegen.kinematics.base import Kinematics
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
-from codegen.schedule import FRAC_BITS
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
 from codegen.targets import TargetInfo
@@ -42,7 +41,7 @@ class Played:
     """One window's results, on the program's clock: event times in s, ticks and positions absolute."""
 
     window: Window
-    compressed: Compressed  # ideal and emitted ticks counted from `origin_fx`
+    compressed: Compressed  # ideal and emitted ticks on the program's clock
     origin_fx: int  # 1/256 tick: the player's clock when the window begins
     events_count: int
     timing_error_ticks: float  # the largest distance of an emitted event from its planned time
@@ -145,12 +144,10 @@ class Stages:
         events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s)
         if target.compact_tables:
             events = smooth_curve_times(events, window.segments, window.plan, kin)
-        origin_s = before.origin_fx / (1 << FRAC_BITS) / target.tick_hz
-        relative = replace(events, time=events.time - origin_s)
-        compressed = compress(relative, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
-                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate)
-        pulses = predict(compressed.schedule, before.origin_fx)
-        pulses.event_position += before.position
+        compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
+                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate,
+                              origin_fx=before.origin_fx)
+        pulses = predict(compressed.schedule, before.origin_fx, before.position)
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep else None, pulses if self.keep else None)
@@ -159,8 +156,8 @@ class Stages:
         around = concat(*parts)
         shift = 0 if before.before is None else 1
         event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
-        trains = [MotorTrain(pulses.tick[pulses.motor == m] / target.tick_hz, pulses.dir[pulses.motor == m])
-                  for m in range(len(kin.motors))]
+        trains = [MotorTrain(tick / target.tick_hz, direction)
+                  for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
         corners_t, jumps = self._corners(window, before.before)
         checker = copy.deepcopy(before.checker)
         hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)

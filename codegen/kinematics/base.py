@@ -103,14 +103,14 @@ class LinearKinematics(Kinematics):
         super().__init__(limits)
         self.matrix = np.array([self.axis_rows[n] for n in limits.names], dtype=float)
         self.driven_axes = np.flatnonzero(np.any(self.matrix != 0.0, axis=0))
-        self._inverse = np.linalg.pinv(self.matrix[:, self.driven_axes])
+        self.inverse = np.linalg.pinv(self.matrix[:, self.driven_axes])  # driven axes from motor mm
 
     def to_motor(self, axes: np.ndarray) -> np.ndarray:
         return np.asarray(axes, dtype=float) @ self.matrix.T
 
     def to_axes(self, motor_mm: np.ndarray, like: np.ndarray) -> np.ndarray:
         out = np.array(like, dtype=float, copy=True)
-        out[:, self.driven_axes] = np.asarray(motor_mm, dtype=float) @ self._inverse.T
+        out[:, self.driven_axes] = np.asarray(motor_mm, dtype=float) @ self.inverse.T
         return out
 
     def motor_factors(self, directions: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
