@@ -19,9 +19,9 @@ import numpy as np
 from codegen.checks import MotorTrain, check
 from codegen.compress import compress
 from codegen.kinematics import make_kinematics
-from codegen.pieces import refine
 from codegen.planner import PlannerLimits, plan
-from codegen.stepgen import generate, segment_steps, split_long
+from codegen.staircase import refine, split_long
+from codegen.stepgen import generate, segment_steps
 from codegen.targets import target_info
 from codegen.twin import predict
 from codegen.segments import REF_LINE, Segments

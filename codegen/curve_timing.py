@@ -24,28 +24,48 @@ may use that headroom (half of it for rates, where the compressor's window takes
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.planner import Plan, quantisation_factor
 from codegen.segments import Segments
-from codegen.stepgen import Events
+
+if TYPE_CHECKING:  # stepgen calls this module while it makes the events
+    from codegen.stepgen import Events
 
 RATE_SHARE = 0.99  # of every motor's rate: half the planner's headroom, the other half is the compressor's
 ACCEL_SHARE = 1.0  # of every motor's acceleration: the planner's headroom (its window average is far below)
 
 
-def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kinematics) -> Events:
-    n_blocks = len(events.block_segment)
+@dataclass
+class CurveBlocks:
+    """Per block: whether it keeps curve timing, whether it is joined to the block before / after, the cubic's
+    slopes ds/du at its ends, and its master's exact start (steps), span (steps) and direction."""
+
+    smooth: np.ndarray
+    has_prev: np.ndarray
+    has_next: np.ndarray
+    slope_in: np.ndarray
+    slope_out: np.ndarray
+    u0: np.ndarray
+    span: np.ndarray
+    sign: np.ndarray
+
+
+def curve_blocks(block_segment: np.ndarray, block_steps: np.ndarray, block_tool: np.ndarray, segments: Segments,
+                 plan: Plan, kin: Kinematics) -> CurveBlocks | None:
+    """Which blocks are timed on the curve, and their cubics (None: no block is)."""
+    n_blocks = len(block_segment)
     if n_blocks < 2:
-        return events
-    seg = events.block_segment
+        return None
+    seg = block_segment
     spm = kin.limits.steps_per_mm
     x0 = kin.to_motor(segments.start[seg]) * spm
     x1 = kin.to_motor(segments.end[seg]) * spm
-    steps = events.block_steps
+    steps = block_steps
     master = np.argmax(np.abs(steps), axis=1)
     rows = np.arange(n_blocks)
     u0 = x0[rows, master]
@@ -54,7 +74,7 @@ def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kine
     length = plan.length[seg]
     moving = (sign != 0) & (segments.dwell[seg] <= 0) & (span > 0) & (length > 0)
     linked = ((seg[1:] == seg[:-1] + 1) & moving[1:] & moving[:-1] & (master[1:] == master[:-1])
-              & (sign[1:] == sign[:-1]) & (events.block_tool[1:] == events.block_tool[:-1])
+              & (sign[1:] == sign[:-1]) & (block_tool[1:] == block_tool[:-1])
               & ~plan.corner[seg[1:]])
     rate = np.divide(span, length, out=np.ones(n_blocks), where=moving)  # master steps per mm of path
     ratio = np.abs(steps) / np.maximum(np.abs(steps[rows, master]), 1)[:, None]  # Bresenham: slave per master
@@ -69,24 +89,37 @@ def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kine
     smooth = moving & (has_prev | has_next)
     smooth &= _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan, seg, kin)
     if not smooth.any():
-        return events
+        return None
+    return CurveBlocks(smooth, has_prev, has_next, slope_in, slope_out, u0, span, sign.astype(float))
 
+
+def smooth_curve_times(events: Events, segments: Segments, plan: Plan, kin: Kinematics) -> Events:
+    """The events with their times on the curve where curve timing applies (numpy; `generate(curves=True)`
+    does the same, in C where it can)."""
+    curve = curve_blocks(events.block_segment, events.block_steps, events.block_tool, segments, plan, kin)
+    return events if curve is None else replace(events, time=retime(events, curve, plan))
+
+
+def retime(events: Events, curve: CurveBlocks, plan: Plan) -> np.ndarray:
+    """Every event's time, on the curve where its block keeps curve timing."""
+    seg, sign, u0, span = events.block_segment, curve.sign, curve.u0, curve.span
+    length = plan.length[seg]
     count = np.diff(events.block_first)
-    block = np.repeat(rows, count)
+    block = np.repeat(np.arange(len(seg)), count)
     k = np.arange(len(block)) - events.block_first[block] + 1.0
     u = np.round(u0)[block] + sign[block] * (k - 0.5)  # where each master step happens
     # Rounding puts a step up to half a step past its chord's end: time it on the neighbouring piece.
     d = sign[block] * (u - u0[block])
-    before = (d < 0) & has_prev[block]
-    after = (d > span[block]) & has_next[block]
+    before = (d < 0) & curve.has_prev[block]
+    after = (d > span[block]) & curve.has_next[block]
     where = block - before + after
-    use = smooth[block] & smooth[where]
+    use = curve.smooth[block] & curve.smooth[where]
     j = where[use]
     tau = np.clip(sign[block[use]] * (u[use] - u0[j]) / span[j], 0.0, 1.0)
-    s = _hermite(tau, span[j], slope_in[j], slope_out[j], length[j])
+    s = _hermite(tau, span[j], curve.slope_in[j], curve.slope_out[j], length[j])
     time = events.time.copy()
     time[use] = plan.time_at(seg[j], np.clip(s, 0.0, length[j]))
-    return replace(events, time=time)
+    return time
 
 
 def _hermite(tau, h, m0, m1, length):

@@ -12,58 +12,71 @@ from typing import Iterator
 
 import numpy as np
 
-from codegen.checks import step_length_mm
 from codegen.errors import Diagnostic, JobError
 from codegen.kinematics.base import Kinematics
 from codegen.overlap import overlapped
 from codegen.planner import segment_lengths
 from codegen.program import Program
 from codegen.segments import Flattener, Segments
-from codegen.stepgen import quantisation_split, segment_steps, split_at, split_long, staircase_bound, staircase_error
+from codegen.stopwatch import Stopwatch
+from codegen.staircase import refine, split_long
+from codegen.stepgen import segment_steps
 
-STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
-REFINE_ROUNDS = 4
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
 MAX_REACH_ERRORS = 20
 CHUNK_EVENTS = 1 << 17
 
 
-def front_end(job, kin: Kinematics, program: Program) -> Iterator[tuple[Segments, np.ndarray]]:
+def front_end(job, kin: Kinematics, program: Program, watch: Stopwatch) -> Iterator[tuple[Segments, np.ndarray]]:
     """`pieces`, made in a child process on another core where there is one (codegen/overlap.py); `program`
-    knows what the child's copy of it knew when each part was made."""
+    knows what the child's copy of it knew when each part was made, `watch` gets its stages' times."""
     def produce():
-        for part in pieces(job, kin, program):
-            yield part, program.state()
-        yield None, program.state()
+        own = Stopwatch()
+        for part in pieces(job, kin, program, own):
+            yield part, program.state(), None
+        yield None, program.state(), own.seconds
 
-    for part, state in overlapped(produce):
+    for part, state, seconds in overlapped(produce):
         program.restore(state)
         if part is not None:
             yield part
+        else:
+            watch.merge(seconds, "front end: ")
 
 
-def pieces(job, kin: Kinematics, program: Program) -> Iterator[tuple[Segments, np.ndarray]]:
+def pieces(job, kin: Kinematics, program: Program,
+           watch: Stopwatch | None = None) -> Iterator[tuple[Segments, np.ndarray]]:
     """Segments and their motor steps, a batch of the program's items at a time."""
+    watch = watch or Stopwatch()
     flattener, problems = None, []
-    for batch in program.batches():
-        if flattener is None:
-            flattener = Flattener(program.start, job.machine.tolerance)
-        first = flattener.items
-        segments = drop_empty(flattener(batch))
-        found = reach_problems(job, kin, batch, first, segments)
-        if not found:
-            segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
-            found = reach_problems(job, kin, batch, first, segments)  # a carriage may peak between samples
-        problems += found
-        if not problems and len(segments):
-            steps = segment_steps(segments, kin)
-            # Parts of about CHUNK_EVENTS master steps: the windows after the planner, and their memory, stay small.
-            events = np.cumsum(np.abs(steps).max(axis=1, initial=0))
-            cuts = np.searchsorted(events, np.arange(CHUNK_EVENTS, events[-1], CHUNK_EVENTS), side="right")
-            for part in np.split(np.arange(len(segments)), np.unique(cuts[(cuts > 0) & (cuts < len(segments))])):
-                yield segments.take(part), steps[part]
+    batches = program.batches()
+    while True:
+        with watch("read the program"):
+            batch = next(batches, None)
+        if batch is None:
+            break
+        with watch("segments"):
+            if flattener is None:
+                flattener = Flattener(program.start, job.machine.tolerance)
+            first = flattener.items
+            segments = drop_empty(flattener(batch))
+            found = reach_problems(job, kin, batch, first, segments)
+            if not found:
+                segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
+                found = reach_problems(job, kin, batch, first, segments)  # a carriage may peak between samples
+            problems += found
+            parts = [] if problems or not len(segments) else _parts(segments, segment_steps(segments, kin))
+        yield from parts
     if problems:
         raise JobError(sorted(problems, key=lambda d: (d.where.file, d.where.line, d.where.col))[:MAX_REACH_ERRORS])
+
+
+def _parts(segments: Segments, steps: np.ndarray) -> list[tuple[Segments, np.ndarray]]:
+    """Parts of about CHUNK_EVENTS master steps: the windows after the planner, and their memory, stay small."""
+    events = np.cumsum(np.abs(steps).max(axis=1, initial=0))
+    cuts = np.searchsorted(events, np.arange(CHUNK_EVENTS, events[-1], CHUNK_EVENTS), side="right")
+    return [(segments.take(part), steps[part])
+            for part in np.split(np.arange(len(segments)), np.unique(cuts[(cuts > 0) & (cuts < len(segments))]))]
 
 
 def drop_empty(segments: Segments) -> Segments:
@@ -73,21 +86,6 @@ def drop_empty(segments: Segments) -> Segments:
     if np.all(keep):
         return segments
     return segments.take(np.flatnonzero(keep))
-
-
-def refine(segments: Segments, kin: Kinematics) -> Segments:
-    """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
-    two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
-    limit = STAIRCASE_LIMIT * step_length_mm(kin)
-    look = np.flatnonzero(staircase_bound(segments, kin) > limit)  # the others provably stay close
-    for _ in range(REFINE_ROUNDS):
-        bad = look[staircase_error(segments, kin, look) > limit]
-        if len(bad) == 0:
-            break
-        segments = split_at(segments, bad, quantisation_split(segments, kin, bad))
-        pieces = bad + np.arange(len(bad))  # where the cut segments' first halves now stand
-        look = np.unique(np.concatenate([pieces, pieces + 1]))  # in order: the next round's cuts count on it
-    return segments
 
 
 def reach_problems(job, kin: Kinematics, batch: list, offset: int, segments: Segments) -> list[Diagnostic]:

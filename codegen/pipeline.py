@@ -6,9 +6,6 @@ Each stage is a function with a typed result; this module only composes them (an
 
 from __future__ import annotations
 
-import time
-from contextlib import contextmanager
-
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +24,7 @@ from codegen.planner import Plan, PlannerLimits, plan
 from codegen.program import Program
 from codegen.segments import Flattener, Segments
 from codegen.stepgen import Events
+from codegen.stopwatch import Stopwatch
 from codegen.targets import TargetInfo, target_info
 from codegen.twin import Pulses
 from codegen.windows import Played, Stages, Totals
@@ -80,19 +78,6 @@ def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray
     return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
 
 
-class Stopwatch:
-    """Wall time of each stage, for the benchmarks: `with watch("plan"): ...`."""
-
-    def __init__(self):
-        self.seconds: dict[str, float] = {}
-
-    @contextmanager
-    def __call__(self, stage: str):
-        begin = time.perf_counter()
-        yield
-        self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - begin
-
-
 def planner_limits(job, kin: Kinematics, target: TargetInfo) -> PlannerLimits:
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     return PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
@@ -116,17 +101,16 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     ahead = Lookahead(kin, limits)
     stages: Stages | None = None
     played: list[Played] = []
-    chunks = front_end(job, kin, program)
+    chunks = front_end(job, kin, program, watch)
     while True:
-        with watch("toolpath + segments"):
+        with watch("front end (waiting for it)"):
             chunk = next(chunks, None)
         if stages is None:
-            stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep)
+            stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
-            with watch("windows"):
-                final = stages.play(window, None if chunk is None else ahead.next_segment(), chunk is None)
+            final = stages.play(window, None if chunk is None else ahead.next_segment(), chunk is None)
             if keep:
                 played += final
         if chunk is None:

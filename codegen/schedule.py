@@ -94,8 +94,8 @@ class Schedule:
     def table_bytes(self) -> int:
         """Size of the encoded stream, end marker included."""
         if self.runs_cross_blocks:
-            from codegen.tables import encode  # the compact stream (its module imports this one)
-            return len(encode(self).data)
+            from codegen.tables import stream_bytes  # the compact stream (its module imports this one)
+            return stream_bytes(self)
         return self.n_blocks * self.header_bytes() + self.n_runs * RUN_BYTES + 3
 
     def block_flags(self) -> np.ndarray:

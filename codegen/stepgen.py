@@ -8,16 +8,16 @@ block of step-less events that carry its time.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import ctypes
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from codegen.curve_timing import CurveBlocks, curve_blocks, retime
 from codegen.kinematics.base import Kinematics
-from codegen.checks import chord_distance
+from codegen.native import library
 from codegen.planner import Plan
-from codegen.schedule import MAX_MODULUS
 from codegen.segments import Segments
-from codegen.twin import bresenham
 
 
 @dataclass
@@ -34,69 +34,18 @@ class Events:
     phase: np.ndarray  # (E,) 0 accelerating, 1 cruising, 2 decelerating, 3 dwell
 
 
-def split_long(segments: Segments, kin: Kinematics) -> Segments:
-    """Cut segments whose master motor would make more steps than a block holds into equal parts."""
-    steps = np.abs(kin.to_steps(segments.end) - kin.to_steps(segments.start)).max(axis=1, initial=0)
-    parts = np.maximum(1, -(-steps // (MAX_MODULUS - 1)))
-    if np.all(parts == 1):
-        return segments
-    owner = np.repeat(np.arange(len(parts)), parts)
-    rank = np.arange(len(owner)) - np.repeat(np.cumsum(parts) - parts, parts)
-    return _cut(segments, owner, rank / parts[owner], (rank + 1) / parts[owner])
-
-
-def split_at(segments: Segments, which: np.ndarray, fraction: np.ndarray) -> Segments:
-    """Cut segments `which` in two at `fraction` of their length (straight, so the path is unchanged)."""
-    parts = np.ones(len(segments), dtype=np.int64)
-    parts[which] = 2
-    owner = np.repeat(np.arange(len(segments)), parts)
-    second = np.zeros(len(owner), dtype=bool)
-    second[np.cumsum(parts)[which] - 1] = True
-    cut = np.ones(len(segments))
-    cut[which] = fraction
-    f0 = np.where(second, cut[owner], 0.0)
-    f1 = np.where(second | (parts[owner] == 1), 1.0, cut[owner])
-    return _cut(segments, owner, f0, f1)
-
-
-def _cut(segments: Segments, owner: np.ndarray, f0: np.ndarray, f1: np.ndarray) -> Segments:
-    span = segments.end[owner] - segments.start[owner]
-    start = np.where((f0 == 0.0)[:, None], segments.start[owner], segments.start[owner] + f0[:, None] * span)
-    end = np.where((f1 == 1.0)[:, None], segments.end[owner], segments.start[owner] + f1[:, None] * span)
-    return segments.take(owner, start=start, end=end)
-
-
-def quantisation_split(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
-    """Where to cut segments whose Bresenham staircase strays too far: at the point where the slave with the
-    largest rounding mismatch sits exactly on a whole step nearest the middle (its rounding error is zero
-    there), or at the middle when no slave crosses a whole step inside."""
-    x0 = kin.to_motor(segments.start[which]) * kin.limits.steps_per_mm
-    x1 = kin.to_motor(segments.end[which]) * kin.limits.steps_per_mm
-    d = np.round(x1) - np.round(x0)
-    n = np.abs(d).max(axis=1, keepdims=True)
-    exact = x1 - x0
-    master_span = np.take_along_axis(np.abs(exact), np.argmax(np.abs(d), axis=1)[:, None], axis=1)
-    mismatch = np.abs(np.abs(d) - n * np.divide(np.abs(exact), master_span, out=np.zeros_like(exact),
-                                                   where=master_span > 0))
-    mismatch[np.abs(d) == n] = -1.0  # masters are never the culprit
-    worst = np.argmax(mismatch, axis=1)
-    rows = np.arange(len(which))
-    a, b = x0[rows, worst], x1[rows, worst]
-    k = np.round(0.5 * (a + b))
-    inside = (k - np.minimum(a, b) > 1e-9) & (np.maximum(a, b) - k > 1e-9)
-    return np.where(inside, np.divide(k - a, b - a, out=np.full(len(a), 0.5), where=b != a), 0.5)
-
-
 def segment_steps(segments: Segments, kin: Kinematics) -> np.ndarray:
     return kin.to_steps(segments.end) - kin.to_steps(segments.start)
 
 
-EVENT_CHUNK = 1 << 20  # events timed per pass: small temporaries are reused, large ones cost page faults
+EVENT_CHUNK = 1 << 20  # events timed per pass (numpy): small temporaries are reused, large ones cost page faults
 
 
-def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
-             max_gap: float) -> Events:
-    """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events."""
+def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray, max_gap: float,
+             curves: bool = False) -> Events:
+    """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events;
+    `curves`: events on curves are timed on the curve (codegen/curve_timing.py). In one pass in C
+    (codegen/native/eventtimes.c) where the helper could be built, else in numpy passes."""
     n_master = np.abs(steps).max(axis=1, initial=0)
     dwell = segments.dwell > 0
     events_per = np.where(dwell, np.ceil(segments.dwell / max_gap).astype(np.int64), n_master)
@@ -108,6 +57,15 @@ def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
     master = np.argmax(np.abs(steps), axis=1)
     rows = np.arange(len(segments))
     crossing = _Crossings(exact[rows, master], exact_end[rows, master], np.sign(steps[rows, master]))
+    block_steps = np.where(dwell[blocks][:, None], 0, steps[blocks])
+    modulus = np.where(dwell[blocks], 1, n_master[blocks])
+    init = bresenham_init(exact[blocks], exact_end[blocks], master[blocks], block_steps, modulus)
+    tool = segments.tool[blocks]
+    curve = curve_blocks(blocks, block_steps, tool, segments, plan, kin) if curves else None
+    lib = library("eventtimes")
+    if lib is not None:
+        time, phase = _native_times(lib, segments, plan, crossing, blocks, count, curve)
+        return Events(blocks, block_steps, modulus, init, tool, first, time, phase)
     time = np.empty(first[-1])
     phase = np.empty(first[-1], dtype=np.int8)
     cut = np.searchsorted(first, np.arange(0, first[-1], EVENT_CHUNK), side="right") - 1
@@ -115,10 +73,8 @@ def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
         if hi > lo:
             span = slice(first[lo], first[hi])
             time[span], phase[span] = _times(segments, plan, crossing, blocks[lo:hi], count[lo:hi], dwell)
-    block_steps = np.where(dwell[blocks][:, None], 0, steps[blocks])
-    modulus = np.where(dwell[blocks], 1, n_master[blocks])
-    init = bresenham_init(exact[blocks], exact_end[blocks], master[blocks], block_steps, modulus)
-    return Events(blocks, block_steps, modulus, init, segments.tool[blocks], first, time, phase)
+    events = Events(blocks, block_steps, modulus, init, tool, first, time, phase)
+    return events if curve is None else replace(events, time=retime(events, curve, plan))
 
 
 class _Crossings:
@@ -126,6 +82,24 @@ class _Crossings:
 
     def __init__(self, x0: np.ndarray, x1: np.ndarray, sign: np.ndarray):
         self.x0, self.span, self.p0, self.sign = x0, x1 - x0, np.round(x0), sign
+
+
+def _native_times(lib, segments: Segments, plan: Plan, master: _Crossings, blocks: np.ndarray, count: np.ndarray,
+                  curve: CurveBlocks | None) -> tuple[np.ndarray, np.ndarray]:
+    events = int(count.sum())
+    time, phase = np.empty(events), np.empty(events, dtype=np.int8)
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    arrays = [np.ascontiguousarray(blocks, np.int64), np.ascontiguousarray(count, np.int64)]
+    arrays += [f64(a) for a in (master.x0, master.span, master.p0, master.sign, plan.length, segments.dwell,
+                                plan.v_entry, plan.v_peak, plan.accel, plan.s_acc, plan.s_cruise, plan.t_start)]
+    if curve is None:
+        arrays += [None] * 8
+    else:
+        arrays += [np.ascontiguousarray(a, np.uint8) for a in (curve.smooth, curve.has_prev, curve.has_next)]
+        arrays += [f64(a) for a in (curve.slope_in, curve.slope_out, curve.u0, curve.span, curve.sign)]
+    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+    lib.event_times(ctypes.c_int64(len(blocks)), *map(ptr, arrays), ptr(time), ptr(phase))
+    return time, phase
 
 
 def _times(segments: Segments, plan: Plan, master: _Crossings, blocks: np.ndarray, count: np.ndarray,
@@ -147,76 +121,6 @@ def _times(segments: Segments, plan: Plan, master: _Crossings, blocks: np.ndarra
         time = np.where(is_dwell, dwell_time, time)
         phase = np.where(is_dwell, 3, phase)
     return time, phase
-
-
-def staircase_bound(segments: Segments, kin: Kinematics) -> np.ndarray:
-    """An upper bound (mm) of `staircase_error` for every segment, without enumerating events.
-
-    After i master events a slave has made c(i) = (i d - init) / N + theta steps, 0 <= theta <= (N - 1) / N,
-    while its exact count at that master position is i |slope| + beta (see bresenham_init): the difference
-    lies between the extremes of the linear part over 0 <= i <= N, plus theta. The tool is then at most
-    that far (in each slave's own direction) from the segment's line."""
-    spm = kin.limits.steps_per_mm
-    x0, x1 = kin.to_motor(segments.start) * spm, kin.to_motor(segments.end) * spm
-    steps = np.round(x1) - np.round(x0)
-    master = np.argmax(np.abs(steps), axis=1)
-    n = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
-    init = bresenham_init(x0, x1, master, steps.astype(np.int64), n.astype(np.int64))
-    rows = np.arange(len(master))
-    span = (x1 - x0)[rows, master][:, None]
-    slope = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
-    mx0 = x0[rows, master][:, None]
-    sigma = np.where(steps != 0, np.sign(steps), 1.0)  # the direction counted as + for each slave
-    beta = ((x0 - np.round(x0)) + (np.round(mx0) - mx0) * slope) * sigma
-    rate = slope * np.sign(steps[rows, master])[:, None] * sigma  # exact slave steps per master step
-    nn = n[:, None].astype(float)
-    drift = np.abs(steps) - nn * rate  # the linear part's change over the block
-    base = -init / nn - beta
-    high = (nn - 1) / nn + np.maximum(drift, 0.0) + base
-    low = np.minimum(drift, 0.0) + base
-    slave = np.arange(steps.shape[1])[None, :] != master[:, None]
-    deviation = np.maximum(np.abs(high), np.abs(low))
-    # A motor that makes no step stays put: it is exactly as far off as its exact position drifts.
-    still = np.maximum(np.abs(beta), np.abs(beta + nn * rate))
-    deviation = np.where(slave, np.where(steps == 0, still, deviation), 0.0)
-    reach = kin.step_reach()
-    return deviation @ reach
-
-
-STAIRCASE_CHUNK = 1 << 19  # events per pass: small temporaries are reused, large ones cost page faults
-
-
-def staircase_error(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
-    """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment's line: the
-    tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
-    events = np.abs(segment_steps(segments.take(which), kin)).max(axis=1, initial=0)
-    bounds = np.searchsorted(np.cumsum(events), np.arange(STAIRCASE_CHUNK, events.sum() + STAIRCASE_CHUNK,
-                                                             STAIRCASE_CHUNK), side="right")
-    worst, lo = np.zeros(len(which)), 0
-    for hi in np.unique(np.concatenate([np.maximum(bounds, 1), [len(which)]])):
-        if hi > lo:
-            worst[lo:hi] = _staircase_error(segments.take(which[lo:hi]), kin)
-            lo = hi
-    return worst
-
-
-def _staircase_error(part: Segments, kin: Kinematics) -> np.ndarray:
-    steps = segment_steps(part, kin)
-    exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
-    exact_end = kin.to_motor(part.end) * kin.limits.steps_per_mm
-    master = np.argmax(np.abs(steps), axis=1)
-    modulus = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
-    init = bresenham_init(exact, exact_end, master, steps, modulus)
-    block, _, position = bresenham(steps, modulus, init, np.abs(steps).max(axis=1, initial=0))
-    before = np.cumsum(steps, axis=0) - steps  # positions add up over the blocks: count each from its start
-    motor_mm = (position - before[block] + np.round(exact)[block]) / kin.limits.steps_per_mm
-    axes = kin.to_axes(motor_mm, part.start[block])[:, :3]
-    dist, _ = chord_distance(axes, block, part, clamp=False)
-    worst = np.zeros(len(part))
-    has = np.flatnonzero(np.bincount(block, minlength=len(part)))  # blocks are in order: reduce runs of them
-    if len(has):
-        worst[has] = np.maximum.reduceat(dist, np.searchsorted(block, has))
-    return worst
 
 
 def bresenham_init(x0: np.ndarray, x1: np.ndarray, master: np.ndarray, steps: np.ndarray,

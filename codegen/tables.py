@@ -71,6 +71,25 @@ def block_fields(schedule: Schedule) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return modulus, schedule.block_steps, init
 
 
+def _long_blocks(modulus: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Blocks that need the long record: a modulus over a byte, or a dwell (no motor moves)."""
+    return (modulus > 0xFF) | ~np.any(steps > 0, axis=1)
+
+
+def _long_runs(count: np.ndarray, interval: np.ndarray, add: np.ndarray) -> np.ndarray:
+    return (count > 0xFF) | (interval >= 1 << 24) | (add < -(1 << 15)) | (add >= 1 << 15)
+
+
+def stream_bytes(schedule: Schedule) -> int:
+    """len(encode(schedule).data), without encoding."""
+    motors = len(schedule.motors)
+    modulus, steps, _ = block_fields(schedule)
+    long_blocks = int(_long_blocks(modulus, steps).sum())
+    long_runs = int(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add).sum())
+    return (long_blocks * long_block_bytes(motors) + (schedule.n_blocks - long_blocks) * short_block_bytes(motors)
+            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES + 2)
+
+
 def encode(schedule: Schedule) -> CompactTable:
     motors = len(schedule.motors)
     if motors > MAX_MOTORS:
@@ -83,7 +102,7 @@ def encode(schedule: Schedule) -> CompactTable:
         raise ValueError("block modulus out of the compact stream's range")
     flags = schedule.block_flags()
     master = np.argmax(steps, axis=1)
-    block_long = (modulus > 0xFF) | ~np.any(steps > 0, axis=1)
+    block_long = _long_blocks(modulus, steps)
     width = long_block_bytes(motors)
     blocks = np.zeros((schedule.n_blocks, width), dtype=np.uint8)
     short = np.flatnonzero(~block_long)
@@ -101,7 +120,7 @@ def encode(schedule: Schedule) -> CompactTable:
     block_len = np.where(block_long, width, short_block_bytes(motors))
 
     count, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
-    run_long = (count > 0xFF) | (interval >= 1 << 24) | (add < -(1 << 15)) | (add >= 1 << 15)
+    run_long = _long_runs(count, interval, add)
     runs = np.zeros((schedule.n_runs, LONG_RUN_BYTES), dtype=np.uint8)
     rs = ~run_long
     runs[rs, 0] = count[rs]

@@ -23,12 +23,12 @@ import numpy as np
 
 from codegen.checks import Checker, MotorTrain, corner_jumps
 from codegen.compress import Compressed, TimingWindow, compress
-from codegen.curve_timing import smooth_curve_times
 from codegen.kinematics.base import Kinematics
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
+from codegen.stopwatch import Stopwatch
 from codegen.targets import TargetInfo
 from codegen.twin import Pulses, predict
 
@@ -94,10 +94,10 @@ class Stages:
     stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
 
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
-                 lookahead: Lookahead, keep: bool):
-        """`keep`: the windows handed out keep their events and pulses (for `join`)."""
+                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None):
+        """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
-        self.keep = keep
+        self.keep, self.watch = keep, watch or Stopwatch()
         self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None)
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
@@ -140,14 +140,16 @@ class Stages:
     def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
         """Play the window from what came before: its results, what it hands on, and how to slow it down where
         the checks found a motor over its limits (None: nowhere)."""
-        kin, target = self.kin, self.target
-        events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s)
-        if target.compact_tables:
-            events = smooth_curve_times(events, window.segments, window.plan, kin)
-        compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
-                              cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate,
-                              origin_fx=before.origin_fx)
-        pulses = predict(compressed.schedule, before.origin_fx, before.position)
+        kin, target, watch = self.kin, self.target, self.watch
+        with watch("step times"):
+            events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
+                              curves=target.compact_tables)
+        with watch("rate runs"):
+            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
+                                  cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate,
+                                  origin_fx=before.origin_fx)
+        with watch("twin"):
+            pulses = predict(compressed.schedule, before.origin_fx, before.position)
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep else None, pulses if self.keep else None)
@@ -158,9 +160,10 @@ class Stages:
         event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
         trains = [MotorTrain(tick / target.tick_hz, direction)
                   for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
-        corners_t, jumps = self._corners(window, before.before)
-        checker = copy.deepcopy(before.checker)
-        hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+        with watch("checks"):
+            corners_t, jumps = self._corners(window, before.before)
+            checker = copy.deepcopy(before.checker)
+            hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
         carried = _Carried(checker, _end_fx(played), position,

@@ -9,7 +9,8 @@ import numpy as np
 from codegen.errors import SourceRef
 from codegen.kinematics import make_kinematics
 from codegen.planner import PlannerLimits, plan
-from codegen.stepgen import segment_steps, split_long
+from codegen.staircase import split_long
+from codegen.stepgen import segment_steps
 from codegen.segments import flatten
 from codegen.toolpath import Line, Toolpath
 

@@ -9,20 +9,22 @@ import pytest
 
 import codegen.checks as checks
 import codegen.runfit as runfit
+import codegen.stepgen as stepgen
 import codegen.twin as twin
 from codegen.compress import TimingWindow, compress
 from codegen.job import load_job
 from codegen.native import library
 from codegen.pipeline import host_build
 from codegen.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
-from codegen.stepgen import generate
+from codegen.stepgen import generate, segment_steps
 from tests.helpers import planned, polyline
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ["examples/star.yaml", "examples/plotter-set-51.yaml", "examples/delta-seed.yaml",
             "examples/gcode/mixed.yaml", "examples/sine.yaml", "examples/function.yaml"]
+CURVED = {"examples/plotter-set-51.yaml", "examples/sine.yaml", "examples/function.yaml", "examples/gcode/mixed.yaml"}
 
-pytestmark = pytest.mark.skipif(any(library(n) is None for n in ("runfit", "twin", "pathcheck")),
+pytestmark = pytest.mark.skipif(any(library(n) is None for n in ("runfit", "twin", "pathcheck", "eventtimes")),
                                 reason="the C helpers could not be built (no gcc)")
 
 
@@ -89,6 +91,19 @@ def test_compressed_runs_keep_the_windows_and_the_player_gaps():
 
 
 @pytest.mark.parametrize("example", EXAMPLES)
+@pytest.mark.parametrize("curves", [False, True])
+def test_event_times_in_c_are_the_numpy_ones(monkeypatch, example, curves):
+    host = host_build(load_job(ROOT / example))
+    args = (host.segments, host.plan, host.kin, segment_steps(host.segments, host.kin))
+    native = stepgen.generate(*args, max_gap=0.5, curves=curves)
+    monkeypatch.setattr(stepgen, "library", lambda name: None)
+    numpy_ = stepgen.generate(*args, max_gap=0.5, curves=curves)
+    assert np.array_equal(native.time, numpy_.time) and np.array_equal(native.phase, numpy_.phase)
+    if curves and example in CURVED:
+        assert not np.array_equal(native.time, stepgen.generate(*args, max_gap=0.5).time)
+
+
+@pytest.mark.parametrize("example", EXAMPLES)
 def test_the_twin_in_c_is_the_numpy_twin(example):
     host = host_build(load_job(ROOT / example))
     schedule, start = host.compressed.schedule, np.arange(len(host.kin.motors)) * 7
@@ -114,7 +129,7 @@ def test_path_distances_in_c_are_the_numpy_ones(example):
 def test_without_the_helpers_the_tables_are_the_same(monkeypatch, example):
     job = load_job(ROOT / example)
     native = host_build(job)
-    for module in (runfit, twin, checks):
+    for module in (runfit, twin, checks, stepgen):
         monkeypatch.setattr(module, "library", lambda name: None)
     python = host_build(job)
     assert python.compressed.schedule.table_bytes() == native.compressed.schedule.table_bytes()

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from codegen.kinematics import make_kinematics
-from codegen.pieces import STAIRCASE_LIMIT, refine
+from codegen.staircase import STAIRCASE_LIMIT, refine
 from codegen.schedule import MAX_MODULUS
-from codegen.stepgen import generate, segment_steps, split_long, staircase_bound, staircase_error
+from codegen.staircase import split_long, staircase_bound, staircase_error
+from codegen.stepgen import generate, segment_steps
 from codegen.segments import flatten
 from tests.helpers import machine, planned, polyline
 
