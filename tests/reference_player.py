@@ -1,6 +1,8 @@
-"""A plain-Python, event-by-event reading of the player semantics in codegen/schedule.py (slow; tests only)."""
+"""Plain-Python, event-by-event readings of the player semantics (slow; tests only): `play` from a Schedule's arrays
+(codegen/schedule.py, the runs one sequence over all events, each block taking its events in turn), `play_stream`
+from the bytes of the compact record stream (codegen/tables.py), the way the firmware reads them."""
 
-from codegen.schedule import Schedule
+from codegen.schedule import FRAC_BITS, Schedule
 
 
 def event_ticks(schedule: Schedule) -> list[int]:
@@ -10,7 +12,7 @@ def event_ticks(schedule: Schedule) -> list[int]:
         interval = int(schedule.run_interval[r])
         for _ in range(int(schedule.run_count[r])):
             pos += interval
-            ticks.append(pos >> 8)
+            ticks.append(pos >> FRAC_BITS)
             interval += int(schedule.run_add[r])
     return ticks
 
@@ -32,3 +34,61 @@ def play(schedule: Schedule) -> list[tuple[int, int, int]]:
                     acc[m] += n
                     pulses.append((tick, m, dirs[m]))
     return pulses
+
+
+class _Reader:
+    def __init__(self, data: bytes):
+        self.data, self.at = data, 0
+
+    def u(self, width: int) -> int:
+        value = int.from_bytes(self.data[self.at:self.at + width], "little")
+        self.at += width
+        return value
+
+    def i(self, width: int) -> int:
+        value = self.u(width)
+        return value - (1 << 8 * width) if value >> (8 * width - 1) else value
+
+
+def play_stream(data: bytes, motors: int) -> tuple[list[tuple[int, int, int]], list[int], bool]:
+    """(tick, motor, dir) of every pulse, the tool flag of every event and the final tool state, from the compact
+    stream: a block lasts `modulus` events; a short block's master steps at every event; the runs follow one
+    another over all events; at an event that starts a block and a run, the block record comes first."""
+    read = _Reader(data)
+    pulses, tools = [], []
+    pos = interval = add = run_left = 0
+    while True:
+        flags = read.u(1)
+        if flags & 0x80:
+            modulus = read.u(2)
+            steps = [read.u(2) for _ in range(motors)]
+            acc = [read.u(2) for _ in range(motors)]
+        else:
+            modulus = read.u(1)
+            if modulus == 0:
+                return pulses, tools, bool(flags & 0x40)
+            master = flags >> 4 & 3
+            slaves = [m for m in range(motors) if m != master]
+            steps, acc = [modulus] * motors, [0] * motors
+            for m in slaves:
+                steps[m] = read.u(1)
+            for m in slaves:
+                acc[m] = read.u(1)
+        dirs = [1 if flags >> m & 1 else -1 for m in range(motors)]
+        for _ in range(modulus):
+            if run_left == 0:
+                count = read.u(1)
+                if count:
+                    run_left, interval, add = count, read.u(3), read.i(2)
+                else:
+                    run_left, interval, add = read.u(2), read.u(4), read.i(3)
+            else:
+                interval += add
+            run_left -= 1
+            pos += interval
+            tools.append(bool(flags & 0x40))
+            for m in range(motors):
+                acc[m] -= steps[m]
+                if acc[m] < 0:
+                    acc[m] += modulus
+                    pulses.append((pos >> FRAC_BITS, m, dirs[m]))

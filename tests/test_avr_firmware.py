@@ -1,5 +1,6 @@
-"""The ATmega2560 player, end to end with the real avr-gcc and the real simavr: hand-made schedules are rendered,
-built, run, and every simulated pulse is compared with a plain-Python reading of codegen/schedule.py's semantics.
+"""The ATmega2560 player, end to end with the real avr-gcc and the real simavr: hand-made schedules in the compact
+stream (codegen/tables.py) are rendered, built, run, and every simulated pulse is compared with
+tests/reference_player.py's plain readings of the semantics (from the schedule and from the stream's bytes).
 """
 
 from __future__ import annotations
@@ -9,51 +10,48 @@ import subprocess
 import numpy as np
 import pytest
 
+from codegen import tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr import build_image, render_sources
 from codegen.schedule import Schedule
 from codegen.sim.avr import simulate
+from tests.reference_player import event_ticks, play, play_stream
 
-F_CPU = 16_000_000
+F_CPU, TICK_HZ = 16_000_000, 2_000_000
+CYCLES = F_CPU // TICK_HZ  # CPU cycles per timer tick
 LATENCY_TOLERANCE = 4  # cycles around the constant compare-match-to-edge latency
 
 
-def make_schedule(motors, blocks, final_tool=False):
-    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...])."""
+def make_schedule(motors, blocks, final_tool=False, runs=None):
+    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...]), each with runs of
+    its own; or, with `runs` (the whole program's, crossing block starts), (dirs, steps, modulus, init, tool,
+    events)."""
     m = len(motors)
-    runs = [r for b in blocks for r in b[5]]
-    as_array = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
+    own = runs is None
+    events = [sum(r[2] for r in b[5]) for b in blocks] if own else [b[5] for b in blocks]
+    runs = [r for b in blocks for r in b[5]] if own else runs
+    run_first = np.cumsum([0] + [r[2] for r in runs])
+    per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
     return Schedule(
-        motors=tuple(motors), tick_hz=F_CPU, block_dirs=as_array(0, np.int8), block_steps=as_array(1, np.int64),
-        block_modulus=np.array([b[2] for b in blocks], dtype=np.int64), block_init=as_array(3, np.int64),
+        motors=tuple(motors), tick_hz=TICK_HZ, block_dirs=per_motor(0, np.int8), block_steps=per_motor(1, np.int64),
+        block_modulus=np.array([b[2] for b in blocks], dtype=np.int64), block_init=per_motor(3, np.int64),
         block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_runs=np.concatenate([[0], np.cumsum([len(b[5]) for b in blocks])]).astype(np.int64),
+        block_runs=np.searchsorted(run_first, np.cumsum([0] + events)).astype(np.int64),
         block_segment=np.zeros(len(blocks), dtype=np.int64),
-        run_interval=np.array([r[0] for r in runs], dtype=np.int64),
-        run_add=np.array([r[1] for r in runs], dtype=np.int64),
-        run_count=np.array([r[2] for r in runs], dtype=np.int64), final_tool=final_tool)
+        run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
+        run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
+        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,
+        block_events=np.array(events, dtype=np.int64))
 
 
-def reference(schedule):
-    """Pulses (tick, motor, dir) and, per block, the ticks of its first and last event (plain Python)."""
-    pulses, spans, pos = [], [], 0
-    for b in range(schedule.n_blocks):
-        acc = [int(a) for a in schedule.block_init[b]]
-        first = None
-        for r in range(int(schedule.block_runs[b]), int(schedule.block_runs[b + 1])):
-            interval = int(schedule.run_interval[r])
-            for _ in range(int(schedule.run_count[r])):
-                pos += interval
-                first = pos >> 8 if first is None else first
-                for m in range(len(schedule.motors)):
-                    acc[m] -= int(schedule.block_steps[b, m])
-                    if acc[m] < 0:
-                        acc[m] += int(schedule.block_modulus[b])
-                        pulses.append((pos >> 8, m, int(schedule.block_dirs[b, m])))
-                interval += int(schedule.run_add[r])
-        spans.append((first, pos >> 8))
-    return pulses, spans
+def block_spans(schedule):
+    """Per block, the ticks of its first and last event (plain Python)."""
+    ticks, spans, first = event_ticks(schedule), [], 0
+    for events in schedule.events_per_block():
+        spans.append((ticks[first], ticks[first + events - 1]))
+        first += events
+    return spans
 
 
 def config(motors, sockets, board="ramps-1.4", inverted=(), pulse_us=2.0):
@@ -61,35 +59,36 @@ def config(motors, sockets, board="ramps-1.4", inverted=(), pulse_us=2.0):
     return FirmwareConfig("test", "tests/test_avr_firmware.py", "avr", board, pins, step_pulse_us=pulse_us)
 
 
-def build_and_run(schedule, cfg, out_dir, budget=50_000_000):
+def build_and_run(schedule, cfg, out_dir, budget=100_000_000):
     image = build_image(render_sources(schedule, cfg), out_dir, schedule.table_bytes())
     return image, simulate(image.hex_path, cfg, budget)
 
 
 def check_plays(schedule, cfg, trace):
-    """Same pulses (motor, dir, order) as the reference, each at its tick + one constant latency."""
-    pulses, spans = reference(schedule)
+    """Same pulses (motor, dir, order) as the reference readings of the schedule and of its stream, each at
+    CYCLES x its tick + one constant latency per motor; STEP pulses and DIR setup as long as the config says."""
+    pulses = play(schedule)
+    stream_pulses, _, final_tool = play_stream(tables.encode(schedule).data, len(schedule.motors))
+    assert stream_pulses == pulses and final_tool == schedule.final_tool
     assert trace.state == "done"
-    for m in range(len(schedule.motors)):
-        ref = [(t, d) for t, mm, d in pulses if mm == m]
-        mine = trace.step_motor == m
-        assert mine.sum() == len(ref), f"motor {schedule.motors[m]}: pulse count"
-        assert np.array_equal(trace.step_dir[mine], [d for _, d in ref]), f"motor {schedule.motors[m]}: dirs"
     ticks = np.array([t for t, _, _ in pulses], dtype=np.int64)
     motors = np.array([mm for _, mm, _ in pulses], dtype=np.int64)
-    # Per motor, the k-th simulated pulse against the k-th reference pulse; with events far more than the
-    # tolerance apart, one constant latency for all of them also fixes the order across motors.
-    late = np.zeros(len(ticks), dtype=np.int64)
+    latencies = []
     for m in range(len(schedule.motors)):
-        late[motors == m] = trace.step_cycle[trace.step_motor == m] - trace.timer_start_cycle - ticks[motors == m]
-    latency = int(np.median(late))
-    assert np.abs(late - latency).max() <= LATENCY_TOLERANCE, "a pulse off its scheduled tick"
-    assert 0 < latency < 40
+        mine = trace.step_motor == m
+        assert mine.sum() == (motors == m).sum(), f"motor {schedule.motors[m]}: pulse count"
+        assert np.array_equal(trace.step_dir[mine], [d for _, mm, d in pulses if mm == m]), \
+            f"motor {schedule.motors[m]}: dirs"
+        late = trace.step_cycle[mine] - trace.timer_start_cycle - CYCLES * ticks[motors == m]
+        if len(late):
+            assert np.abs(late - np.median(late)).max() <= LATENCY_TOLERANCE, "a pulse off its scheduled tick"
+            latencies.append(int(np.median(late)))
+    assert all(0 < late < 40 for late in latencies)
     pulse = int(np.ceil(cfg.step_pulse_us * F_CPU / 1e6))
     assert all(h is None or h >= pulse for h in trace.pulse_high_min_cycles)
     setup = int(np.ceil(cfg.dir_setup_us * F_CPU / 1e6))
     assert all(s is None or s >= setup for s in trace.dir_setup_min_cycles)
-    return latency, spans
+    return min(latencies, default=0)
 
 
 def test_blocks_runs_dwell_long_waits_and_tool(tmp_path):
@@ -103,21 +102,73 @@ def test_blocks_runs_dwell_long_waits_and_tool(tmp_path):
         ((1, -1, 1), (3, 7, 11), 11, (0, 6, 10), False, [(900 * 256, 0, 11)]),
     ], final_tool=True)
     cfg = config(("x", "y", "z"), ("X", "Y", "Z"))
-    _, trace = build_and_run(sched, cfg, tmp_path)
-    latency, spans = check_plays(sched, cfg, trace)
-    # Tool: on before the timer starts, then set right after the last pulse of the block before each change.
-    states = [on for _, on in trace.tool_edges]
-    assert states == [1, 0, 1, 0, 1]
-    assert trace.tool_edges[0][0] < trace.timer_start_cycle
-    for (cycle, _), b in zip(trace.tool_edges[1:], (1, 2, 3)):
-        previous_last, first = spans[b - 1][1], spans[b][0]
-        assert previous_last + latency < cycle - trace.timer_start_cycle < first + latency
+    image, trace = build_and_run(sched, cfg, tmp_path)
+    latency = check_plays(sched, cfg, trace)
+    spans = block_spans(sched)
+    # Tool: on at tick 0's block load (before the first event), then set right after the last pulse of the block
+    # before each change, and the final state after the last pulse.
+    assert [on for _, on in trace.tool_edges] == [1, 0, 1, 0, 1]
+    assert trace.timer_start_cycle < trace.tool_edges[0][0] < trace.timer_start_cycle + CYCLES * spans[0][0]
+    for (cycle, _), b in zip(trace.tool_edges[1:4], (1, 2, 3)):
+        assert CYCLES * spans[b - 1][1] + latency < cycle - trace.timer_start_cycle < CYCLES * spans[b][0] + latency
     assert trace.tool_edges[-1][0] > trace.step_cycle[-1]
+    assert image.flash_parts["table"] == sched.table_bytes() and sum(image.flash_parts.values()) == image.flash_bytes
+
+
+RUNS = [(3000 * 256, -5000, 30), (1200 * 256 + 100, 3, 300), (70_000 * 256, 0, 2), (800 * 256, 0, 55)]
+BLOCKS = [  # (dirs, steps, modulus, init, tool, events) of four motors: a test takes the first n of each motor
+    ((1, -1, 1, 1), (10, 4, 0, 10), 10, (5, 2, 5, 3), True, 10),  # short form, x the master (e a master too)
+    ((-1, 1, 1, -1), (12, 3, 12, 0), 12, (0, 1, 0, 0), True, 12),
+    ((1, -1, 1, 1), (0, 9, 4, 9), 9, (0, 1, 8, 2), True, 9),  # y the master (with one motor: a dwell)
+    ((1, 1, -1, 1), (8, 5, 0, 3), 8, (0, 4, 7, 1), False, 8),
+    ((-1, 1, 1, 1), (0, 0, 0, 6), 6, (0, 0, 0, 0), False, 6),  # e the master (with fewer motors: a dwell)
+    ((1, 1, 1, -1), (300, 299, 1, 150), 300, (150, 0, 299, 7), False, 300),  # long: modulus > 255
+    ((1, 1, 1, 1), (0, 0, 0, 0), 1, (0, 0, 0, 0), True, 2),  # a dwell of two events
+    ((-1, -1, -1, -1), (40, 40, 39, 1), 40, (0, 39, 20, 39), False, 40),
+]
+
+
+def cut(blocks, n):
+    return [(d[:n], s[:n], mod, i[:n], tool, ev) for d, s, mod, i, tool, ev in blocks]
+
+
+@pytest.mark.parametrize("motors, sockets, board", [
+    (("x",), ("X",), "ramps-1.4"),
+    (("x", "y"), ("X", "Y"), "ramps-1.4"),  # one STEP port, every motor in registers
+    (("x", "y", "z"), ("X", "Y", "Z"), "ramps-1.4"),  # z's Bresenham in SRAM
+    (("x", "y", "z", "e"), ("X", "Y", "Z", "E0"), "ramps-1.4"),
+    (("x", "z", "e", "b"), ("X", "Z", "E0", "E1"), "mks-gen-l"),  # four STEP ports
+])
+def test_runs_go_on_across_blocks_in_short_and_long_records(motors, sockets, board, tmp_path):
+    """The compact stream: short blocks (master left out, at any index) and long ones, a dwell, runs that start
+    inside a block and go on across several, short and long run records, the end marker's tool; with 1 to 4
+    motors (the format's limit), their Bresenham state in registers or in SRAM."""
+    n = len(motors)
+    sched = make_schedule(motors, cut(BLOCKS, n), final_tool=True, runs=RUNS)
+    table = tables.encode(sched)
+    assert table.counts()["long_blocks"] >= 2 and table.counts()["long_runs"] == 2
+    cfg = config(motors, sockets, board=board, inverted=motors[1:2])
+    image, trace = build_and_run(sched, cfg, tmp_path)
+    check_plays(sched, cfg, trace)
+    assert [on for _, on in trace.tool_edges] == [1, 0, 1, 0, 1]
+    assert image.flash_parts["table"] == len(table.data)
+
+
+def test_waits_around_one_timer_period(tmp_path):
+    """Tick deltas just under, at and just over one timer period (0x10000 ticks), some with a carry from the
+    fractional tick: the long path with and without compare B's periods."""
+    runs = [(0xFF00 * 256, 0, 2), (0xFFFF * 256 + 200, 0, 3), (0x10000 * 256, 0, 2), (0x10000 * 256 - 1, 0, 2),
+            (0x17FFF * 256 + 255, 0, 2), (600 * 256, 0, 5), (0x3FFFF * 256 + 128, -0x7FFFFF, 3)]
+    blocks = [((1, -1), (19, 7), 19, (9, 3), False, 19)]
+    sched = make_schedule(("x", "y"), blocks, runs=runs)
+    cfg = config(("x", "y"), ("X", "Y"))
+    _, trace = build_and_run(sched, cfg, tmp_path, budget=200_000_000)
+    check_plays(sched, cfg, trace)
 
 
 def test_inverted_dir_other_sockets_and_long_pulses(tmp_path):
     """Motors on E0 and E1 of an MKS GEN L, one DIR inverted (step_dir undoes it), 5 us STEP pulses, a first
-    event more than 0xFFFF ticks after the timer start."""
+    event more than 0xFFFF ticks after tick 0."""
     sched = make_schedule(("x", "e", "b"), [
         ((1, 1, -1), (10, 20, 5), 20, (10, 10, 10), False, [(70_000 * 256 + 9, 0, 1), (400 * 256, 0, 19)]),
         ((-1, -1, 1), (20, 3, 20), 20, (0, 19, 7), False, [(300 * 256 + 200, 5, 20)]),
@@ -134,8 +185,9 @@ def test_sources_and_image_are_deterministic(tmp_path):
     cfg = config(("x", "y"), ("X", "Y"))
     first, second = render_sources(sched, cfg), render_sources(sched, cfg)
     assert first == second
-    assert first["player.c"].startswith(
-        "/* AUTO-GENERATED by printer-codegen 0.1.0 from tests/test_avr_firmware.py (target avr). Do not edit. */")
+    for name in ("player.c", "player_isr.S", "table.c", "config.h"):
+        assert first[name].startswith(
+            "/* AUTO-GENERATED by printer-codegen 0.1.0 from tests/test_avr_firmware.py (target avr). Do not edit. */")
     one = build_image(first, tmp_path / "one", sched.table_bytes())
     two = build_image(second, tmp_path / "two", sched.table_bytes())
     assert one.hex_path.read_bytes() == two.hex_path.read_bytes()
@@ -151,20 +203,22 @@ def test_no_float_division_or_sqrt_in_the_image(tmp_path):
 
 
 def test_table_above_64k_plays_through_far_reads(tmp_path):
-    """A table of ~72 KB: the reads cross the 64 KB boundary, the code lands above it."""
+    """A table of ~72 KB (12,000 short run records in one long block): the reads cross the 64 KB boundary (ELPM
+    through RAMPZ) and the table's chunks, and the code lands above it."""
     rng = np.random.default_rng(7)
-    intervals = rng.integers(180 * 256, 400 * 256, 9000)
-    runs = [(int(v), int(a), 1) for v, a in zip(intervals, rng.integers(-200, 200, 9000))]
-    sched = make_schedule(("x", "y"), [((1, -1), (9000, 4321), 9000, (4500, 17), False, runs)])
-    assert sched.table_bytes() > 65536
+    n = 12_000
+    intervals = rng.integers(180 * 256, 400 * 256, n)
+    runs = [(int(v), int(a), 1) for v, a in zip(intervals, rng.integers(-200, 200, n))]
+    sched = make_schedule(("x", "y"), [((1, -1), (n, 4321), n, (n // 2, 17), False, runs)])
+    assert sched.table_bytes() > 65536 and tables.encode(sched).counts()["short_runs"] == n
     cfg = config(("x", "y"), ("X", "Y"))
     image, trace = build_and_run(sched, cfg, tmp_path)
-    assert image.flash_bytes > 65536
+    assert image.flash_bytes > 65536 and len(render_sources(sched, cfg)["table.c"].split("PROGMEM")) == 4
     check_plays(sched, cfg, trace)
 
 
 def test_too_big_table_is_refused_with_the_sizes(tmp_path):
-    sched = make_schedule(("x",), [((1,), (100,), 100, (0,), False, [(300 * 256, 0, 1)] * 33_000)])
+    sched = make_schedule(("x",), [((1,), (22_500,), 22_500, (0,), False, [(300 * 256, 0, 1)] * 22_500)] * 2)
     cfg = config(("x",), ("X",))
     small = make_schedule(("x",), [((1,), (1,), 1, (0,), False, [(300 * 256, 0, 1)])])
     build_image(render_sources(small, cfg), tmp_path, small.table_bytes())  # an earlier image must not survive
@@ -176,7 +230,7 @@ def test_too_big_table_is_refused_with_the_sizes(tmp_path):
 
 
 def test_compile_error_and_budget_raise_build_error(tmp_path):
-    sched = make_schedule(("x",), [((1,), (1,), 1, (0,), False, [(10_000_000 * 256, 0, 2)])])
+    sched = make_schedule(("x",), [((1,), (1,), 1, (0,), False, [(10_000_000 * 256, 0, 1)])])
     cfg = config(("x",), ("X",))
     sources = render_sources(sched, cfg)
     with pytest.raises(BuildError, match="player.c"):
@@ -189,12 +243,25 @@ def test_compile_error_and_budget_raise_build_error(tmp_path):
 
 
 def test_every_socket_combination_builds_with_a_stackless_isr(tmp_path):
-    """build_image refuses a naked ISR that spills to the stack: no RAMPS socket combination may trigger it."""
+    """build_image refuses a step interrupt that touches the stack: no combination of up to four RAMPS sockets may
+    trigger it; five motors are more than the compact stream holds."""
     sockets = ("X", "Y", "Z", "E0", "E1")
     for mask in range(1, 1 << len(sockets)):
         chosen = [s for i, s in enumerate(sockets) if mask >> i & 1]
         names = [f"m{i}" for i in range(len(chosen))]
         n = len(chosen)
         sched = make_schedule(names, [((1,) * n, (3,) * n, 3, (1,) * n, False, [(500 * 256, 0, 3)])])
-        build_image(render_sources(sched, config(names, chosen, inverted=names[:1])), tmp_path / str(mask),
-                    sched.table_bytes())
+        cfg = config(names, chosen, inverted=names[:1])
+        if n > 4:
+            with pytest.raises(BuildError, match="at most 4 motors"):
+                render_sources(sched, cfg)
+            continue
+        build_image(render_sources(sched, cfg), tmp_path / str(mask), sched.table_bytes())
+
+
+def test_an_old_format_schedule_is_refused():
+    """Runs of their own per block (block_events None) are not the compact stream the player reads."""
+    sched = make_schedule(("x",), [((1,), (5,), 5, (2,), False, [(500 * 256, 0, 5)])])
+    sched.block_events = None
+    with pytest.raises(BuildError, match="cross_blocks"):
+        render_sources(sched, config(("x",), ("X",)))

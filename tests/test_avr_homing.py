@@ -19,6 +19,7 @@ from tests.reference_player import play
 from tests.test_avr_firmware import make_schedule
 
 F_CPU = 16_000_000
+CYCLES = 8  # CPU cycles per Timer1 tick (tick_hz 2 MHz): homing intervals are in ticks, as the player's times
 JITTER = 3  # cycles: a homing step's edge around its interval (the OCF1A polling loop is 3 cycles)
 LATENCY_TOLERANCE = 4  # cycles around the player's constant compare-match-to-edge latency
 PULSE_CYCLES, DIR_SETUP_CYCLES = 32, 16  # 2 us and 1 us at 16 MHz, FirmwareConfig's defaults
@@ -39,7 +40,7 @@ def homing(motor, switch, direction, fast, slow, backoff, max_steps=2000):
 
 def delta_config(max_steps=2000):
     motors = tuple(MotorPins(n, s) for n, s in zip(("a", "b", "c"), ("X", "Y", "Z")))
-    axes = tuple(homing(m, sw, 1, 4000, 12000, 50, max_steps) for m, sw in enumerate(DELTA_SWITCHES))
+    axes = tuple(homing(m, sw, 1, 500, 1500, 50, max_steps) for m, sw in enumerate(DELTA_SWITCHES))
     return FirmwareConfig("delta", "tests/test_avr_homing.py", "avr", "ramps-1.4", motors, homing=axes)
 
 
@@ -64,11 +65,12 @@ def check_homing(trace, axis, distance):
     for lo, hi, interval in ((0, fast, axis.fast_interval), (fast, fast + back, axis.fast_interval),
                              (fast + back, fast + back + slow, axis.slow_interval)):
         gaps = np.diff(cycles[lo:hi])
-        assert len(gaps) == 0 or np.abs(gaps - interval).max() <= JITTER, f"motor {axis.motors[0]}: step intervals"
+        assert len(gaps) == 0 or np.abs(gaps - CYCLES * interval).max() <= JITTER, \
+            f"motor {axis.motors[0]}: step intervals"
     # Each phase starts after a pause: at least pause + interval after the motor's previous step.
     for first, interval in ((fast, axis.fast_interval), (fast + back, axis.slow_interval)):
         if 0 < first < len(cycles):
-            assert cycles[first] - cycles[first - 1] >= PAUSE_CYCLES + interval - JITTER
+            assert cycles[first] - cycles[first - 1] >= PAUSE_CYCLES + CYCLES * interval - JITTER
     return len(cycles)
 
 
@@ -83,7 +85,7 @@ def check_run(schedule, trace):
         mine = run.step_motor == m
         assert mine.sum() == (motors == m).sum(), f"motor {m}: run-phase pulse count"
         assert run.step_dir[mine].tolist() == [d for _, mm, d in pulses if mm == m]
-        late[motors == m] = run.step_cycle[mine] - run.timer_start_cycle - ticks[motors == m]
+        late[motors == m] = run.step_cycle[mine] - run.timer_start_cycle - CYCLES * ticks[motors == m]
     latency = int(np.median(late))
     assert 0 < latency < 40 and np.abs(late - latency).max() <= LATENCY_TOLERANCE
 
@@ -127,7 +129,7 @@ def test_switches_closed_at_power_up(tmp_path):
         check_homing(trace, axis, distances[axis.motors[0]])
     check_run(DELTA_SCHEDULE, trace)
     # Without `switches`, the machine starts on its switches (position 0); the budget is the table's alone.
-    trace = simulate(image.hex_path, cfg, 1_000_000)
+    trace = simulate(image.hex_path, cfg, 3_000_000)
     for axis in cfg.homing:
         assert check_homing(trace, axis, 0) == 100
     check_run(DELTA_SCHEDULE, trace)
@@ -162,7 +164,7 @@ def test_cartesian_homes_x_and_y_to_their_min_switches(tmp_path):
         ((1, 1), (0, 0), 1, (0, 0), False, [(70_000 * 256 + 9, 0, 1)]),
         ((1, 1), (200, 100), 200, (100, 100), False, [(700 * 256, 0, 200)])])
     motors = (MotorPins("x", "X"), MotorPins("y", "Y", invert_dir=True))
-    axes = (homing(0, "x_min", -1, 3000, 9000, 30), homing(1, "y_min", -1, 5000, 15000, 40))
+    axes = (homing(0, "x_min", -1, 375, 1125, 30), homing(1, "y_min", -1, 625, 1875, 40))
     cfg = FirmwareConfig("plotter", "tests/test_avr_homing.py", "avr", "mks-gen-l", motors, homing=axes)
     distances = {0: -300, 1: -120}
     _, trace = build_and_run(sched, cfg, tmp_path, distances)
@@ -189,8 +191,8 @@ def test_an_image_without_homing_is_unchanged(tmp_path):
 
 def test_bad_homing_configs_are_refused_with_every_problem():
     sched = make_schedule(("x", "y"), [((1, 1), (5, 5), 5, (2, 2), False, [(500 * 256, 0, 5)])])
-    axes = (homing(0, "x_top", 1, 4000, 8000, 10), homing(0, "x_min", 2, 50, 8000, 0),
-            homing(5, "y_min", 1, 4000, 8000, 10))
+    axes = (homing(0, "x_top", 1, 500, 1000, 10), homing(0, "x_min", 2, 50, 1000, 0),
+            homing(5, "y_min", 1, 500, 1000, 10))
     cfg = FirmwareConfig("bad", "t.py", "avr", "ramps-1.4", (MotorPins("x", "X"), MotorPins("y", "Y")), homing=axes)
     with pytest.raises(BuildError) as error:
         render_sources(sched, cfg)

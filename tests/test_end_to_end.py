@@ -105,8 +105,8 @@ machine:
 program:
   feed: 3000
   shapes:
-    - sine: {origin: [0, 100], amplitude: 60, omega: 1.3, phase: 0, length: 190}
-""")
+    - sine: {origin: [0, 100], amplitude: 60, omega: 1.3, phase: 0, length: 1000}
+""")  # about 314 KB of tables (the compact stream, on curves timed along the curve)
     code, _, err = run(capsys, "build", job, "--out", tmp_path / "out")
     assert code == 1
     assert "262144" in err and "bytes" in err

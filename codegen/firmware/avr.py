@@ -1,12 +1,12 @@
 """ATmega2560 firmware: render the step-table player for a board, build it with avr-gcc, measure the fit.
 
-The player (templates/avr/) plays `Schedule.encode()` from flash; everything here is deterministic: the same
-schedule and config give byte-identical sources, and the same sources give an identical firmware.hex.
+The player (templates/avr/) plays the compact record stream of codegen/tables.py from flash, its step interrupt
+written in assembly (player_isr.S, laid out by codegen/firmware/avr_player.py); everything here is deterministic:
+the same schedule and config give byte-identical sources, and the same sources give an identical firmware.hex.
 """
 
 from __future__ import annotations
 
-import bisect
 import math
 import re
 import subprocess
@@ -15,29 +15,27 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import numpy as np
 import yaml
 
+from codegen import tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr_homing import homing_context
+from codegen.firmware.avr_player import isr_context, table_chunks
 from codegen.paths import targets_dir
 from codegen.render import render
 from codegen.schedule import TOOL_BIT, Schedule
 
-CHUNK_BYTES = 32767  # avr-gcc objects stop at 32767 bytes
-LINE_BYTES = 16  # table bytes per line of table.c
 CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
+ASFLAGS = ("-Wa,--fatal-warnings",)
 STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
+PLAYER_OBJECTS = ("player", "player_isr")  # what _flash_parts counts as the player's code
 # Pushes, calls, Y-relative frame slots and SP accesses (0x3d/0x3e) in the naked ISR.
 _STACK_USE = re.compile(
     r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
 _TEXT_FULL = re.compile(r"region [`']text'")  # ld: "will not fit in region `text'" / "region `text' overflowed"
 UNBOUNDED_FLASH = 8 << 20  # a link that only measures an oversized image
-# Registers of the STEP masks (one per port) next to the player's other register variables (r2-r11, r16-r17);
-# every other register is scratch for the naked ISR, so main's sleep loop clobbers them.
-STEP_MASK_REGS = ("r12", "r13", "r14", "r15")
-_HEX = [f"0x{b:02X}" for b in range(256)]
+MAX_STEP_PORTS = 4  # one PEND register each (the format has at most 4 motors)
 
 
 @dataclass(frozen=True)
@@ -124,49 +122,40 @@ def _ident(name: str) -> str:
     return re.sub(r"\W", "_", name).lower()
 
 
-def _table_chunks(data: bytes, schedule: Schedule) -> list[dict]:
-    """table.c's chunks as lines of at most LINE_BYTES, with a comment line where each block starts."""
-    flags, runs = schedule.block_flags(), np.diff(schedule.block_runs)
-    marks = {int(o): f"block {b}: flags 0x{int(flags[b]):02X}, {int(runs[b])} run(s)"
-             for b, o in enumerate(schedule.block_offsets())}
-    marks[len(data) - 3] = "end marker"
-    offsets = sorted(marks)
-    chunks = []
-    for base in range(0, len(data), CHUNK_BYTES):
-        end = min(base + CHUNK_BYTES, len(data))
-        cuts = [base] + offsets[bisect.bisect_right(offsets, base):bisect.bisect_left(offsets, end)] + [end]
-        lines = []
-        for a, b in zip(cuts, cuts[1:]):
-            for i in range(a, b, LINE_BYTES):
-                comment = f"0x{a:06X}: {marks[a]}" if i == a and a in marks else ""
-                row = data[i:min(i + LINE_BYTES, b)]
-                lines.append({"comment": comment, "text": ", ".join(_HEX[x] for x in row)})
-        chunks.append({"size": end - base, "lines": lines})
-    return chunks
-
-
 def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]:
-    """The C sources of the image (file name -> text): config.h, table.h, table.c, player.c, and homing.c
-    when the config homes motors."""
+    """The sources of the image (file name -> text): config.h, table.h, table.c, player.c, player_isr.S, and
+    homing.c when the config homes motors."""
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
-    data = schedule.encode()
+    try:
+        table = tables.encode(schedule)
+    except ValueError as exc:
+        raise BuildError(f"the schedule cannot be played by the {pins.mcu} player: {exc}") from exc
     motors = []
     for index, w in enumerate(pins.motors):
         motors.append({"name": w.name, "socket": w.socket, "id": _ident(w.name).upper(), "var": _ident(w.name),
-                       "step": {**w.step.__dict__, "var": w.step.port.lower()}, "dir": w.dir.__dict__,
-                       "enable": w.enable.__dict__, "invert": w.invert_dir, "flag": 1 << index})
+                       "index": index, "step": {**w.step.__dict__, "var": w.step.port.lower()},
+                       "dir": w.dir.__dict__, "enable": w.enable.__dict__, "invert": w.invert_dir, "flag": 1 << index})
     step_ports = []
     for port in sorted({m["step"]["port"] for m in motors}):
         group = [m for m in motors if m["step"]["port"] == port]
-        if len(step_ports) == len(STEP_MASK_REGS):
-            raise BuildError(f"board {config.board}: STEP pins on more than {len(STEP_MASK_REGS)} ports")
+        if len(step_ports) == MAX_STEP_PORTS:
+            raise BuildError(f"board {config.board}: STEP pins on more than {MAX_STEP_PORTS} ports")
         step_ports.append({"port": port, "var": port.lower(), "motors": group,
-                           "reg": STEP_MASK_REGS[len(step_ports)], "names": ", ".join(m["name"] for m in group)})
-    scratch = ["r0", *STEP_MASK_REGS[len(step_ports):], *(f"r{n}" for n in range(18, 32))]
+                           "names": ", ".join(m["name"] for m in group)})
+        for m in group:
+            m["step_port"] = step_ports[-1]
+    pin_ports: dict[str, list[dict]] = {}
+    for m in motors:
+        pin_ports.setdefault(m["dir"]["port"], []).append(
+            {"flag_bit": m["index"], "pin": m["dir"]["name"], "what": f"DIR {m['name']}"})
+    tool_entry = {"flag_bit": TOOL_BIT.bit_length() - 1, "pin": pins.tool.name, "what": "tool"}
+    pin_ports.setdefault(pins.tool.port, []).append(tool_entry)
+    dir_ports = [{"port": p, "entries": e} for p, e in sorted(pin_ports.items())]
+    invert_mask = sum(m["flag"] for m in motors if m["invert"]) | (0 if pins.tool_active_high else TOOL_BIT)
     outputs: dict[str, list[str]] = {}
     enables: dict[str, list[str]] = {}
     for m in motors:
@@ -174,26 +163,37 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
             outputs.setdefault(m[kind]["port"], []).append(f"{m['id']}_{kind.upper()}_BIT")
         enables.setdefault(m["enable"]["port"], []).append(f"{m['id']}_ENABLE_BIT")
     outputs.setdefault(pins.tool.port, []).append("TOOL_BIT")
-    f_cpu = int(mcu["f_cpu"])
+    f_cpu, tick_hz = int(mcu["f_cpu"]), int(mcu.get("tick_hz", mcu["f_cpu"]))
     pulse_cycles = math.ceil(config.step_pulse_us * f_cpu / 1e6)
     context = {
         "job_name": config.job_name, "job_file": config.job_file, "target": config.target, "board": config.board,
-        "mcu": pins.mcu, "f_cpu": f_cpu, "motors": motors, "step_ports": step_ports,
+        "mcu": pins.mcu, "f_cpu": f_cpu, "tick_hz": tick_hz, "motors": motors, "step_ports": step_ports,
         "tool": {**pins.tool.__dict__, "active_high": pins.tool_active_high}, "tool_flag": TOOL_BIT,
         "enable_active_low": pins.enable_active_low,
         "output_ports": [(p, " | ".join(bits)) for p, bits in sorted(outputs.items())],
         "enable_ports": [(p, " | ".join(bits)) for p, bits in sorted(enables.items())],
         "step_pulse_us": config.step_pulse_us, "step_pulse_cycles": pulse_cycles,
-        "step_path_cycles": int(mcu["step_high_min_cycles"]),
-        "step_pad_cycles": max(0, pulse_cycles - int(mcu["step_high_min_cycles"])),
-        "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
-        "chunks": _table_chunks(data, schedule),
-        "clobber_lines": [", ".join(f'"{r}"' for r in scratch[i:i + 10]) + ("," if i + 10 < len(scratch) else ");")
-                          for i in range(0, len(scratch), 10)],
+        "table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
+        "chunks": table_chunks(table), "dir_ports": dir_ports,
+        "tool_port": {"port": pins.tool.port, "entries": [tool_entry]}, "pad_plan": pad_plan,
     }
+    context.update(isr_context(motors, step_ports, dir_ports + [context["tool_port"]], invert_mask, f_cpu,
+                               tick_hz, pulse_cycles))
     context.update(homing_context(config, pins, motors, mcu))
-    names = ("config.h", "table.h", "table.c", "player.c") + (("homing.c",) if config.homing else ())
+    names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
     return {name: render(f"avr/{name}.j2", **context) for name in names}
+
+
+def pad_plan(cycles: int) -> dict:
+    """Exactly `cycles` CPU cycles of waiting: loops of 3k cycles (LDI + k x (DEC, BRNE) less one), then RJMP .+0
+    (2 cycles) and a NOP."""
+    loops = []
+    left = cycles
+    while left >= 6:
+        k = min(left // 3, 255)
+        loops.append(k)
+        left -= 3 * k
+    return {"loops": loops, "rjmps": left // 2, "nops": left % 2}
 
 
 def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
@@ -225,13 +225,14 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
 
 
 def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
-    """Every byte of flash by what it is: the step table, the player's own code (the functions player.o
-    defines), the homing code (homing.o's, in an image that homes), the initial values of RAM variables, and
+    """Every byte of flash by what it is: the step table, the player's own code (the functions player.o and
+    player_isr.o define), the homing code (homing.o's, in an image that homes), the initial values of RAM variables, and
     the rest (interrupt vectors, C start-up, libgcc)."""
-    own = {}
-    for obj in (name for name in ("player", "homing") if (cwd / f"{name}.o").exists()):
+    own: dict[str, set[str]] = {}
+    for obj in (name for name in (*PLAYER_OBJECTS, "homing") if (cwd / f"{name}.o").exists()):
         symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
-        own[obj] = {line.split()[-1] for line in symbols if line.split()[-2] in "Tt"}
+        part = "homing" if obj == "homing" else "player"
+        own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "Tt")
     table = player = homing = 0
     for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
         parts = line.split()
@@ -251,12 +252,12 @@ def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, in
 
 
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:
-    """The naked step interrupt saves nothing and has no frame: GCC must not have spilled to the stack."""
+    """The step interrupt (assembly) saves nothing and has no frame: no push, call or stack access in it."""
     out = _run(["avr-objdump", "-d", "--no-show-raw-insn", elf.name], cwd, "avr-objdump").stdout
     body = out.split(f"<{STEP_ISR}>:", 1)[1].split("\n\n", 1)[0] if f"<{STEP_ISR}>:" in out else ""
     bad = [line.strip() for line in body.splitlines() if _STACK_USE.search(line)]
     if not body or bad:
-        raise BuildError(f"the step interrupt {STEP_ISR} uses the stack, which it may not (it is naked): "
+        raise BuildError(f"the step interrupt {STEP_ISR} uses the stack, which it may not (it saves nothing): "
                          f"{'; '.join(bad[:3]) or 'not found'}")
 
 
@@ -291,9 +292,10 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
         objects = []
         for name, text in sorted(sources.items()):
             (work / name).write_text(text, encoding="utf-8")
-        for name in sorted(n for n in sources if n.endswith(".c")):
+        for name in sorted(n for n in sources if n.endswith((".c", ".S"))):
             objects.append(name[:-2] + ".o")
-            _run(["avr-gcc", *arch, *CFLAGS, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
+            flags = CFLAGS if name.endswith(".c") else ASFLAGS
+            _run(["avr-gcc", *arch, *flags, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
         done = _link(arch, objects, "firmware.elf", flash, ram, work)
         if done.returncode != 0:
             if _TEXT_FULL.search(done.stderr):

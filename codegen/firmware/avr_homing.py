@@ -46,11 +46,11 @@ def homing_steps(axis: HomingAxis, distance: int) -> tuple[int, int, int]:
     return fast, back, distance - (fast - back)
 
 
-def homing_ticks_bound(config: FirmwareConfig, distances: dict[int, int | None], f_cpu: int) -> int:
-    """At most how long homing takes (timer ticks = CPU cycles) when axis k's switch (config.homing[k]) closes
+def homing_ticks_bound(config: FirmwareConfig, distances: dict[int, int | None], tick_hz: int) -> int:
+    """At most how long homing takes (timer ticks at `tick_hz`) when axis k's switch (config.homing[k]) closes
     `distances[k]` steps away towards it (None or no entry: never), failures included."""
     total = 0
-    pause = math.ceil(PHASE_PAUSE_US * f_cpu / 1e6)
+    pause = math.ceil(PHASE_PAUSE_US * tick_hz / 1e6)
     for round_ in sorted({h.round for h in config.homing}):
         phases = [[0], [0], [0]]
         for k, h in enumerate(config.homing):
@@ -75,8 +75,8 @@ def stepping_motors(config: FirmwareConfig) -> int:
 
 
 def min_interval_cycles(mcu: dict, f_cpu: int, n_motors: int, step_pulse_us: float) -> int:
-    """The shortest homing step interval with `n_motors` stepping at once: one event's work and the STEP pulse.
-    (DIR pins change only before a phase's pause, far ahead of the next step.)"""
+    """The shortest homing step interval (CPU cycles) with `n_motors` stepping at once: one event's work and the
+    STEP pulse. (DIR pins change only before a phase's pause, far ahead of the next step.)"""
     work = mcu["homing_event_cycles"]
     return int(work[min(n_motors, len(work)) - 1]) + math.ceil(step_pulse_us * f_cpu / 1e6)
 
@@ -148,14 +148,17 @@ def _ident(name: str) -> str:
 
 
 def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], mcu: dict) -> dict:
-    """Template variables for homing (`homing` is empty without it); BuildError lists every problem."""
+    """Template variables for homing (`homing` is empty without it); BuildError lists every problem. Intervals
+    are in Timer1 ticks (the MCU file's tick_hz, as the player's)."""
     f_cpu = int(mcu["f_cpu"])
+    tick_hz = int(mcu.get("tick_hz", f_cpu))
     context = {"homing": [], "homing_rounds": [], "homing_step_ports": [],
                "switch_reread_cycles": math.ceil(SWITCH_REREAD_US * f_cpu / 1e6),
-               "pause_ticks": math.ceil(PHASE_PAUSE_US * f_cpu / 1e6), "pause_us": f"{PHASE_PAUSE_US:g}"}
+               "pause_ticks": math.ceil(PHASE_PAUSE_US * tick_hz / 1e6), "pause_us": f"{PHASE_PAUSE_US:g}"}
     if not config.homing:
         return context
-    shortest = min_interval_cycles(mcu, f_cpu, stepping_motors(config), config.step_pulse_us)
+    cycles = min_interval_cycles(mcu, f_cpu, stepping_motors(config), config.step_pulse_us)
+    shortest = math.ceil(cycles * tick_hz / f_cpu)
     problems, axes, seen_switches = [], [], set()
     names = [m["name"] for m in motors]
     for where, k, h, mine in homed_axes(config, motors, problems):
@@ -169,7 +172,7 @@ def homing_context(config: FirmwareConfig, pins: BoardPins, motors: list[dict], 
         problems += axis_problems(where, h, shortest)
         if switch is None or problems:
             continue
-        us = (lambda ticks: f"{ticks / f_cpu * 1e6:g}")
+        us = (lambda ticks: f"{ticks / tick_hz * 1e6:g}")
         axes.append({**axis_context(k, h, mine, names), "pin": switch.pin.__dict__,
                      "closed_high": switch.closed_high, "fast_us": us(h.fast_interval), "slow_us": us(h.slow_interval)})
     if problems:

@@ -23,6 +23,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr import board_pins, load_target
 from codegen.firmware.avr_homing import homing_ticks_bound
+from codegen.firmware.avr_player import START_TICKS
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr")
@@ -44,7 +45,7 @@ class SimTrace:
     state: str  # done | crashed | budget
     cycles: int  # total simulated cycles
     f_cpu: int
-    timer_start_cycle: int | None  # the cycle at which the player started Timer1 (its tick 0); None if never
+    timer_start_cycle: int | None  # the player's tick 0: START_TICKS ticks after it started Timer1; None if never
     step_cycle: np.ndarray  # (P,) int64, STEP rising edge
     step_motor: np.ndarray  # (P,) int index into config.motors
     step_dir: np.ndarray  # (P,) +1 / -1, DIR at the rising edge with invert_dir undone
@@ -151,8 +152,10 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     f_cpu = int(mcu["f_cpu"])
     if switches is None:
         switches = {k: 0 for k in range(len(config.homing))}
+    tick_hz = int(mcu.get("tick_hz", f_cpu))
     if config.homing:
-        cycle_budget = int(cycle_budget) + homing_ticks_bound(config, switch_thresholds(config, switches), f_cpu)
+        bound = homing_ticks_bound(config, switch_thresholds(config, switches), tick_hz)
+        cycle_budget = int(cycle_budget) + bound * (f_cpu // tick_hz)
     watched = [p for w in pins.motors for p in (w.step, w.dir)] + [pins.tool]
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"
@@ -190,7 +193,10 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     order = np.lexsort((mot, cyc))
     tool = rec[rec["pin"] == len(watched) - 1]
     tool_on = tool["level"].astype(int) ^ (0 if pins.tool_active_high else 1)
+    # The harness notes the cycle that starts Timer1; tick 0 is the compare match START_TICKS ticks later.
     timer_start = int(fields.get("timer_start", "-1"))
+    if timer_start >= 0:
+        timer_start += START_TICKS * (f_cpu // tick_hz)
     run = cyc[order] >= timer_start if timer_start >= 0 else np.zeros(len(order), dtype=bool)
     status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
     fault = _homing_fault(config, *status)
