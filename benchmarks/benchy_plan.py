@@ -1,50 +1,143 @@
-"""Benchmark: `plan` of the PrusaSlicer Benchy (89,383 lines) for a Prusa MINI, stage by stage.
+"""Benchmark: `plan` of the PrusaSlicer Benchy for a Prusa MINI (examples/printers/benchy-mini.yaml), once and
+three times over, against Klipper's batch mode on the same file, measured in the same run, alternating.
 
-    python benchmarks/benchy_plan.py [--repeat 3]
+    python benchmarks/benchy_plan.py [--repeat 3] [--copies 1 3] [--cpu N] [--no-klipper]
 
-Prints the wall time of each stage (best of the repeats), steps/s, and the planned duration against the
-slicer's own estimate (38m43s). Reference: Klipper's host turns the same file into step commands in 2.2 to 2.7 s
-on this kind of machine (8.45 million steps); its figure compares with "G-code to tables".
+Each of our runs is a fresh process that does what `printer-codegen plan` does (read, plan, step times, rate
+runs, twin and every check; no compiler, no simulator), so its wall time includes Python's start and imports,
+as Klipper's includes klippy's. Printed per run: wall time, each stage's wall time (the front end runs in a
+child process beside the rest: its stages overlap the others), steps/s, peak resident memory of the main
+process and of the front end's child (os.wait4 and getrusage: each process's own peak), table bytes per step
+on both targets (AVR and 8051), and Klipper's wall time, peak memory and command bytes per step, with the
+ratio of the best walls. Klipper runs when benchmarks/klipper_ref.py finds it (see its docstring), with the
+command of the issue (`klippy.py printer.cfg -i file.gcode -o out.serial -d out/klipper.dict`); it is
+skipped otherwise. `--cpu N` pins both to one core (ours then runs in one process).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
-from codegen.job import load_job
-from codegen.pipeline import Stopwatch, host_build
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(HERE))
 
-JOB = Path(__file__).resolve().parent.parent / "examples" / "printers" / "benchy-mini.yaml"
+from klipper_ref import BENCHY, find_klipper, repeated_gcode, run_klipper  # noqa: E402
+
+JOB = REPO / "examples" / "printers" / "benchy-mini.yaml"
 SLICER_ESTIMATE_S = 38 * 60 + 43
-TO_TABLES = ("toolpath", "segments", "plan", "step times", "rate runs")
+
+
+def measure_one(job_path: str, target: str | None) -> dict:
+    """In the child: the plan of the job, its stage times and figures, as JSON."""
+    begin = time.perf_counter()
+    from codegen.job import load_job
+    from codegen.pipeline import Stopwatch, host_build
+
+    watch = Stopwatch()
+    host = host_build(load_job(Path(job_path), target), keep=False, watch=watch)
+    totals, findings = host.totals, host.findings
+    return {
+        "in_process_s": time.perf_counter() - begin, "stages": watch.seconds,
+        "steps": sum(findings.steps.values()), "table_bytes": totals.table_bytes, "blocks": totals.blocks,
+        "runs": totals.runs, "duration_s": totals.duration_s, "pass": findings.ok, "problems": findings.problems,
+        "timing_us": totals.max_timing_error_ticks / host.target.tick_hz * 1e6,
+        "front_end_rss_kib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss,
+    }
+
+
+def run_ours(job: Path, target: str | None, cpu: int | None) -> dict:
+    argv = [sys.executable, str(Path(__file__).resolve()), "--one", str(job)]
+    argv += ["--target", target] if target else []
+    pin = (lambda: os.sched_setaffinity(0, {cpu})) if cpu is not None else None
+    begin = time.perf_counter()
+    child = subprocess.Popen(argv, stdout=subprocess.PIPE, preexec_fn=pin)
+    out = child.stdout.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - begin
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode != 0:
+        raise SystemExit(f"our plan failed on {job} (exit {child.returncode})")
+    result = json.loads(out)
+    return {**result, "wall_s": wall, "rss_mib": usage.ru_maxrss / 1024,
+            "front_mib": result["front_end_rss_kib"] / 1024}
+
+
+def job_for(copies: int, work: Path) -> tuple[Path, Path]:
+    """The job file and its G-code for the Benchy `copies` times over."""
+    if copies == 1:
+        return JOB, BENCHY
+    gcode = repeated_gcode(BENCHY, copies, work / f"benchy-x{copies}.gcode")
+    text = JOB.read_text().replace("../../tests/data/gcode/slicer/benchy-prusaslicer.gcode", str(gcode))
+    job = work / f"benchy-x{copies}.yaml"
+    job.write_text(text.replace("name: benchy-mini", f"name: benchy-x{copies}"))
+    return job, gcode
+
+
+def compare(copies: int, repeat: int, cpu: int | None, klipper, work: Path) -> None:
+    job, gcode = job_for(copies, work)
+    ours, theirs = [], []
+    for _ in range(repeat):  # alternating, so that both see the same machine
+        ours.append(run_ours(job, None, cpu))
+        if klipper is not None:
+            theirs.append(run_klipper(klipper, gcode, work / "klipper", verbose=False, cpu=cpu))
+    best = min(ours, key=lambda r: r["wall_s"])
+    steps = best["steps"]
+    name = "Benchy" + (f" x{copies}" if copies > 1 else "")
+    print(f"\n{name}: {steps:,} steps, {best['blocks']:,} blocks, {best['runs']:,} runs; checks "
+          f"{'pass' if best['pass'] else 'FAIL: ' + '; '.join(best['problems'])}; planned {best['duration_s']:.0f} s "
+          f"(the slicer estimates {SLICER_ESTIMATE_S * copies} s)")
+    walls = ", ".join(f"{r['wall_s']:.2f}" for r in ours)
+    main_mib, front_mib = max(r["rss_mib"] for r in ours), max(r["front_mib"] for r in ours)
+    print(f"  ours:    {best['wall_s']:.2f} s wall (best of {repeat}: {walls}), "
+          f"{steps / best['wall_s'] / 1e6:.2f} M steps/s, peak RSS {main_mib:.0f} MiB main + {front_mib:.0f} MiB "
+          f"front end")
+    for stage, seconds in best["stages"].items():
+        print(f"    {stage:<34} {seconds:6.3f} s")
+    table = best["table_bytes"]
+    print(f"  tables:  {table:,} bytes on the AVR = {table / steps:.3f} bytes/step "
+          f"(timing within {best['timing_us']:.1f} us of the plan)")
+    other = run_ours(job, "mcs51", cpu)
+    print(f"           {other['table_bytes']:,} bytes on the 8051 = {other['table_bytes'] / steps:.3f} bytes/step "
+          f"(checks {'pass' if other['pass'] else 'FAIL'})")
+    if theirs:
+        k = min(theirs, key=lambda r: r.wall_s)
+        walls = ", ".join(f"{r.wall_s:.2f}" for r in theirs)
+        print(f"  Klipper: {k.wall_s:.2f} s wall (best of {repeat}: {walls}), "
+              f"peak RSS {max(r.peak_rss_mib for r in theirs):.0f} MiB, {k.serial_bytes:,} command bytes = "
+              f"{k.serial_bytes / steps:.3f} bytes/step")
+        print(f"  ratio (ours / Klipper, best walls): {best['wall_s'] / k.wall_s:.2f}")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--copies", type=int, nargs="+", default=[1, 3])
+    parser.add_argument("--cpu", type=int, default=None, help="pin ours and Klipper to this core")
+    parser.add_argument("--no-klipper", action="store_true")
+    parser.add_argument("--one", help=argparse.SUPPRESS)  # a child's run
+    parser.add_argument("--target", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    best: dict[str, float] = {}
-    walls = []
-    for _ in range(args.repeat):
-        watch = Stopwatch()
-        begin = time.perf_counter()
-        host = host_build(load_job(JOB), watch=watch)
-        walls.append(time.perf_counter() - begin)
-        for stage, seconds in watch.seconds.items():
-            best[stage] = min(best.get(stage, seconds), seconds)
-    steps = len(host.pulses.tick)
-    print(f"Benchy for a Prusa MINI: {steps:,} steps, {host.schedule.n_blocks:,} blocks, "
-          f"{host.schedule.n_runs:,} runs, {host.schedule.table_bytes():,} table bytes")
-    for stage, seconds in best.items():
-        print(f"  {stage:<11} {seconds:6.3f} s")
-    tables = sum(best[s] for s in TO_TABLES)
-    print(f"G-code to tables: {tables:.2f} s = {steps / tables:,.0f} steps/s (Klipper: 2.2-2.7 s for 8.45 M steps)")
-    print(f"whole plan with twin and checks: {min(walls):.2f} s wall (best of {args.repeat})")
-    duration = host.plan.total
-    print(f"planned duration {duration:.1f} s = {duration / 60:.1f} min; the slicer estimates {SLICER_ESTIMATE_S} s "
-          f"({100 * (duration / SLICER_ESTIMATE_S - 1):+.1f} %); checks {'pass' if host.findings.ok else 'FAIL'}")
+    if args.one:
+        print(json.dumps(measure_one(args.one, args.target)))
+        return
+    klipper = None if args.no_klipper else find_klipper()
+    where = f"at {klipper.klipper_dir}" if klipper else "not set up (benchmarks/klipper_ref.py): skipped"
+    print(f"Klipper: {where}"
+          + (f"; both pinned to core {args.cpu}" if args.cpu is not None else f"; {os.cpu_count()} cores"))
+    with tempfile.TemporaryDirectory(prefix="benchy-plan-") as tmp:
+        if klipper is not None:  # klippy compiles its C helper on its first start: not in the figures
+            run_klipper(klipper, BENCHY, Path(tmp) / "klipper", verbose=False)
+        for copies in args.copies:
+            compare(copies, args.repeat, args.cpu, klipper, Path(tmp))
 
 
 if __name__ == "__main__":

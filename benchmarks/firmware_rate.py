@@ -97,12 +97,11 @@ def schedule(n_motors: int, interval: int, events: int, mode: str, tick_hz: int)
     modulus = np.array([b[1] for b in blocks], dtype=np.int64)
     steps = np.repeat(np.array([b[2] for b in blocks], dtype=np.int64)[:, None], n_motors, axis=1)
     steps[:, 0] = modulus
-    count = np.array([len(b[3]) for b in blocks])
     return Schedule(
         motors=tuple(name for name, _ in SOCKETS[:n_motors]), tick_hz=tick_hz,
         block_dirs=np.repeat(np.array([b[0] for b in blocks], dtype=np.int8)[:, None], n_motors, axis=1),
         block_steps=steps, block_modulus=modulus, block_init=np.zeros((len(blocks), n_motors), dtype=np.int64),
-        block_tool=np.zeros(len(blocks), dtype=bool), block_runs=np.concatenate([[0], np.cumsum(count)]),
+        block_tool=np.zeros(len(blocks), dtype=bool), 
         block_segment=np.zeros(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64),
         run_add=np.array([r[1] for r in runs], dtype=np.int64),

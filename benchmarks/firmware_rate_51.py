@@ -73,7 +73,6 @@ def schedule(n_motors: int, interval: int, events: int, mode: str) -> Schedule:
         blocks = [lead] + [(-1 if k % 2 == 0 else 1, 256, 255, 0, [(interval * 256, 0, 1), (interval * 256, 0, 255)])
                            for k in range(max(events // 256, 1))]
     runs = [r for b in blocks for r in b[4]]
-    count = np.array([len(b[4]) for b in blocks])
     block_events = np.array([sum(r[2] for r in b[4]) for b in blocks], dtype=np.int64)
     modulus = np.array([b[1] for b in blocks], dtype=np.int64)
     steps = np.repeat(np.array([b[2] for b in blocks], dtype=np.int64)[:, None], n_motors, axis=1)
@@ -83,7 +82,7 @@ def schedule(n_motors: int, interval: int, events: int, mode: str) -> Schedule:
         block_dirs=np.repeat(np.array([b[0] for b in blocks], dtype=np.int8)[:, None], n_motors, axis=1),
         block_steps=steps, block_modulus=modulus,
         block_init=np.repeat(np.array([b[3] for b in blocks], dtype=np.int64)[:, None], n_motors, axis=1),
-        block_tool=np.zeros(len(blocks), dtype=bool), block_runs=np.concatenate([[0], np.cumsum(count)]),
+        block_tool=np.zeros(len(blocks), dtype=bool), 
         block_segment=np.zeros(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64),
         run_add=np.array([r[1] for r in runs], dtype=np.int64),

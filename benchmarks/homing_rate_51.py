@@ -43,7 +43,7 @@ def one_step_schedule(n_motors: int) -> Schedule:
     return Schedule(motors=tuple(s[0] for s in SOCKETS[:n_motors]), tick_hz=1_000_000,
                     block_dirs=np.ones((1, n_motors), dtype=np.int8), block_steps=steps,
                     block_modulus=np.array([1]), block_init=z, block_tool=np.zeros(1, dtype=bool),
-                    block_runs=np.array([0, 1]), block_segment=np.zeros(1, dtype=np.int64),
+                    block_events=np.array([1]), block_segment=np.zeros(1, dtype=np.int64),
                     run_interval=np.array([2000 * 256]), run_add=np.array([0]), run_count=np.array([1]))
 
 

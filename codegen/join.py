@@ -48,19 +48,15 @@ def join_events(played: list[Played]) -> Events:
 def join_schedule(played: list[Played], final_tool: bool) -> Schedule:
     schedules = [p.compressed.schedule for p in played]
     segment_at = _offsets([len(p.window.segments) for p in played])
-    run_at = _offsets([s.n_runs for s in schedules])
     first = schedules[0]
     return Schedule(
         motors=first.motors, tick_hz=first.tick_hz,
         block_dirs=_cat(schedules, "block_dirs"), block_steps=_cat(schedules, "block_steps"),
         block_modulus=_cat(schedules, "block_modulus"), block_init=_cat(schedules, "block_init"),
-        block_tool=_cat(schedules, "block_tool"),
-        block_runs=np.concatenate([s.block_runs[:-1] + r for s, r in zip(schedules, run_at)]
-                                  + [[sum(s.n_runs for s in schedules)]]).astype(np.int64),
+        block_tool=_cat(schedules, "block_tool"), block_events=_cat(schedules, "block_events"),
         block_segment=np.concatenate([s.block_segment + k for s, k in zip(schedules, segment_at)]),
         run_interval=_cat(schedules, "run_interval"), run_add=_cat(schedules, "run_add"),
         run_count=_cat(schedules, "run_count"), final_tool=final_tool,
-        block_events=None if first.block_events is None else _cat(schedules, "block_events"),
     )
 
 

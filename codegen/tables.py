@@ -1,9 +1,9 @@
 """The table stream every player reads: short records where the numbers are small, and rate runs that go on across
 block starts (8 KB of 8051 code memory holds the whole job; each byte is a byte less to send down a serial line).
 
-Semantics are codegen/schedule.py's, with two differences: a block lasts exactly `modulus` events (a dwell is a
-block of `events` step-less events), and the runs form one sequence over all events, independent of the blocks.
-The player reads one stream in the order it needs the records: at an event that starts a block and a run, the
+Semantics are codegen/schedule.py's: a block lasts exactly `modulus` events (a dwell is a block of `events`
+step-less events), and the runs form one sequence over all events, independent of the blocks. The player reads
+one stream in the order it needs the records: at an event that starts a block and a run, the
 block record comes first. Little-endian.
 
 Block record, first byte `flags`: bit m (m < 4) motor m moves in + direction, bits 4-5 the master motor (short
@@ -72,8 +72,9 @@ def block_fields(schedule: Schedule) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _long_blocks(modulus: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Blocks that need the long record: a modulus over a byte, or a dwell (no motor moves)."""
-    return (modulus > 0xFF) | ~np.any(steps > 0, axis=1)
+    """Blocks that need the long record: a modulus over a byte, a dwell (no motor moves), or no motor stepping
+    at every event (the short record's master does)."""
+    return (modulus > 0xFF) | (steps.max(axis=1, initial=0) != modulus)
 
 
 def _long_runs(count: np.ndarray, interval: np.ndarray, add: np.ndarray) -> np.ndarray:
@@ -94,8 +95,6 @@ def encode(schedule: Schedule) -> CompactTable:
     motors = len(schedule.motors)
     if motors > MAX_MOTORS:
         raise ValueError(f"the compact stream holds at most {MAX_MOTORS} motors")
-    if not schedule.runs_cross_blocks:
-        raise ValueError("the compact stream needs a schedule compressed with cross_blocks=True")
     schedule.validate()
     modulus, steps, init = block_fields(schedule)
     if np.any(modulus < 1) or np.any(modulus > MAX_LONG_MODULUS):

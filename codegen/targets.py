@@ -63,11 +63,6 @@ class TargetInfo:
         return int(self.mcu_data.get("isr_latency_cycles", 0)) * 1e6 / self.f_cpu
 
     @property
-    def compact_tables(self) -> bool:
-        """The player reads the compact table stream (short records, runs that go on across block starts)."""
-        return self.mcu_data.get("table_format") == "compact"
-
-    @property
     def max_gap_s(self) -> float:
         """Longest wait between two events the player's 24.8 fixed-point interval can express."""
         return ((1 << 24) - 1) / self.tick_hz

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from codegen.checks import Checker, MotorTrain, corner_jumps
-from codegen.compress import Compressed, TimingWindow, compress
+from codegen.compress import Compressed, compress
 from codegen.kinematics.base import Kinematics
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
@@ -63,7 +63,7 @@ class Totals:
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
-        end = 2 if sched.runs_cross_blocks else 3  # the end marker, counted once for the whole program
+        end = 2  # the end marker, counted once for the whole program
         self.duration_s = played.window.plan.total if len(played.window.plan.duration) else self.duration_s
         self.segments += len(played.window.segments)
         self.blocks += sched.n_blocks
@@ -71,12 +71,6 @@ class Totals:
         self.events += played.events_count
         self.table_bytes += sched.table_bytes() - (end if self.table_bytes else 0)
         self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
-
-
-def timing_window(target: TargetInfo) -> TimingWindow:
-    """How far an event may be from its ideal time. The 5 % share of the gap bounds the rate error; on the
-    compact tables (8 KB of code memory) the absolute cap is wider, so that slow moves need fewer runs."""
-    return TimingWindow(max_us=100.0) if target.compact_tables else TimingWindow()
 
 
 @dataclass
@@ -143,10 +137,9 @@ class Stages:
         kin, target, watch = self.kin, self.target, self.watch
         with watch("step times"):
             events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
-                              curves=target.compact_tables)
+                              curves=True)
         with watch("rate runs"):
-            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, window=timing_window(target),
-                                  cross_blocks=target.compact_tables, max_rate=kin.limits.max_rate,
+            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=kin.limits.max_rate,
                                   origin_fx=before.origin_fx)
         with watch("twin"):
             pulses = predict(compressed.schedule, before.origin_fx, before.position)

@@ -31,13 +31,11 @@ def make_schedule(motors, blocks, final_tool=False, runs=None):
     own = runs is None
     events = [sum(r[2] for r in b[5]) for b in blocks] if own else [b[5] for b in blocks]
     runs = [r for b in blocks for r in b[5]] if own else runs
-    run_first = np.cumsum([0] + [r[2] for r in runs])
     per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
     return Schedule(
         motors=tuple(motors), tick_hz=TICK_HZ, block_dirs=per_motor(0, np.int8), block_steps=per_motor(1, np.int64),
         block_modulus=np.array([b[2] for b in blocks], dtype=np.int64), block_init=per_motor(3, np.int64),
         block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_runs=np.searchsorted(run_first, np.cumsum([0] + events)).astype(np.int64),
         block_segment=np.zeros(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
         run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
@@ -257,11 +255,3 @@ def test_every_socket_combination_builds_with_a_stackless_isr(tmp_path):
                 render_sources(sched, cfg)
             continue
         build_image(render_sources(sched, cfg), tmp_path / str(mask), sched.table_bytes())
-
-
-def test_an_old_format_schedule_is_refused():
-    """Runs of their own per block (block_events None) are not the compact stream the player reads."""
-    sched = make_schedule(("x",), [((1,), (5,), 5, (2,), False, [(500 * 256, 0, 5)])])
-    sched.block_events = None
-    with pytest.raises(BuildError, match="cross_blocks"):
-        render_sources(sched, config(("x",), ("X",)))

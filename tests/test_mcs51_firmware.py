@@ -31,14 +31,12 @@ def make_schedule(motors, blocks, final_tool=False, runs=None):
     events = [sum(r[2] for r in b[5]) for b in blocks] if runs is None else [b[5] for b in blocks]
     own = runs is None
     runs = [r for b in blocks for r in b[5]] if own else runs
-    run_first = np.cumsum([0] + [r[2] for r in runs])
-    block_runs = np.searchsorted(run_first, np.cumsum([0] + events))
     per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
     return Schedule(
         motors=tuple(motors), tick_hz=1_000_000, block_dirs=per_motor(0, np.int8),
         block_steps=per_motor(1, np.int64), block_modulus=np.array([b[2] for b in blocks], dtype=np.int64),
         block_init=per_motor(3, np.int64), block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_runs=block_runs.astype(np.int64), block_segment=np.zeros(len(blocks), dtype=np.int64),
+        block_segment=np.zeros(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
         run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
         run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,

@@ -11,7 +11,7 @@ import codegen.checks as checks
 import codegen.runfit as runfit
 import codegen.stepgen as stepgen
 import codegen.twin as twin
-from codegen.compress import TimingWindow, compress
+from codegen.compress import compress
 from codegen.job import load_job
 from codegen.native import library
 from codegen.pipeline import host_build
@@ -83,8 +83,7 @@ def test_an_event_that_cannot_keep_its_window_comes_as_early_as_the_gap_allows()
 def test_compressed_runs_keep_the_windows_and_the_player_gaps():
     kin, segments, steps, p = planned(polyline([(0, 0), (30, 5), (31, 40), (0, 0)], feed=150))
     events = generate(segments, p, kin, steps, max_gap=1.0)
-    c = compress(events, kin.motors, 2_000_000, 25, 50, TimingWindow(max_us=100.0), cross_blocks=True,
-                 origin_fx=12345)
+    c = compress(events, kin.motors, 2_000_000, 25, 50, origin_fx=12345)
     assert np.all(np.abs(c.emitted_ticks - c.ideal_ticks) <= c.window_ticks + 1e-9)
     assert np.all(np.diff(c.emitted_ticks, prepend=12345 >> 8) >= 25)
     assert np.array_equal(twin.predict(c.schedule, 12345).event_tick, c.emitted_ticks)

@@ -13,7 +13,6 @@ def schedule(blocks, runs, motors=("x", "y")):
     """blocks: (dirs, steps, modulus[, init]) lasting `modulus` events each (a dwell: (dirs, zeros, events));
     runs: (interval, add, count), one sequence over all events."""
     events = [b[2] for b in blocks]
-    run_first = np.cumsum([0] + [r[2] for r in runs])
     return Schedule(
         motors=motors, tick_hz=2_000_000,
         block_dirs=np.array([b[0] for b in blocks], dtype=np.int8),
@@ -21,7 +20,6 @@ def schedule(blocks, runs, motors=("x", "y")):
         block_modulus=np.array([b[2] for b in blocks], dtype=np.int64),
         block_init=np.array([b[3] if len(b) > 3 else [b[2] >> 1] * len(b[1]) for b in blocks], dtype=np.int64),
         block_tool=np.zeros(len(blocks), bool),
-        block_runs=np.searchsorted(run_first, np.cumsum([0] + events)).astype(np.int64),
         block_segment=np.arange(len(blocks), dtype=np.int64),
         run_interval=np.array([r[0] for r in runs], dtype=np.int64),
         run_add=np.array([r[1] for r in runs], dtype=np.int64),

@@ -1,9 +1,9 @@
 """8051 (AT89C52 / STC89C52RC class) firmware: render the step-table player for a board, build it with SDCC,
 measure the fit.
 
-The player (templates/mcs51/) plays `Schedule.encode()` from code memory with a Timer0 interrupt written in
-assembly. Everything here is deterministic: the same schedule and config give byte-identical sources, and the same
-sources give an identical firmware.hex. Next to the hex, firmware.sym.json gives the simulator the addresses it
+The player (templates/mcs51/) plays the compact stream of codegen/tables.py from code memory with a Timer0
+interrupt written in assembly. Everything here is deterministic: the same schedule and config give
+byte-identical sources, and the same sources give an identical firmware.hex. Next to the hex, firmware.sym.json gives the simulator the addresses it
 needs (the timer start and halt()), and firmware.map is SDCC's map of the image.
 """
 
