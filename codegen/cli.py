@@ -142,10 +142,28 @@ def cmd_verify(args) -> int:
 
 def cmd_plan(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host = _host(job, args.strict, keep=False)
+    if args.tables is None:
+        host = _host(job, args.strict, keep=False)
+    else:
+        host = _plan_writing_tables(job, args.strict, Path(args.tables))
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
     return 0 if summary["pass"] else 1
+
+
+def _plan_writing_tables(job, strict: bool, path: Path) -> HostBuild:
+    """The plan, its table stream written to `path` as it is made; no file unless every check passes."""
+    partial = path.with_name(f".{path.name}.partial")
+    try:
+        with open(partial, "wb") as tables:
+            host = host_build(job, strict, keep=False, tables=tables)
+        if host.warnings:
+            print(render_all(host.warnings), file=sys.stderr)
+        if host.findings.ok:
+            partial.replace(path)
+        return host
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -173,6 +191,8 @@ def parser() -> argparse.ArgumentParser:
             v.add_argument("--json", action="store_true", help="print one JSON object")
         if name == "verify":
             v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
+        if name == "plan":
+            v.add_argument("--tables", help="write the table stream (codegen/tables.py) to this file as it is made")
     return p
 
 

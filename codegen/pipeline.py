@@ -7,6 +7,7 @@ Each stage is a function with a typed result; this module only composes them (an
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import BinaryIO
 
 import numpy as np
 
@@ -84,11 +85,13 @@ def planner_limits(job, kin: Kinematics, target: TargetInfo) -> PlannerLimits:
                          block_overhead=target.block_overhead_s(motors, pulse_us, setup_us))
 
 
-def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True) -> HostBuild:
+def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
+               tables: BinaryIO | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator. The program
     is read, planned and played a window at a time (codegen/lookahead.py, codegen/windows.py); `keep` joins
     the windows' results into the whole program's (for an image and its verification), otherwise only their
-    totals are kept and memory stays bounded whatever the program's size."""
+    totals are kept and memory stays bounded whatever the program's size. `tables` gets the table stream as
+    its windows are made."""
     watch = watch or Stopwatch()
     try:
         target = target_info(job.board)
@@ -106,7 +109,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
         with watch("front end (waiting for it)"):
             chunk = next(chunks, None)
         if stages is None:
-            stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch)
+            stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
+                            tables)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -122,6 +126,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     expected_final = kin.to_steps(np.asarray(program.end, float)[None, :])[0]
     if stages.totals.events == 0 and not played:  # nothing moves: an empty program
         played = stages.play(_no_window(job, kin, program), None, True)
+    stages.finish()
     host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final, program.warnings, homing)
     if keep:

@@ -22,6 +22,7 @@ def plan_summary(host: HostBuild) -> dict:
         "duration_s": _round(totals.duration_s),
         "table_bytes": totals.table_bytes,
         "segments": totals.segments,
+        "windows": totals.windows,
         "blocks": totals.blocks,
         "runs": totals.runs,
         "events": totals.events,

@@ -142,11 +142,15 @@ def encode(schedule: Schedule) -> CompactTable:
     length = np.concatenate([block_len, run_len])[order]
     matrix = matrix[order]
     body = matrix[np.arange(size)[None, :] < length[:, None]]
-    end = TOOL_BIT if schedule.final_tool else 0
-    data = np.concatenate([body, [end, 0]]).astype(np.uint8).tobytes()
+    data = body.astype(np.uint8).tobytes() + end_marker(schedule.final_tool)
     offsets = np.empty(len(key), dtype=np.int64)
     offsets[order] = np.cumsum(length) - length
     return CompactTable(data, offsets[:schedule.n_blocks], block_long, run_long)
+
+
+def end_marker(final_tool: bool) -> bytes:
+    """The record that ends the program (what `encode` puts last)."""
+    return bytes([TOOL_BIT if final_tool else 0, 0])
 
 
 def table_lines(table: CompactTable, schedule: Schedule, line_bytes: int) -> list[dict]:

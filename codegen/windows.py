@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, replace
+from typing import BinaryIO
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, 
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
 from codegen.stopwatch import Stopwatch
+from codegen.tables import encode, end_marker
 from codegen.targets import TargetInfo
 from codegen.twin import Pulses, predict
 
@@ -54,6 +56,7 @@ class Totals:
     """What `plan` reports of the whole program, summed over its windows."""
 
     duration_s: float = 0.0
+    windows: int = 0
     segments: int = 0
     blocks: int = 0
     runs: int = 0
@@ -65,6 +68,7 @@ class Totals:
         sched = played.compressed.schedule
         end = 2  # the end marker, counted once for the whole program
         self.duration_s = played.window.plan.total if len(played.window.plan.duration) else self.duration_s
+        self.windows += 1
         self.segments += len(played.window.segments)
         self.blocks += sched.n_blocks
         self.runs += sched.n_runs
@@ -88,10 +92,12 @@ class Stages:
     stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
 
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
-                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None):
-        """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages."""
+                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None):
+        """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
+        `tables` gets each final window's table records as it is made (a window ends at a block and a run
+        start, so they join into the whole program's stream; `finish` adds the end marker)."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
-        self.keep, self.watch = keep, watch or Stopwatch()
+        self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
         self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None)
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
@@ -129,7 +135,13 @@ class Stages:
             self.open = None
         for p in out:
             self.totals.add(p)
+            if self.tables is not None:
+                self.tables.write(encode(p.compressed.schedule).data[:-len(end_marker(False))])
         return out
+
+    def finish(self) -> None:
+        if self.tables is not None:
+            self.tables.write(end_marker(False))
 
     def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
         """Play the window from what came before: its results, what it hands on, and how to slow it down where
