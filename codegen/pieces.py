@@ -12,7 +12,7 @@ from typing import Iterator
 
 import numpy as np
 
-from codegen.errors import Diagnostic, JobError
+from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
 from codegen.overlap import overlapped
 from codegen.planner import segment_lengths
@@ -21,6 +21,7 @@ from codegen.segments import Flattener, Segments
 from codegen.stopwatch import Stopwatch
 from codegen.staircase import refine, split_long
 from codegen.stepgen import segment_steps
+from codegen.toolpath import Lines
 
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
 MAX_REACH_ERRORS = 20
@@ -115,6 +116,16 @@ def reach_problems(job, kin: Kinematics, batch: list, offset: int, segments: Seg
     diagnostics = []
     for where, message in problems:
         _, first = np.unique(items[where], return_index=True)
-        diagnostics += [Diagnostic(batch[items[k] - offset].source, message(k))
+        diagnostics += [Diagnostic(source_of(batch, items[k] - offset), message(k))
                         for k in where[np.sort(first)][:MAX_REACH_ERRORS]]
     return diagnostics
+
+
+def source_of(batch: list, index: int) -> SourceRef:
+    """Where item `index` of the batch comes from (a Lines item counts as its moves)."""
+    for item in batch:
+        count = len(item) if isinstance(item, Lines) else 1
+        if index < count:
+            return item.source(index) if isinstance(item, Lines) else item.source
+        index -= count
+    raise IndexError(index)

@@ -23,9 +23,9 @@ from codegen.gcode import GcodeStream
 from codegen.homing import home_position, homes
 from codegen.kinematics.base import Kinematics
 from codegen.shapes import build_toolpath as toolpath_from_shapes
-from codegen.toolpath import Arc, Curve, Home, Line, Toolpath
+from codegen.toolpath import Arc, Curve, Home, Line, Lines, Toolpath, expanded
 
-MOTION = (Line, Arc, Curve)
+MOTION = (Line, Lines, Arc, Curve)
 
 
 class Program:
@@ -101,6 +101,8 @@ class Program:
             items = [Line(home, target.copy(), feed, False, self.job.program.start_source, "travel"), *items]
             start = home
         if self.job.machine.kinematics == "delta" and items:
+            if isinstance(items[0], Lines):
+                items[:1] = items[0].split_first()
             items[:1] = descend_first(items[0], home)
         return items, start
 
@@ -140,6 +142,6 @@ class _SettleHomes:
 def whole_toolpath(job, kin: Kinematics, strict: bool = False) -> tuple[Toolpath, list[Diagnostic], bool]:
     """Every item at once: the toolpath, the front end's warnings, and whether it starts by homing (G28)."""
     program = Program(job, kin, strict)
-    items = [item for batch in program.batches() for item in batch]
+    items = expanded([item for batch in program.batches() for item in batch])
     start = program.start if program.start is not None else np.zeros(4)
     return Toolpath(start, items), program.warnings, program.homes_first

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.toolpath import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Toolpath
+from codegen.toolpath import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Lines, Toolpath
 
 REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 AXIS = {"x": 0, "y": 1, "z": 2, "e": 3}
@@ -103,7 +103,7 @@ def flatten(toolpath: Toolpath, tolerance: float) -> Segments:
 
 class Flattener:
     """`flatten` a batch of items at a time: the limits in force and the position carry over, and each piece's
-    `item` counts the items of every batch before."""
+    `item` counts the items of every batch before (a Lines item counts as its moves)."""
 
     def __init__(self, start: np.ndarray, tolerance: float):
         self.tolerance = tolerance
@@ -112,63 +112,100 @@ class Flattener:
         self.items = 0
 
     def __call__(self, batch: list) -> Segments:
-        points, counts, owners = [], [], []
-        feed, tool, accel, dwell, kind, center, radius, plane, state, fine_rows, fines = ([] for _ in range(11))
         limits = self.limits
         limits.rows = limits.rows[-1:]  # the limits in force; earlier ones are gone with their batches
-        position, tolerance, first = self.position, self.tolerance, self.items
-        fine_count = 0
-        for index, item in enumerate(batch, first):
+        groups, single = [], _Single()  # the pieces and their items' columns, in order; items one at a time
+        index, fines = self.items, []
+        for item in batch:
+            if isinstance(item, Lines):
+                groups += single.take()
+                groups.append(_lines_group(item, index, len(limits.rows) - 1))
+                self.position = item.end
+                index += len(item)
+                continue
             if isinstance(item, Limits):
                 limits.apply(item)
-                continue
-            if isinstance(item, Line):
-                pts = (item.start, item.end)
-                ref = (REF_LINE, (0.0, 0.0), 0.0, (0, 1))
-            elif isinstance(item, Arc):
-                n = arc_chord_count(item.radius, item.sweep, tolerance)
-                pts = item.points(item.start_angle + item.sweep * np.arange(n + 1) / n)
-                pts[0], pts[-1] = item.start, item.end
-                ref = (REF_ARC, item.center, item.radius, item.plane)
-            elif isinstance(item, Curve):
-                pts = item.points
-                ref = (REF_CURVE, (0.0, 0.0), 0.0, (0, 1))
-                fines.append(item.fine)
-            elif isinstance(item, Dwell):
-                pts = (position, position)
-                ref = (REF_LINE, (0.0, 0.0), 0.0, (0, 1))
-            else:
-                continue  # Output, Home: nothing to move along
-            pieces = len(pts) - 1
-            points.append(pts)
-            counts.append(pieces)
-            owners.append(index)
-            moving = not isinstance(item, Dwell)
-            feed.append(item.feed if moving else math.inf)
-            tool.append(item.tool if moving else False)
-            accel.append(getattr(item, "accel", math.inf))
-            dwell.append(0.0 if moving else item.seconds)
-            kind.append(ref[0]), center.append(ref[1]), radius.append(ref[2]), plane.append(ref[3])
-            state.append(len(limits.rows) - 1)
-            fine_rows.append(fine_count if ref[0] == REF_CURVE else -1)
-            fine_count += pieces if ref[0] == REF_CURVE else 0
-            position = pts[-1]
-        self.position, self.items = position, first + len(batch)
-        counts_a = np.asarray(counts, dtype=np.int64)
-        each = lambda values, dtype=float: np.repeat(np.asarray(values, dtype=dtype), counts_a, axis=0)  # noqa: E731
-        stacked = [np.asarray(p, dtype=float).reshape(-1, 4) for p in points]
-        starts = np.concatenate([p[:-1] for p in stacked]) if stacked else np.zeros((0, 4))
-        ends = np.concatenate([p[1:] for p in stacked]) if stacked else np.zeros((0, 4))
-        rank = np.arange(int(counts_a.sum())) - np.repeat(np.cumsum(counts_a) - counts_a, counts_a)
-        first_fine = each(fine_rows, np.int64)
-        velocity, axis_accel, jerk, jd = limits.arrays(each(state, np.int64))
-        jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
-        return Segments(
-            start=starts, end=ends, feed=each(feed), tool=each(tool, bool), dwell=each(dwell),
-            item=each(owners, np.int64), accel=each(accel), axis_velocity=velocity.reshape(-1, 4),
-            axis_accel=axis_accel.reshape(-1, 4), jerk=jerk.reshape(-1, 4), junction_deviation=jd,
-            ref_kind=each(kind, np.int64), ref_center=each(center).reshape(-1, 2), ref_radius=each(radius),
-            ref_plane=each(plane, np.int64).reshape(-1, 2),
-            ref_fine=np.where(first_fine >= 0, first_fine + rank, -1),
-            fine=np.concatenate(fines) if fines else np.zeros((0, FINE_STEPS + 1, 3)),
-        )
+            elif isinstance(item, (Line, Arc, Curve, Dwell)):  # not Output, Home: nothing to move along
+                single.add(self._pieces(item, fines), index, len(limits.rows) - 1)
+            index += 1
+        groups += single.take()
+        self.items = index
+        return _segments(groups, limits, fines)
+
+    def _pieces(self, item, fines: list) -> tuple:
+        """The item's points and what its pieces share (a curve's samples go to `fines`)."""
+        ref = (REF_LINE, (0.0, 0.0), 0.0, (0, 1))
+        if isinstance(item, Line):
+            pts = (item.start, item.end)
+        elif isinstance(item, Arc):
+            n = arc_chord_count(item.radius, item.sweep, self.tolerance)
+            pts = item.points(item.start_angle + item.sweep * np.arange(n + 1) / n)
+            pts[0], pts[-1] = item.start, item.end
+            ref = (REF_ARC, item.center, item.radius, item.plane)
+        elif isinstance(item, Curve):
+            pts = item.points
+            ref = (REF_CURVE, (0.0, 0.0), 0.0, (0, 1))
+            fines.append(item.fine)
+        else:  # a dwell
+            pts = (self.position, self.position)
+            return pts, math.inf, False, math.inf, item.seconds, ref
+        self.position = pts[-1]
+        return pts, item.feed, item.tool, getattr(item, "accel", math.inf), 0.0, ref
+
+
+# An item's columns (each piece of it repeats them): name, type, shape.
+COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ()), ("tool", bool, ()),
+           ("accel", float, ()), ("dwell", float, ()), ("kind", np.int64, ()), ("center", float, (2,)),
+           ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()))
+
+
+class _Single:
+    """Items gathered one at a time, taken as one group: their pieces' starts and ends, then their COLUMNS."""
+
+    def __init__(self):
+        self.points, self.rows, self.fine_count = [], [], 0
+
+    def add(self, pieces: tuple, index: int, state: int) -> None:
+        pts, feed, tool, accel, dwell, (kind, center, radius, plane) = pieces
+        count = len(pts) - 1
+        self.points.append(pts)
+        self.rows.append((count, index, feed, tool, accel, dwell, kind, center, radius, plane, state,
+                          self.fine_count if kind == REF_CURVE else -1))
+        self.fine_count += count if kind == REF_CURVE else 0
+
+    def take(self) -> list[tuple]:
+        if not self.rows:
+            return []
+        stacked = [np.asarray(p, dtype=float).reshape(-1, 4) for p in self.points]
+        columns = [np.asarray(c, dtype=t) for c, (_, t, _) in zip(zip(*self.rows), COLUMNS)]
+        self.points, self.rows = [], []
+        return [(np.concatenate([p[:-1] for p in stacked]), np.concatenate([p[1:] for p in stacked]), *columns)]
+
+
+def _lines_group(lines: Lines, index: int, state: int) -> tuple:
+    """The group of a Lines item: a piece per move."""
+    n = len(lines)
+    return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
+            lines.feed, lines.tool, lines.accel, np.zeros(n), np.full(n, REF_LINE), np.zeros((n, 2)), np.zeros(n),
+            np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1))
+
+
+def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments:
+    """The groups' pieces as Segments: the items' columns repeated over their pieces."""
+    if not groups:
+        groups = [(np.zeros((0, 4)), np.zeros((0, 4)), *(np.zeros((0, *shape), dtype=t) for _, t, shape in COLUMNS))]
+    starts, ends, counts, owners, feed, tool, accel, dwell, kind, center, radius, plane, state, fine_rows = (
+        np.concatenate(c) for c in zip(*groups))
+    each = lambda values: np.repeat(values, counts, axis=0)  # noqa: E731
+    rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    first_fine = each(fine_rows)
+    velocity, axis_accel, jerk, jd = limits.arrays(each(state))
+    jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
+    return Segments(
+        start=starts, end=ends, feed=each(feed), tool=each(tool), dwell=each(dwell), item=each(owners),
+        accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
+        jerk=jerk.reshape(-1, 4), junction_deviation=jd, ref_kind=each(kind), ref_center=each(center).reshape(-1, 2),
+        ref_radius=each(radius), ref_plane=each(plane).reshape(-1, 2),
+        ref_fine=np.where(first_fine >= 0, first_fine + rank, -1),
+        fine=np.concatenate(fines) if fines else np.zeros((0, FINE_STEPS + 1, 3)),
+    )

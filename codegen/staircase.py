@@ -8,10 +8,13 @@ further than STAIRCASE_LIMIT steps: `staircase_bound` proves most of them close 
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
-from codegen.checks import chord_distance, step_length_mm
+from codegen.checks import step_length_mm
 from codegen.kinematics.base import Kinematics
+from codegen.native import library
 from codegen.schedule import MAX_MODULUS
 from codegen.segments import Segments
 from codegen.stepgen import bresenham_init, segment_steps
@@ -123,37 +126,89 @@ def staircase_bound(segments: Segments, kin: Kinematics) -> np.ndarray:
     return deviation @ reach
 
 
-STAIRCASE_CHUNK = 1 << 19  # events per pass: small temporaries are reused, large ones cost page faults
+STAIRCASE_CHUNK = 1 << 19  # events per pass (numpy): small temporaries are reused, large ones cost page faults
 
 
 def staircase_error(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
     """How far (mm) the Bresenham staircase of each segment in `which` strays from the segment's line: the
-    tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning."""
+    tool's distance to it after every event. Geometry only (no timing), so it is cheap to ask before planning.
+    In C (codegen/native/staircase.c) for linear kinematics where the helper could be built."""
+    lib = library("staircase") if kin.linear else None
+    if lib is None or len(which) == 0:
+        return staircase_error_numpy(segments, kin, which)
+    start, end = segments.start[which], segments.end[which]
+    steps, modulus, init, first_step = _blocks(start, end, kin)
+    motors = steps.shape[1]
+    driven = np.isin(np.arange(3), kin.driven_axes).astype(np.int64)
+    inverse = np.zeros((3, motors))
+    inverse[kin.driven_axes[kin.driven_axes < 3]] = kin.inverse[kin.driven_axes < 3]
+    worst = np.empty(len(which))
+    arrays = [np.ascontiguousarray(a, dtype=dtype) for a, dtype in (
+        (steps, np.int64), (modulus, np.int64), (init, np.int64), (first_step, float),
+        (kin.limits.steps_per_mm, float), (inverse, float), (driven, np.int64), (start, float), (end, float))]
+    lib.staircase_error(ctypes.c_int64(len(which)), ctypes.c_int64(motors),
+                        *[a.ctypes.data_as(ctypes.c_void_p) for a in arrays + [worst]])
+    return worst
+
+
+def staircase_error_numpy(segments: Segments, kin: Kinematics, which: np.ndarray) -> np.ndarray:
+    """`staircase_error` in numpy, a chunk of events at a time."""
     events = np.abs(segment_steps(segments.take(which), kin)).max(axis=1, initial=0)
     bounds = np.searchsorted(np.cumsum(events), np.arange(STAIRCASE_CHUNK, events.sum() + STAIRCASE_CHUNK,
                                                              STAIRCASE_CHUNK), side="right")
     worst, lo = np.zeros(len(which)), 0
     for hi in np.unique(np.concatenate([np.maximum(bounds, 1), [len(which)]])):
         if hi > lo:
-            worst[lo:hi] = _staircase_error(segments.take(which[lo:hi]), kin)
+            part = which[lo:hi]
+            worst[lo:hi] = _staircase_error(segments.start[part], segments.end[part], kin)
             lo = hi
     return worst
 
 
-def _staircase_error(part: Segments, kin: Kinematics) -> np.ndarray:
-    steps = segment_steps(part, kin)
-    exact = kin.to_motor(part.start) * kin.limits.steps_per_mm
-    exact_end = kin.to_motor(part.end) * kin.limits.steps_per_mm
+def _blocks(start: np.ndarray, end: np.ndarray, kin: Kinematics) -> tuple[np.ndarray, ...]:
+    """The blocks of straight pieces: each motor's steps, the modulus, the accumulators' starts, and each
+    motor's rounded start (steps)."""
+    steps = kin.to_steps(end) - kin.to_steps(start)
+    exact = kin.to_motor(start) * kin.limits.steps_per_mm
+    exact_end = kin.to_motor(end) * kin.limits.steps_per_mm
     master = np.argmax(np.abs(steps), axis=1)
     modulus = np.maximum(np.abs(steps).max(axis=1, initial=0), 1)
-    init = bresenham_init(exact, exact_end, master, steps, modulus)
+    return steps, modulus, bresenham_init(exact, exact_end, master, steps, modulus), np.round(exact)
+
+
+def _staircase_error(start: np.ndarray, end: np.ndarray, kin: Kinematics) -> np.ndarray:
+    steps, modulus, init, first_step = _blocks(start, end, kin)
     block, _, position = bresenham(steps, modulus, init, np.abs(steps).max(axis=1, initial=0))
     before = np.cumsum(steps, axis=0) - steps  # positions add up over the blocks: count each from its start
-    motor_mm = (position - before[block] + np.round(exact)[block]) / kin.limits.steps_per_mm
-    axes = kin.to_axes(motor_mm, part.start[block])[:, :3]
-    dist, _ = chord_distance(axes, block, part, clamp=False)
-    worst = np.zeros(len(part))
-    has = np.flatnonzero(np.bincount(block, minlength=len(part)))  # blocks are in order: reduce runs of them
+    motor_mm = (position - before[block] + first_step[block]) / kin.limits.steps_per_mm
+    a, ab = start[block, :3], (end - start)[block, :3]
+    p = _tool(kin, motor_mm, a)
+    ap = p - a
+    denom = _dot(ab, ab)
+    t = np.divide(_dot(ap, ab), denom, out=np.zeros(len(block)), where=denom > 0.0)
+    off = p - (a + t[:, None] * ab)
+    dist = np.sqrt(_dot(off, off))
+    worst = np.zeros(len(start))
+    has = np.flatnonzero(np.bincount(block, minlength=len(start)))  # blocks are in order: reduce runs of them
     if len(has):
         worst[has] = np.maximum.reduceat(dist, np.searchsorted(block, has))
     return worst
+
+
+def _tool(kin: Kinematics, motor_mm: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """(N, 3) the tool at motor positions (N, M); axes no motor drives stay at `start` (N, 3). Linear
+    kinematics motor by motor, in the order the C version adds them."""
+    if not kin.linear:
+        return kin.to_axes(motor_mm, np.pad(start, ((0, 0), (0, 1))))[:, :3]
+    out = np.array(start, copy=True)
+    for row, axis in zip(kin.inverse, kin.driven_axes):
+        if axis < 3:
+            total = motor_mm[:, 0] * row[0]
+            for m in range(1, len(row)):
+                total = total + motor_mm[:, m] * row[m]
+            out[:, axis] = total
+    return out
+
+
+def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1]) + u[:, 2] * v[:, 2]

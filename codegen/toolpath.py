@@ -7,7 +7,7 @@ machine allows). Curves keep their exact geometry here; codegen/segments.py cuts
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -28,6 +28,58 @@ class Line:
     label: str = "line"
     accel: float = math.inf  # mm/s^2: the program's own cap on this move's acceleration (G-code M204)
     power: float = 1.0  # tool power while the tool is on, 0..1 (G-code S over its full scale)
+
+
+@dataclass(frozen=True, eq=False)
+class Lines:
+    """Straight moves one after another, as arrays (G-code's G0/G1 lines): move k goes from points[k] to
+    points[k + 1]. It stands for the Line items `lines()` gives and counts as that many items."""
+
+    points: np.ndarray  # (n + 1, 4), read-only
+    feed: np.ndarray  # (n,)
+    tool: np.ndarray  # (n,) bool
+    rapid: np.ndarray  # (n,) bool: G0 (else G1, the moves' label)
+    accel: np.ndarray  # (n,)
+    power: np.ndarray  # (n,)
+    file: str
+    line: np.ndarray  # (n,) where each move is written
+    col: np.ndarray  # (n,)
+
+    def __len__(self) -> int:
+        return len(self.feed)
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.points[0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.points[-1]
+
+    def source(self, k: int) -> SourceRef:
+        return SourceRef(self.file, int(self.line[k]), int(self.col[k]))
+
+    def lines(self) -> list[Line]:
+        rows, columns = list(self.points), (self.feed, self.tool, self.rapid, self.accel, self.power, self.line,
+                                            self.col)
+        return [Line(rows[k], rows[k + 1], feed, tool, SourceRef(self.file, line, col), "G0" if rapid else "G1",
+                     accel, power)
+                for k, (feed, tool, rapid, accel, power, line, col) in enumerate(zip(*(c.tolist() for c in columns)))]
+
+    def split_first(self) -> list:
+        """The first move as a Line, then the others (if any)."""
+        return self._part(0, 1).lines() + ([self._part(1, len(self))] if len(self) > 1 else [])
+
+    def _part(self, lo: int, hi: int) -> "Lines":
+        return replace(self, points=self.points[lo:hi + 1], **{name: getattr(self, name)[lo:hi] for name in _PER_MOVE})
+
+
+_PER_MOVE = ("feed", "tool", "rapid", "accel", "power", "line", "col")
+
+
+def expanded(items: list) -> list:
+    """The items with every Lines as its Line items."""
+    return [one for item in items for one in (item.lines() if isinstance(item, Lines) else (item,))]
 
 
 @dataclass(frozen=True)
@@ -121,8 +173,8 @@ class Output:
     source: SourceRef
 
 
-Move = Line | Arc | Curve
-Item = Line | Arc | Curve | Dwell | Limits | Home | Output
+Move = Line | Lines | Arc | Curve
+Item = Line | Lines | Arc | Curve | Dwell | Limits | Home | Output
 
 
 @dataclass
@@ -132,6 +184,6 @@ class Toolpath:
 
     def end(self) -> np.ndarray:
         for item in reversed(self.items):
-            if isinstance(item, (Line, Arc, Curve)):
+            if isinstance(item, (Line, Lines, Arc, Curve)):
                 return item.end
         return self.start

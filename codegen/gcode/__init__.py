@@ -10,20 +10,21 @@ reader.py turns text into words; interpreter.py (with mcodes.py) runs them; arcs
 from __future__ import annotations
 
 from contextlib import contextmanager
-from itertools import islice
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterator, TextIO
 
 import numpy as np
 
 from codegen.errors import Diagnostic, JobError
+from codegen.gcode.fast import NativeLines
 from codegen.gcode.interpreter import MAX_ERRORS, Interpreter
-from codegen.gcode.reader import Origin, read
-from codegen.toolpath import Toolpath
+from codegen.gcode.reader import LineReader, Origin
+from codegen.toolpath import Toolpath, expanded
 
 __all__ = ["GcodeStream", "toolpath_from_gcode", "MAX_ERRORS"]
 
-BATCH_LINES = 4096  # G-code lines read at a time
+BATCH_LINES = 4096  # blocks (lines with code) read and interpreted at a time
+CHUNK_CHARS = 1 << 20  # characters of the file read at a time
 
 
 class GcodeStream:
@@ -37,24 +38,45 @@ class GcodeStream:
         self.interpreter = Interpreter(job, self.origin, strict)
         self.start = np.array(self.interpreter.flat[:4], dtype=float)
 
-    def batches(self, lines: int = BATCH_LINES) -> Iterator[list]:
-        interpreter = self.interpreter
+    def batches(self, size: int = BATCH_LINES) -> Iterator[list]:
+        """The items of `size` blocks (lines with code) at a time."""
+        interpreter, reader = self.interpreter, LineReader(self.origin)
+        native = interpreter.native = NativeLines.load(size)
+        pending, going = 0, True  # blocks read into this batch; False once the program has ended
         with self._lines() as text:
-            blocks = read(text, self.origin)
-            going = True
-            while going:
-                chunk = list(islice(blocks, lines))
-                if not chunk:
+            for first, lines in _chunks(text):
+                if native is not None:
+                    native.read(lines, first)
+                at = 0
+                while going and at < len(lines):
+                    if native is not None and not interpreter.inverse_time:
+                        at, blocks = native.run(interpreter, at, size - pending)  # up to a line it leaves
+                        pending += blocks
+                        reader.started |= blocks > 0
+                    if pending < size and at < len(lines):
+                        block = reader.block(first + at, lines[at])
+                        at += 1
+                        going = not reader.ended
+                        if block is not None:
+                            pending += 1
+                            going = interpreter.run(block)
+                    if pending == size or not going:
+                        pending = 0
+                        yield from self._items()
+                if not going:
                     break
-                going = interpreter.run(chunk)
-                items = interpreter.take()
-                if items and not interpreter.errors:
-                    yield items
+        yield from self._items()
         if interpreter.errors:
             raise JobError(interpreter.errors)
 
+    def _items(self) -> Iterator[list]:
+        """The items read since the last call, unless there has been an error."""
+        items = self.interpreter.take()
+        if items and not self.interpreter.errors:
+            yield items
+
     @contextmanager
-    def _lines(self) -> Iterator[str | Iterable[str]]:
+    def _lines(self) -> Iterator[str | TextIO]:
         if isinstance(self.source, str):
             yield self.source
             return
@@ -69,6 +91,29 @@ class GcodeStream:
     @property
     def warnings(self) -> list[Diagnostic]:
         return self.interpreter.warnings()
+
+
+def _chunks(text: str | TextIO) -> Iterator[tuple[int, list[str]]]:
+    """The text's lines (without their line ends), a file's CHUNK_CHARS or so at a time, each chunk with the index
+    of its first line."""
+    if isinstance(text, str):
+        lines = text.split("\n")
+        if lines and not lines[-1]:
+            lines.pop()
+        yield 0, lines
+        return
+    first, rest = 0, []  # the text of a line not yet ended
+    while piece := text.read(CHUNK_CHARS):
+        lines = piece.split("\n")
+        if len(lines) > 1:
+            lines[0] = "".join(rest) + lines[0]
+            rest = [lines.pop()]
+            yield first, lines
+            first += len(lines)
+        else:
+            rest.append(piece)
+    if any(rest):
+        yield first, ["".join(rest)]
 
 
 def _source(job) -> tuple[str | Path, Origin]:
@@ -89,4 +134,4 @@ def toolpath_from_gcode(job, strict: bool = False) -> tuple[Toolpath, list[Diagn
     """The whole toolpath at once."""
     stream = GcodeStream(job, strict)
     items = [item for batch in stream.batches() for item in batch]
-    return Toolpath(stream.start, items), stream.warnings
+    return Toolpath(stream.start, expanded(items)), stream.warnings

@@ -7,7 +7,9 @@ Within a line: units first, then F, S, the M-codes, G4, plane and distance modes
 M2/M30 (after which nothing is read). A line with an error does nothing; up to MAX_ERRORS are collected.
 
 Moves are kept as point indices while reading; at the end every point becomes a row of one read-only array
-and each Line/Arc/Home holds views of its rows (a move's start is the previous move's end).
+and each Arc/Home holds views of its rows (a move's start is the previous move's end), the lines one after
+another one Lines item. Stretches of plain G0/G1 lines are read and run in C (codegen/gcode/fast.py) as `line`
+runs them.
 """
 
 from __future__ import annotations
@@ -72,20 +74,21 @@ class Interpreter(Moves, GrblState):
         self.flat = list(start)
         self.count, self.cur, self.base = 1, 0, 0
         self.items: list = []
+        self.native = None  # the C's moves (codegen/gcode/fast.py), where it reads the plain lines
         self.errors: list[Diagnostic] = []
         self.warned: dict[str, list] = {}
         self.grbl_init()
 
     # ---- results ----
 
-    def run(self, blocks) -> bool:
-        """Interpret the blocks; False once there are too many errors to go on."""
+    def run(self, block: Block | Diagnostic) -> bool:
+        """Interpret a block (or report a line the reader refused); False once the program has ended or there
+        are too many errors to go on."""
         try:
-            for block in blocks:
-                if type(block) is Block:
-                    self.line(block)
-                else:
-                    self._error(block.where, block.message)
+            if type(block) is Block:
+                self.line(block)
+            else:
+                self._error(block.where, block.message)
         except _Stop:
             return False
         return True

@@ -1,7 +1,8 @@
 """The interpreter's positions and moves: targets in machine mm, G0/G1 lines, G2/G3 arcs, G28 and G92.
 
-Machine position = program position + offset (work system, G92, tool length: codegen/gcode/grbl.py). Moves are recorded as indices into one list of points
-(`flat`, 4 numbers a point, from point `base` of the program on); `take` turns them into Line/Arc/Home items.
+Machine position = program position + offset (work system, G92, tool length: codegen/gcode/grbl.py). Moves are
+recorded as indices into one list of points (`flat`, 4 numbers a point, from point `base` of the program on),
+the C's runs of lines as rows of its arrays (codegen/gcode/fast.py); `take` turns them into Lines/Arc/Home items.
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ import numpy as np
 
 from codegen.gcode import arcs
 from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
-from codegen.toolpath import Arc, Home, Line, Toolpath
+from codegen.gcode.fast import RUN
+from codegen.toolpath import Arc, Home, Lines, Toolpath, expanded
 
 LINE, ARC, HOME = 0, 1, 2
 AXIS_INDEX = {letter: i for i, letter in enumerate(AXIS_LETTERS)}
@@ -21,18 +23,22 @@ class Moves:
     """Mixed into the Interpreter: uses its state (pos, off, unit, modes, feeds, tool) and diagnostics."""
 
     def take(self) -> list:
-        """The items made since the last `take`: every point a row of one read-only array, each Line/Arc/Home
-        holding views of its rows. Only the current point stays (the next move starts there)."""
+        """The items made since the last `take`: every point a row of one read-only array, each Arc/Home holding
+        views of its rows, and the lines one after another (Python's and the C's runs) one Lines item. Only
+        the current point stays (the next move starts there)."""
         array = np.array(self.flat, dtype=float).reshape(-1, 4)
         array.flags.writeable = False
         rows, base = list(array), self.base  # point i of the program is rows[i - base]
-        items = []
+        items, lines = [], []
         for it in self.items:
+            if type(it) is tuple and (it[0] == LINE or it[0] == RUN):
+                lines.append(it)
+                continue
+            if lines:
+                items.append(self._lines(lines, rows, base))
+                lines = []
             if type(it) is not tuple:
                 items.append(it)
-            elif it[0] == LINE:
-                _, a, b, feed, tool, src, label, accel, power = it
-                items.append(Line(rows[a - base], rows[b - base], feed, tool, src, label, accel, power))
             elif it[0] == ARC:
                 _, a, b, c, plane, feed, tool, src, label, accel, power = it
                 items.append(Arc(rows[a - base], rows[b - base], c.center, c.radius, c.start_angle, c.sweep, feed,
@@ -40,14 +46,39 @@ class Moves:
             else:
                 _, axes, a, src = it
                 items.append(Home(axes, rows[a - base], src))
+        if lines:
+            items.append(self._lines(lines, rows, base))
+        if self.native is not None:
+            self.native.clear()
         self.items = []
         self.flat = self.flat[4 * (self.cur - base):]
         self.base = self.cur
         return items
 
+    def _lines(self, moves: list[tuple], rows: list[np.ndarray], base: int) -> Lines:
+        """One Lines item of moves one after another: LINE tuples and RUNs of the C's rows."""
+        parts, python = [], []  # arrays per column, in order; Python's moves waiting to become arrays
+        for move in moves + [None]:
+            if move is not None and move[0] == LINE:
+                _, _, b, feed, tool, src, label, accel, power = move
+                python.append((rows[b - base], feed, tool, label == "G0", accel, power, src.line, src.col))
+                continue
+            if python:
+                parts.append([np.array(column) for column in zip(*python)])
+                python = []
+            if move is not None:
+                _, _, lo, hi = move
+                native = self.native
+                parts.append([native.end[lo:hi], native.feed[lo:hi], native.tool[lo:hi], native.rapid[lo:hi] != 0,
+                              native.accel[lo:hi], native.power[lo:hi], native.line[lo:hi], native.col[lo:hi]])
+        end, feed, tool, rapid, accel, power, line, col = (np.concatenate(c) for c in zip(*parts))
+        points = np.concatenate([rows[moves[0][1] - base][None, :], end])
+        points.flags.writeable = False
+        return Lines(points, feed, tool, rapid, accel, power, self.origin.file, line, col)
+
     def toolpath(self) -> Toolpath:
         """Every item at once, from the program's start (before any `take`)."""
-        return Toolpath(np.array(self.flat[:4], dtype=float), self.take())
+        return Toolpath(np.array(self.flat[:4], dtype=float), expanded(self.take()))
 
     def target(self, params: dict[str, float]) -> list[float]:
         pos, unit, off = self.pos, self.unit, self.off

@@ -69,52 +69,65 @@ def read(text: str | Iterable[str], origin: Origin) -> Iterator[Block | Diagnost
             lines.pop()
     else:
         lines = (line[:-1] if line[-1:] == "\n" else line for line in text)
-    opened = started = False
-    fullmatch, findall, make = LINE_OF_WORDS.fullmatch, WORD.findall, tuple.__new__
+    reader = LineReader(origin)
     for index, line in enumerate(lines):
+        block = reader.block(index, line)
+        if block is not None:
+            yield block
+        elif reader.ended:
+            return
+
+
+class LineReader:
+    """`read` a line at a time: whether the program has started, and whether a `%` opened it, carry over from
+    line to line; `ended` once the closing `%` is read (nothing after it is program)."""
+
+    def __init__(self, origin: Origin):
+        self.origin = origin
+        self.opened = self.started = self.ended = False
+
+    def block(self, index: int, line: str) -> Block | Diagnostic | None:
+        """The line's block or its problem; None for a line without code."""
         if not line or line[0] == ";":
-            continue  # the many comment lines of slicer files
+            return None  # the many comment lines of slicer files
         if line[-1] == "\r":
             line = line[:-1]
         if "(" in line or ")" in line:
             code, problem = _blank_parens(line)
             if problem is not None:
-                yield Diagnostic(origin.at(index, problem[0]), problem[1])
-                continue
+                return Diagnostic(self.origin.at(index, problem[0]), problem[1])
         else:
             cut = line.find(";")
             code = line if cut < 0 else line[:cut]
         if "*" in code:
             code, problem = _checksum(line, code)
             if problem is not None:
-                yield Diagnostic(origin.at(index, problem[0]), problem[1])
-                continue
+                return Diagnostic(self.origin.at(index, problem[0]), problem[1])
         indent = 0
         if not code or code[0] in " \t":
             indent = len(code) - len(code.lstrip())
             if indent == len(code):
-                continue  # blank
+                return None  # blank
         first = code[indent]
         if first == "%" and not code[indent + 1:].strip():
-            if opened:
-                return  # the closing delimiter: nothing after it is program
-            opened = not started
-            started = True
-            continue
-        started = True
+            if self.opened:
+                self.ended = True  # the closing delimiter
+                return None
+            self.opened = not self.started
+            self.started = True
+            return None
+        self.started = True
         if first == "/":
-            continue  # block delete
-        if fullmatch(code):
-            words = findall(code.upper())
+            return None  # block delete
+        if LINE_OF_WORDS.fullmatch(code):
+            words = WORD.findall(code.upper())
             if "M" in code or "m" in code:
                 words, code = _cut_text(words, code)
-            yield make(Block, (index, code, words, indent))
-        else:
-            block = _slow(index, code, indent)
-            if isinstance(block, Block):
-                yield block
-            else:
-                yield Diagnostic(origin.at(index, block[0]), block[1])
+            return Block(index, code, words, indent)
+        block = _slow(index, code, indent)
+        if isinstance(block, Block):
+            return block
+        return Diagnostic(self.origin.at(index, block[0]), block[1])
 
 
 def _blank_parens(line: str) -> tuple[str, tuple[int, str] | None]:
