@@ -362,6 +362,16 @@ def test_m220_scales_every_moves_feed_from_its_place():
     assert errors("M220 S-5\nM220 Q1\n") == [(8, 10, "'S-5' must be > 0"), (9, 10, "'Q1' is not a parameter of M220")]
 
 
+def test_m220_r_after_an_arc_restores_the_feed_and_is_no_arc():
+    """The modal G2/G3 takes a bare I/J/K/R as an arc word only where no code on the line takes it."""
+    found = [(i.label, i.feed) for i in items("G1 X10 F600\nM220 B S50\nG3 X0 Y10 R10\nM220 R\nG1 X0 Y0\n")]
+    assert found == [("G1", 10.0), ("G3", 5.0), ("G1", 10.0)]
+
+
+def test_lines_of_vertical_tab_or_form_feed_only_are_blank():
+    assert [i.end[0] for i in items("G1 X10 F600\n\v\nG1 X0\n\f\n \v \n")] == [10.0, 0.0]
+
+
 def test_m205_least_feed_rates():
     """Marlin's M205 S (moves that extrude) and T (the others): a slower move runs at that speed (mm/s)."""
     found = [i.feed for i in items("M205 S5 T20\nG1 X1 E1 F60\nG1 X2 F60\nG1 X3 E2 F600\nM205 S0 T0\n"

@@ -375,8 +375,9 @@ class Interpreter(Moves, GrblState):
             allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])
             return (motion, names) if allowed and names else (None, None)
         if motion is None and taker is None:
+            taken = {letter for name in names for letter in PARAMS[name]}  # M220's R is not an arc's radius
             if any(a in params for a in AXIS_LETTERS) or (self.mode in ("G2", "G3") and
-                                                          any(a in params for a in "IJKR")):
+                                                          any(a in params and a not in taken for a in "IJKR")):
                 motion = self.mode
         used = set("FS")
         for name in names:

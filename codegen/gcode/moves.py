@@ -12,7 +12,7 @@ import numpy as np
 from codegen.gcode import arcs
 from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
 from codegen.gcode.fast import RUN
-from codegen.toolpath import Arc, Home, Lines, Toolpath, expanded
+from codegen.toolpath import Arc, Home, Lines
 
 LINE, ARC, HOME = 0, 1, 2
 AXIS_INDEX = {letter: i for i, letter in enumerate(AXIS_LETTERS)}
@@ -75,10 +75,6 @@ class Moves:
         points = np.concatenate([rows[moves[0][1] - base][None, :], end])
         points.flags.writeable = False
         return Lines(points, feed, tool, rapid, accel, power, self.origin.file, line, col)
-
-    def toolpath(self) -> Toolpath:
-        """Every item at once, from the program's start (before any `take`)."""
-        return Toolpath(np.array(self.flat[:4], dtype=float), expanded(self.take()))
 
     def target(self, params: dict[str, float]) -> list[float]:
         pos, unit, off = self.pos, self.unit, self.off

@@ -104,7 +104,7 @@ class LineReader:
             if problem is not None:
                 return Diagnostic(self.origin.at(index, problem[0]), problem[1])
         indent = 0
-        if not code or code[0] in " \t":
+        if not code or code[0].isspace():  # \v and \f too
             indent = len(code) - len(code.lstrip())
             if indent == len(code):
                 return None  # blank
