@@ -9,21 +9,28 @@ plan leaves before it; catching up at the player's own pace would overspeed a mo
 
 Runs go on across block starts and motion phases: each is the longest that keeps every one of its events in
 its window (codegen/runfit.py, exact integer search), so errors never accumulate from run to run.
+
+The windows and the runs are made in C where the helper builds (codegen/native/runfit.c); numpy's windows and
+the Python search are the reference, and give the same bits.
 """
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.native import library
 from codegen.planner import quantisation_factor
-from codegen.runfit import fit_runs
+from codegen.runfit import fit_runs, fit_runs_native
 from codegen.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
 from codegen.stepgen import Events
 
 
-RATE_SHARE = 0.99  # of a motor's rate that catching up may use (the planner keeps 2 % headroom)
+# Of a motor's rate that catching up may use (the planner keeps 2 %): the windows (5 % of a gap either way) may
+# shorten 8 steps by 2 x 5 % of one gap, 1.25 %, and 0.985 x 1.0125 < 1.
+RATE_SHARE = 0.985
 
 
 @dataclass(frozen=True)
@@ -69,18 +76,17 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
     motor): pushed events catch up within it. `origin_fx` (1/256 tick): where
     the player's clock stands before the first event (the event before, in the window before); every tick
     here counts from the player's tick 0."""
-    needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
-    needed[events.block_first[:-1]] = block_gap_ticks
-    planned = events.time * tick_hz
-    origin = origin_fx / FRAC_ONE
-    push = 1.1 * needed + 2.0
-    if max_rate is not None:  # a pushed event's successors: never closer than the motors allow, or the plan
-        rate_gap = np.repeat(rate_gaps(events, max_rate) * tick_hz, np.diff(events.block_first))
-        push = np.maximum(push, np.minimum(rate_gap, np.diff(planned, prepend=origin)))
-    ideal = spread(planned, push, origin)
-    gaps = np.diff(ideal, prepend=origin)
-    win = np.clip(window.share * gaps, window.min_ticks, window.max_us * 1e-6 * tick_hz)
-    n, interval, add, out = _greedy_runs(ideal, win, needed, origin_fx)
+    rate_gap = None if max_rate is None else rate_gaps(events, max_rate) * tick_hz
+    base = origin_fx >> FRAC_BITS
+    fit = (origin_fx - FRAC_ONE * base, base, MAX_COUNT, MAX_ADD, MAX_INTERVAL)
+    made = (events, tick_hz, run_gap_ticks, block_gap_ticks, window, rate_gap, origin_fx)
+    lib = library("runfit")
+    if lib is None:
+        needed, ideal, win, lo, hi = numpy_windows(*made)
+        n, interval, add, tick = fit_runs(lo, hi, needed, *fit)
+    else:
+        needed, ideal, win, lo, hi = _native_windows(lib, *made)
+        n, interval, add, tick = fit_runs_native(lib, lo, hi, needed, *fit)  # hi is ours to overwrite
     schedule = Schedule(
         motors=motors,
         tick_hz=tick_hz,
@@ -96,14 +102,45 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
         run_count=n,
         final_tool=final_tool,
     )
-    return Compressed(schedule, ideal, out, win)
+    return Compressed(schedule, ideal, tick, win)
 
 
-def _greedy_runs(ideal: np.ndarray, win: np.ndarray, needed: np.ndarray, origin_fx: int):
-    """(count, interval, add) of every run and every event's tick, each event within its window."""
-    base = origin_fx >> FRAC_BITS  # positions count from this tick: small numbers for the search
+def numpy_windows(events: Events, tick_hz: int, run_gap_ticks: int, block_gap_ticks: int, window: TimingWindow,
+                  rate_gap: np.ndarray | None, origin_fx: int):
+    """Every event's fewest ticks after the one before (`needed`), its ideal tick after the push, its timing
+    window (ticks), and that window as positions (1/256 tick) counted from tick `origin_fx >> 8` (small
+    numbers for the search): lo, hi. `rate_gap`: per block, the gap (ticks) pushed events catch up with at most.
+    The reference for the C version (codegen/native/runfit.c, `timing_windows`)."""
+    needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
+    needed[events.block_first[:-1]] = block_gap_ticks
+    planned = events.time * tick_hz
+    origin = origin_fx / FRAC_ONE
+    push = 1.1 * needed + 2.0
+    if rate_gap is not None:  # a pushed event's successors: never closer than the motors allow, or the plan
+        push = np.maximum(push, np.minimum(np.repeat(rate_gap, np.diff(events.block_first)),
+                                           np.diff(planned, prepend=origin)))
+    ideal = spread(planned, push, origin)
+    gaps = np.diff(ideal, prepend=origin)
+    win = np.clip(window.share * gaps, window.min_ticks, window.max_us * 1e-6 * tick_hz)
+    base = origin_fx >> FRAC_BITS
     lo = FRAC_ONE * np.ceil(ideal - win - base).astype(np.int64)
     hi = FRAC_ONE * np.floor(ideal + win - base).astype(np.int64) + FRAC_ONE - 1
-    n, interval, add, tick = fit_runs(lo, hi, needed, origin_fx - FRAC_ONE * base, 0, MAX_COUNT, MAX_ADD,
-                                      MAX_INTERVAL)
-    return n, interval, add, tick + base
+    return needed, ideal, win, lo, hi
+
+
+def _native_windows(lib, events: Events, tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
+                    window: TimingWindow, rate_gap: np.ndarray | None, origin_fx: int):
+    """`numpy_windows` in C, in one pass."""
+    n = len(events.time)
+    needed, lo, hi = (np.empty(n, dtype=np.int64) for _ in range(3))
+    ideal, win = np.empty(n), np.empty(n)
+    block_first = np.ascontiguousarray(events.block_first, dtype=np.int64)
+    time = np.ascontiguousarray(events.time, dtype=np.float64)
+    rate_gap = None if rate_gap is None else np.ascontiguousarray(rate_gap, dtype=np.float64)
+    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+    f64, i64 = ctypes.c_double, ctypes.c_int64
+    lib.timing_windows(i64(len(block_first) - 1), ptr(block_first), ptr(time), ptr(rate_gap), f64(tick_hz),
+                       i64(run_gap_ticks), i64(block_gap_ticks), f64(origin_fx / FRAC_ONE),
+                       i64(origin_fx >> FRAC_BITS), f64(window.share), f64(window.min_ticks),
+                       f64(window.max_us * 1e-6 * tick_hz), *map(ptr, (needed, ideal, win, lo, hi)))
+    return needed, ideal, win, lo, hi

@@ -2,8 +2,9 @@
 stays within its window, as Klipper's step compression does, in our units and with our player's limits.
 
 Units: positions in 1/256 tick, counted from a whole tick `base` (the event before the first one stands at
-position `p0`, 0 <= p0 < 256, tick `prev_tick`). An event happens at tick floor(position / 256); the k-th event
-of a run (k = 1, 2, ...) from position p stands at p + k * interval + add * k (k - 1) / 2.
+position `p0`, usually 0 <= p0 < 256: small numbers for the search). An event happens at tick
+base + floor(position / 256); the k-th event of a run (k = 1, 2, ...) from position p stands at
+p + k * interval + add * k (k - 1) / 2.
 
 An event's window [lo, hi] (positions) turns into a range of intervals for a given add: every event of the run
 narrows it, and the run ends where it is empty. The longest run over the adds is searched by bisection: an
@@ -20,8 +21,10 @@ given ideal gaps of at least `needed`, every window keeps room. Then the first e
 its window's lower end, the others by ending the run before an event that comes too soon. An event that cannot
 keep both anyway (its ideal time too close to the one before) takes the earliest time the gap allows.
 
-`fit_runs` uses the C version (codegen/native/runfit.c); `fit_runs_python` is the same algorithm in Python, for
-the tests and for machines without gcc.
+`fit_runs` uses the C version (codegen/native/runfit.c); `fit_runs_python` is the same search in Python, for the
+tests and for machines without gcc. They try the same adds and find the same runs; the C only computes faster:
+each event's interval bounds once per run for every add (one division instead of one per try), and no
+clamping of the own intervals where the first event's range already keeps them.
 """
 
 from __future__ import annotations
@@ -56,25 +59,32 @@ def leave_room(hi: np.ndarray, needed: np.ndarray) -> np.ndarray:
     return np.minimum.accumulate((hi - gaps)[::-1])[::-1] + gaps
 
 
-def fit_runs(lo: np.ndarray, hi: np.ndarray, needed: np.ndarray, p0: int, prev_tick: int, max_count: int,
-             max_add: int, max_interval: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_runs(lo: np.ndarray, hi: np.ndarray, needed: np.ndarray, p0: int, base: int, max_count: int, max_add: int,
+             max_interval: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Runs over the events with windows [lo, hi] (int64 positions): (count, interval, add) per run, and the
     tick of every event."""
     lo, hi, needed = (np.ascontiguousarray(a, dtype=np.int64) for a in (lo, hi, needed))
-    hi = leave_room(hi, needed)
-    guess = add_guess(lo, hi)
     lib = library("runfit")
     if lib is None:
-        return fit_runs_python(lo, hi, needed, guess, p0, prev_tick, max_count, max_add, max_interval)
+        room = leave_room(hi, needed)
+        return fit_runs_python(lo, room, needed, add_guess(lo, room), p0, base, max_count, max_add, max_interval)
+    return fit_runs_native(lib, lo, hi.copy(), needed, p0, base, max_count, max_add, max_interval)
+
+
+def fit_runs_native(lib: ctypes.CDLL, lo: np.ndarray, hi: np.ndarray, needed: np.ndarray, p0: int, base: int,
+                    max_count: int, max_add: int, max_interval: int):
+    """`fit_runs` in C, given contiguous int64 arrays; `hi` becomes the windows' upper ends after `leave_room`."""
     n = len(lo)
-    count, interval, add, tick = (np.zeros(n, dtype=np.int64) for _ in range(4))
+    count, interval, add, tick = (np.empty(n, dtype=np.int64) for _ in range(4))
     ptr = ctypes.POINTER(ctypes.c_int64)
     p = lambda a: a.ctypes.data_as(ptr)  # noqa: E731
     fn = lib.fit_runs
     fn.restype = ctypes.c_int64
     i64 = ctypes.c_int64
-    runs = fn(i64(n), p(lo), p(hi), p(needed), p(guess), i64(p0), i64(prev_tick), i64(max_count), i64(max_add),
-              i64(max_interval), p(count), p(interval), p(add), p(tick))
+    runs = fn(i64(n), p(lo), p(hi), p(needed), i64(p0), i64(base), i64(max_count), i64(max_add), i64(max_interval),
+              p(hi), p(count), p(interval), p(add), p(tick))
+    if runs < 0:
+        raise MemoryError("rate runs: no memory for the search")
     return count[:runs], interval[:runs], add[:runs], tick
 
 
@@ -117,13 +127,13 @@ def _add_spread(count: int, band: int) -> int:
     return (2 * band * (m + n)) // (m * n * (n - m)) + 1
 
 
-def fit_runs_python(lo, hi, needed, guess, p0: int, prev_tick: int, max_count: int, max_add: int,
-                    max_interval: int):
-    """The algorithm of codegen/native/runfit.c, line for line."""
+def fit_runs_python(lo, hi, needed, guess, p0: int, base: int, max_count: int, max_add: int, max_interval: int):
+    """The search of codegen/native/runfit.c, try for try (`hi`: the windows' upper ends after `leave_room`;
+    `guess`: `add_guess`)."""
     lo, hi, needed, guess = (np.asarray(a, dtype=np.int64).tolist() for a in (lo, hi, needed, guess))
     events = len(lo)
     counts, intervals, adds, tick = [], [], [], [0] * events
-    first, pos, last_tick = 0, int(p0), int(prev_tick)
+    first, pos, last_tick = 0, int(p0), int(p0) >> 8  # ticks from base
     while first < events:
         first_lo = max(256 * (last_tick + needed[first]), lo[first])
         a_min, a_max = -max_add, max_add
@@ -131,11 +141,12 @@ def fit_runs_python(lo, hi, needed, guess, p0: int, prev_tick: int, max_count: i
         best, best_add = (0, None, None, 0, 0), 0
         while True:
             r = _extend(add, first, lo, hi, first_lo, pos, max_count, max_interval)
-            if r[0] > best[0] or (r[0] == best[0] and r[0] > 0 and abs(add) < abs(best_add)):
+            better = r[0] > best[0] or (r[0] == best[0] and r[0] > 0 and abs(add) < abs(best_add))
+            if better:
                 best, best_add = r, add
             if r[4] == 0:
                 break
-            if best[0] >= 2:
+            if better and best[0] >= 2:  # (while the best stays, its spread narrows nothing more)
                 spread = _add_spread(best[0], best[3])
                 a_min, a_max = max(a_min, best_add - spread), min(a_max, best_add + spread)
             if r[4] > 0:
@@ -161,7 +172,7 @@ def fit_runs_python(lo, hi, needed, guess, p0: int, prev_tick: int, max_count: i
             if k > 1 and t - last_tick < needed[first + k - 1]:
                 p -= interval + best_add * (k - 1)
                 break
-            tick[first + k - 1] = t
+            tick[first + k - 1] = base + t
             last_tick = t
             k += 1
         count = k - 1

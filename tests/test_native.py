@@ -1,5 +1,6 @@
-"""The C helpers (codegen/native/) give what their Python and numpy versions give: the same rate runs to the bit,
-the same pulses to the bit, the same path distances to rounding; and a build without them makes the same tables.
+"""The C helpers (codegen/native/) give what their Python and numpy versions give: the same timing windows and
+rate runs to the bit, the same pulses to the bit, the same path distances to rounding; and a build without them
+makes the same tables.
 """
 
 from pathlib import Path
@@ -8,10 +9,12 @@ import numpy as np
 import pytest
 
 import codegen.checks as checks
+import codegen.compress as compress_module
 import codegen.runfit as runfit
 import codegen.stepgen as stepgen
 import codegen.twin as twin
-from codegen.compress import compress
+import codegen.windows as windows
+from codegen.compress import TimingWindow, compress, numpy_windows, rate_gaps
 from codegen.job import load_job
 from codegen.native import library
 from codegen.pipeline import host_build
@@ -22,6 +25,18 @@ from tests.helpers import planned, polyline
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ["examples/star.yaml", "examples/plotter-set-51.yaml", "examples/delta-seed.yaml",
             "examples/gcode/mixed.yaml", "examples/sine.yaml", "examples/function.yaml"]
+GCODE_JOB = """
+name: {name}
+target: {target}
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
+program:
+  gcode: {gcode}
+"""
 CURVED = {"examples/plotter-set-51.yaml", "examples/sine.yaml", "examples/function.yaml", "examples/gcode/mixed.yaml"}
 
 pytestmark = pytest.mark.skipif(any(library(n) is None for n in ("runfit", "twin", "pathcheck", "eventtimes")),
@@ -37,8 +52,8 @@ def windows_of(ticks: np.ndarray, share: float, cap: float, needed: int):
     return lo, hi, np.full(len(ticks), needed, dtype=np.int64)
 
 
-def both_fits(lo, hi, needed, p0=0, prev=0):
-    args = (lo, hi, needed, p0, prev, MAX_COUNT, MAX_ADD, MAX_INTERVAL)
+def both_fits(lo, hi, needed, p0=0, base=0, max_interval=MAX_INTERVAL):
+    args = (lo, hi, needed, p0, base, MAX_COUNT, MAX_ADD, max_interval)
     native = runfit.fit_runs(*args)
     room = runfit.leave_room(hi, needed)
     python = runfit.fit_runs_python(lo, room, needed, runfit.add_guess(lo, room), *args[3:])
@@ -53,11 +68,12 @@ def test_run_fitting_in_c_is_the_python_algorithm(seed):
                            rng.uniform(30, 2000, 40)]) * rng.uniform(0.5, 2.0)
     ticks = np.cumsum(np.maximum(gaps + rng.normal(0, 0.3, len(gaps)), 24.0))  # pushed apart, as compress does
     lo, hi, needed = windows_of(ticks, 0.05, 200.0, 20)
-    p0 = int(rng.integers(0, 256))
-    native, python = both_fits(lo, hi, needed, p0=p0)
+    p0, base = int(rng.integers(0, 256)), int(rng.integers(0, 10_000))
+    native, python = both_fits(lo, hi, needed, p0=p0, base=base)
     for a, b in zip(native, python):
         assert np.array_equal(a, b)
     count, interval, add, tick = native
+    tick = tick - base
     assert count.sum() == len(ticks) and np.all(count >= 1)
     assert len(count) < len(ticks) / 8  # runs, not single events
     # Every event at its window and after its gap; the runs replay to the same ticks.
@@ -68,6 +84,19 @@ def test_run_fitting_in_c_is_the_python_algorithm(seed):
     span = interval * count + add * (count * (count - 1) // 2)
     origin = p0 + np.concatenate([[0], np.cumsum(span)[:-1]])
     assert np.array_equal((origin[run] + k * interval[run] + add[run] * (k * (k - 1) // 2)) >> 8, tick)
+
+
+@pytest.mark.parametrize("max_interval", [3000 * 256, 600 * 256, 200 * 256])
+def test_run_fitting_in_c_where_the_interval_limit_binds(max_interval):
+    """Gaps near and over the longest interval: the C search clamps every event's own interval there too."""
+    rng = np.random.default_rng(max_interval)
+    gaps = np.concatenate([np.linspace(100, 700, 400), np.linspace(700, 150, 400), rng.uniform(50, 900, 60)])
+    ticks = np.cumsum(gaps + rng.normal(0, 0.3, len(gaps)))
+    lo, hi, needed = windows_of(ticks, 0.05, 200.0, 20)
+    native, python = both_fits(lo, hi, needed, max_interval=max_interval)
+    for a, b in zip(native, python):
+        assert np.array_equal(a, b)
+    assert np.all(native[1] <= max_interval)
 
 
 def test_an_event_that_cannot_keep_its_window_comes_as_early_as_the_gap_allows():
@@ -87,6 +116,53 @@ def test_compressed_runs_keep_the_windows_and_the_player_gaps():
     assert np.all(np.abs(c.emitted_ticks - c.ideal_ticks) <= c.window_ticks + 1e-9)
     assert np.all(np.diff(c.emitted_ticks, prepend=12345 >> 8) >= 25)
     assert np.array_equal(twin.predict(c.schedule, 12345).event_tick, c.emitted_ticks)
+
+
+def recorded_windows(monkeypatch, job) -> list:
+    """Every window's compress call of a plan, with what the C helpers made of it."""
+    calls = []
+
+    def record(events, *args, **kw):
+        calls.append((events, args, kw, compress(events, *args, **kw)))
+        return calls[-1][-1]
+
+    with monkeypatch.context() as patch:
+        patch.setattr(windows, "compress", record)
+        host_build(job, keep=False)
+    return calls
+
+
+def gcode_job(tmp_path, name: str, target: str):
+    path = tmp_path / f"{Path(name).stem}-{target}.yaml"
+    path.write_text(GCODE_JOB.format(name=Path(name).stem, target=target, gcode=ROOT / "tests/data/gcode" / name))
+    return load_job(path)
+
+
+@pytest.mark.parametrize("source", EXAMPLES + ["grbl-cam.gcode avr", "parser/circle-inch.gcode mcs51",
+                                               "plotter/shapes.gcode avr", "plotter/shapes.gcode mcs51"])
+def test_timing_windows_and_runs_in_c_are_the_numpy_and_python_ones(monkeypatch, tmp_path, source):
+    """Real windows: the C windows are numpy's, and the schedule, ideal, window and emitted ticks are those of
+    numpy's windows and the Python search, to the bit."""
+    name, _, target = source.partition(" ")
+    job = load_job(ROOT / name) if not target else gcode_job(tmp_path, name, target)
+    calls = recorded_windows(monkeypatch, job)
+    assert calls
+    lib = library("runfit")
+    for events, args, kw, native in calls:
+        tick_hz, run_gap, block_gap = args[1:4]
+        rate_gap = rate_gaps(events, kw["max_rate"]) * tick_hz
+        made = (events, tick_hz, run_gap, block_gap, TimingWindow(), rate_gap, kw["origin_fx"])
+        for a, b in zip(compress_module._native_windows(lib, *made), numpy_windows(*made)):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+        with monkeypatch.context() as patch:
+            for module in (compress_module, runfit):
+                patch.setattr(module, "library", lambda name: None)
+            python = compress(events, *args, **kw)
+        for field in ("ideal_ticks", "window_ticks", "emitted_ticks"):
+            assert np.array_equal(getattr(native, field), getattr(python, field)), field
+        for field in ("run_count", "run_interval", "run_add", "block_dirs", "block_steps", "block_modulus",
+                      "block_init", "block_tool", "block_events", "block_segment"):
+            assert np.array_equal(getattr(native.schedule, field), getattr(python.schedule, field)), field
 
 
 @pytest.mark.parametrize("example", EXAMPLES)
@@ -128,7 +204,7 @@ def test_path_distances_in_c_are_the_numpy_ones(example):
 def test_without_the_helpers_the_tables_are_the_same(monkeypatch, example):
     job = load_job(ROOT / example)
     native = host_build(job)
-    for module in (runfit, twin, checks, stepgen):
+    for module in (compress_module, runfit, twin, checks, stepgen):
         monkeypatch.setattr(module, "library", lambda name: None)
     python = host_build(job)
     assert python.compressed.schedule.table_bytes() == native.compressed.schedule.table_bytes()
