@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -40,3 +41,27 @@ def planned(toolpath, mach=None, jd=0.01, tolerance=0.002, max_event_rate=np.inf
     segments = split_long(flatten(toolpath, tolerance), kin)
     steps = segment_steps(segments, kin)
     return kin, segments, steps, plan(segments, kin, steps, PlannerLimits(jd, max_event_rate=max_event_rate))
+
+
+GCODE_DATA = Path(__file__).resolve().parent / "data" / "gcode"
+_PRINTER = """name: {name}
+target: {target}
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
+{extruder}program:
+  gcode: {gcode}
+"""
+_EXTRUDER = "    e: {steps_per_mm: 100, max_velocity: 80, max_accel: 5000}\n"
+
+
+def gcode_job_file(folder: Path, name: str, target: str = "avr", extruder: bool = True) -> Path:
+    """A job file in `folder`: a cartesian printer (x, y 80 steps/mm, z 400, e 100 with `extruder`) running the
+    G-code file tests/data/gcode/`name`."""
+    path = Path(folder) / f"{Path(name).stem}-{target}.yaml"
+    path.write_text(_PRINTER.format(name=Path(name).stem, target=target, extruder=_EXTRUDER if extruder else "",
+                                    gcode=GCODE_DATA / name))
+    return path

@@ -16,21 +16,9 @@ from codegen.planner import plan
 from codegen.program import Program
 from codegen.segments import concat
 from codegen.targets import target_info
+from tests.helpers import gcode_job_file
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT / "tests" / "data" / "gcode"
-MACHINE = """
-name: windows
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
-    e: {{steps_per_mm: 100, max_velocity: 80, max_accel: 5000}}
-program:
-  gcode: {gcode}
-"""
 
 
 def planner_input(path):
@@ -73,9 +61,7 @@ def assert_joins_into(windows, whole):
     ("plotter/shapes.gcode", 1), ("plotter/shapes.gcode", 37), ("slicer/puzzle-cura.gcode", 37),
     ("slicer/puzzle-cura.gcode", 4096), ("laser/hiking.gcode", 37), ("slicer/benchy-arcs-arcwelder.gcode", 4096)])
 def test_windows_of_real_gcode_join_into_the_whole_plan(tmp_path, name, chunk):
-    job = tmp_path / "job.yaml"
-    job.write_text(MACHINE.format(gcode=DATA / name))
-    segments, kin, steps, limits = planner_input(job)
+    segments, kin, steps, limits = planner_input(gcode_job_file(tmp_path, name))
     windows = windowed(segments, kin, steps, limits, chunk)
     assert len(windows) > (1 if chunk == 4096 else 3)
     assert_joins_into(windows, plan(segments, kin, steps, limits))

@@ -20,23 +20,11 @@ from codegen.native import library
 from codegen.pipeline import host_build
 from codegen.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
 from codegen.stepgen import generate, segment_steps
-from tests.helpers import planned, polyline
+from tests.helpers import gcode_job_file, planned, polyline
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ["examples/star.yaml", "examples/plotter-set-51.yaml", "examples/delta-seed.yaml",
             "examples/gcode/mixed.yaml", "examples/sine.yaml", "examples/function.yaml"]
-GCODE_JOB = """
-name: {name}
-target: {target}
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
-program:
-  gcode: {gcode}
-"""
 CURVED = {"examples/plotter-set-51.yaml", "examples/sine.yaml", "examples/function.yaml", "examples/gcode/mixed.yaml"}
 
 pytestmark = pytest.mark.skipif(any(library(n) is None for n in ("runfit", "twin", "pathcheck", "eventtimes")),
@@ -133,9 +121,7 @@ def recorded_windows(monkeypatch, job) -> list:
 
 
 def gcode_job(tmp_path, name: str, target: str):
-    path = tmp_path / f"{Path(name).stem}-{target}.yaml"
-    path.write_text(GCODE_JOB.format(name=Path(name).stem, target=target, gcode=ROOT / "tests/data/gcode" / name))
-    return load_job(path)
+    return load_job(gcode_job_file(tmp_path, name, target, extruder=False))
 
 
 @pytest.mark.parametrize("source", EXAMPLES + ["grbl-cam.gcode avr", "parser/circle-inch.gcode mcs51",

@@ -11,35 +11,16 @@ import codegen.lookahead as lookahead
 from codegen.job import load_job
 from codegen.pipeline import host_build
 from codegen.tables import encode
+from tests.helpers import gcode_job_file
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT / "tests" / "data" / "gcode"
-PRINTER = """
-name: stream
-target: {target}
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    z: {{steps_per_mm: 400, max_velocity: 12, max_accel: 400}}
-    e: {{steps_per_mm: 100, max_velocity: 80, max_accel: 5000}}
-program:
-  gcode: {gcode}
-"""
-
-
-def job_file(tmp_path, name, target):
-    path = tmp_path / "job.yaml"
-    path.write_text(PRINTER.format(target=target, gcode=DATA / name))
-    return path
 
 
 @pytest.mark.parametrize("job, target", [
     ("examples/plotter-set-51.yaml", "mcs51"), ("examples/kossel-mini.yaml", "avr"),
     ("slicer/puzzle-cura.gcode", "avr"), ("laser/hiking.gcode", "mcs51")])
 def test_the_stream_written_window_by_window_is_the_whole_programs(tmp_path, job, target):
-    path = ROOT / job if job.startswith("examples") else job_file(tmp_path, job, target)
+    path = ROOT / job if job.startswith("examples") else gcode_job_file(tmp_path, job, target)
     out = tmp_path / "tables.bin"
     assert cli.main(["plan", str(path), "--target", target, "--tables", str(out)]) == 0
     whole = host_build(load_job(path, target))
@@ -68,7 +49,7 @@ def test_windows_make_the_tables_one_window_would_to_rounding(tmp_path, monkeypa
     """Against one window over the whole program: the same blocks to the bit; event times to rounding (the plan
     sums durations from each window's start, not from the program's: 0.006 ticks on this file); at most one run
     more per window (a run cannot go on into the next window)."""
-    job = load_job(job_file(tmp_path, "slicer/puzzle-cura.gcode", "avr"))
+    job = load_job(gcode_job_file(tmp_path, "slicer/puzzle-cura.gcode"))
     windowed = host_build(job)
     monkeypatch.setattr(lookahead, "settled", lambda prof: np.zeros(len(prof) + 1, dtype=bool))
     monkeypatch.setattr(lookahead, "MAX_HELD", 1 << 40)
