@@ -44,6 +44,7 @@ from codegen.paths import targets_dir  # noqa: E402
 from codegen.schedule import Schedule  # noqa: E402
 from codegen.sim.avr import SimTrace, simulate  # noqa: E402
 from codegen.twin import predict  # noqa: E402
+from shortest import shortest  # noqa: E402 - beside this script
 
 MCU = "atmega2560"
 F_CPU = 16_000_000
@@ -148,14 +149,8 @@ def fastest(n_motors: int, events: int, mode: str, workdir: Path, lo: int = 20, 
     """The shortest interval in CPU cycles that plays on time (Timer1 at prescaler 1); then checked at the real
     tick, the interval rounded up to whole ticks."""
     with prescaler(1) as tick_hz:
-        if not on_time(n_motors, hi, events, mode, workdir, tick_hz):
-            raise BuildError(f"{n_motors} motor(s), mode {mode}: not on time even at {hi} cycles per event")
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if on_time(n_motors, mid, events, mode, workdir, tick_hz):
-                hi = mid
-            else:
-                lo = mid
+        hi = shortest(lambda cycles: on_time(n_motors, cycles, events, mode, workdir, tick_hz), lo, hi,
+                      f"{n_motors} motor(s), mode {mode}")
     tick_hz = load_target(MCU)["tick_hz"]
     scale = F_CPU // tick_hz
     if not on_time(n_motors, -(-hi // scale), events, mode, workdir, tick_hz):
@@ -204,15 +199,8 @@ def homing_on_time(n_motors: int, interval: int, workdir: Path, tick_hz: int) ->
 def homing_fastest(n_motors: int, workdir: Path, lo: int = 10, hi: int = 4000) -> int:
     """The shortest homing step interval in CPU cycles (Timer1 at prescaler 1, as the player's cases)."""
     with prescaler(1) as tick_hz:
-        if not homing_on_time(n_motors, hi, workdir, tick_hz):
-            raise BuildError(f"homing {n_motors} motor(s): not on time even at {hi} cycles per step")
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if homing_on_time(n_motors, mid, workdir, tick_hz):
-                hi = mid
-            else:
-                lo = mid
-    return hi
+        return shortest(lambda cycles: homing_on_time(n_motors, cycles, workdir, tick_hz), lo, hi,
+                        f"homing {n_motors} motor(s)")
 
 
 def suffix(n: int) -> str:

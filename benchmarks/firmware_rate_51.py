@@ -40,6 +40,7 @@ from codegen.paths import targets_dir  # noqa: E402
 from codegen.schedule import Schedule  # noqa: E402
 from codegen.twin import predict  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
+from shortest import shortest  # noqa: E402 - beside this script
 
 TICK_HZ = 1_000_000
 CLOCKS = 12  # CPU clocks per machine cycle (timer tick)
@@ -125,15 +126,8 @@ def on_time(n_motors: int, interval: int, events: int, mode: str, workdir: Path,
 
 def fastest(n_motors: int, events: int, mode: str, workdir: Path, board: str, lo: int = 10, hi: int = 1000) -> int:
     """The shortest interval (machine cycles) that plays on time; assumes anything slower also does."""
-    if not on_time(n_motors, hi, events, mode, workdir, board):
-        raise BuildError(f"{n_motors} motor(s), mode {mode}: not on time even at {hi} cycles per event")
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if on_time(n_motors, mid, events, mode, workdir, board):
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    return shortest(lambda cycles: on_time(n_motors, cycles, events, mode, workdir, board), lo, hi,
+                    f"{n_motors} motor(s), mode {mode}")
 
 
 def coil_board(board: str) -> bool:

@@ -26,6 +26,7 @@ from codegen.firmware.avr import load_target  # noqa: E402
 from codegen.firmware.mcs51 import build_image, render_sources  # noqa: E402
 from codegen.schedule import Schedule  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
+from shortest import shortest  # noqa: E402 - beside this script
 
 CLOCKS = 12  # CPU clocks per machine cycle
 TOLERANCE = CLOCKS  # the poll loop of 2 machine cycles: a step 0 or 1 cycle after its tick
@@ -82,15 +83,8 @@ def homing_on_time(board: str, n_motors: int, interval: int, workdir: Path) -> b
 
 
 def homing_fastest(board: str, n_motors: int, workdir: Path, lo: int = 20, hi: int = 4000) -> int:
-    if not homing_on_time(board, n_motors, hi, workdir):
-        raise BuildError(f"homing {n_motors} motor(s): not on time even at {hi} machine cycles per step")
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        if homing_on_time(board, n_motors, mid, workdir):
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    return shortest(lambda cycles: homing_on_time(board, n_motors, cycles, workdir), lo, hi,
+                    f"homing {n_motors} motor(s)")
 
 
 def main() -> None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motor_checks import AccelCheck, RateCheck
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.planner import Plan
 from codegen.segments import REF_ARC, Segments
 
@@ -118,23 +118,22 @@ def step_path_errors(steps: np.ndarray, origin: np.ndarray, kin: Kinematics, seg
         return path_errors(axes, seg, segments, near)
     to_axes = np.zeros((4, len(kin.motors)))
     to_axes[kin.driven_axes] = kin.inverse / kin.limits.steps_per_mm[None, :]
-    return _native_path_errors(lib, None, (np.ascontiguousarray(steps, np.int64), np.asarray(origin, np.int64),
-                                           to_axes), seg, segments, near)
+    return _native_path_errors(lib, None, (*contiguous(np.int64, steps, origin), to_axes), seg, segments, near)
 
 
 def _native_path_errors(lib, axes, steps, seg, segments: Segments, near: float) -> np.ndarray:
-    f64, i64 = (lambda a: np.ascontiguousarray(a, dtype=np.float64)), (lambda a: np.ascontiguousarray(a, np.int64))
-    path = [f64(segments.start), f64(segments.end), i64(segments.ref_kind), f64(segments.ref_center),
-            f64(segments.ref_radius), i64(segments.ref_plane), i64(segments.ref_fine), f64(segments.fine)]
-    seg = i64(seg)
+    start, end, center, radius, fine = contiguous(np.float64, segments.start, segments.end, segments.ref_center,
+                                                  segments.ref_radius, segments.fine)
+    seg, kind, plane, fine_row = contiguous(np.int64, seg, segments.ref_kind, segments.ref_plane, segments.ref_fine)
     out = np.empty(len(seg))
-    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
     steps, origin, to_axes = (None, None, None) if steps is None else steps
     motors = 0 if steps is None else steps.shape[1]
-    lib.path_errors(ctypes.c_int64(len(seg)), ptr(axes), ptr(steps), ctypes.c_int64(motors), ptr(origin),
-                    ptr(None if to_axes is None else f64(to_axes)), ptr(seg), ctypes.c_double(near),
-                    ctypes.c_int64(len(segments)), *map(ptr, path), ctypes.c_int64(segments.fine.shape[1]),
-                    ptr(out))
+    to_axes = None if to_axes is None else contiguous(np.float64, to_axes)[0]
+    lib.path_errors(ctypes.c_int64(len(seg)), pointer(axes), pointer(steps), ctypes.c_int64(motors),
+                    pointer(origin), pointer(to_axes), pointer(seg), ctypes.c_double(near),
+                    ctypes.c_int64(len(segments)),
+                    *map(pointer, (start, end, kind, center, radius, plane, fine_row, fine)),
+                    ctypes.c_int64(segments.fine.shape[1]), pointer(out))
     return out
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.planner import quantisation_factor
 from codegen.runfit import fit_runs, fit_runs_native
 from codegen.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
@@ -134,13 +134,12 @@ def _native_windows(lib, events: Events, tick_hz: int, run_gap_ticks: int, block
     n = len(events.time)
     needed, lo, hi = (np.empty(n, dtype=np.int64) for _ in range(3))
     ideal, win = np.empty(n), np.empty(n)
-    block_first = np.ascontiguousarray(events.block_first, dtype=np.int64)
-    time = np.ascontiguousarray(events.time, dtype=np.float64)
-    rate_gap = None if rate_gap is None else np.ascontiguousarray(rate_gap, dtype=np.float64)
-    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+    block_first, = contiguous(np.int64, events.block_first)
+    time, = contiguous(np.float64, events.time)
+    rate_gap = None if rate_gap is None else contiguous(np.float64, rate_gap)[0]
     f64, i64 = ctypes.c_double, ctypes.c_int64
-    lib.timing_windows(i64(len(block_first) - 1), ptr(block_first), ptr(time), ptr(rate_gap), f64(tick_hz),
+    lib.timing_windows(i64(len(block_first) - 1), *map(pointer, (block_first, time, rate_gap)), f64(tick_hz),
                        i64(run_gap_ticks), i64(block_gap_ticks), f64(origin_fx / FRAC_ONE),
                        i64(origin_fx >> FRAC_BITS), f64(window.share), f64(window.min_ticks),
-                       f64(window.max_us * 1e-6 * tick_hz), *map(ptr, (needed, ideal, win, lo, hi)))
+                       f64(window.max_us * 1e-6 * tick_hz), *map(pointer, (needed, ideal, win, lo, hi)))
     return needed, ideal, win, lo, hi

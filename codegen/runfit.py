@@ -33,7 +33,7 @@ import ctypes
 
 import numpy as np
 
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.schedule import FRAC_ONE
 
 GUESS_STRIDE = 8  # events between the samples of the second difference that guesses each run's add
@@ -63,7 +63,7 @@ def fit_runs(lo: np.ndarray, hi: np.ndarray, needed: np.ndarray, p0: int, base: 
              max_interval: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Runs over the events with windows [lo, hi] (int64 positions): (count, interval, add) per run, and the
     tick of every event."""
-    lo, hi, needed = (np.ascontiguousarray(a, dtype=np.int64) for a in (lo, hi, needed))
+    lo, hi, needed = contiguous(np.int64, lo, hi, needed)
     lib = library("runfit")
     if lib is None:
         room = leave_room(hi, needed)
@@ -76,13 +76,11 @@ def fit_runs_native(lib: ctypes.CDLL, lo: np.ndarray, hi: np.ndarray, needed: np
     """`fit_runs` in C, given contiguous int64 arrays; `hi` becomes the windows' upper ends after `leave_room`."""
     n = len(lo)
     count, interval, add, tick = (np.empty(n, dtype=np.int64) for _ in range(4))
-    ptr = ctypes.POINTER(ctypes.c_int64)
-    p = lambda a: a.ctypes.data_as(ptr)  # noqa: E731
     fn = lib.fit_runs
     fn.restype = ctypes.c_int64
     i64 = ctypes.c_int64
-    runs = fn(i64(n), p(lo), p(hi), p(needed), i64(p0), i64(base), i64(max_count), i64(max_add), i64(max_interval),
-              p(hi), p(count), p(interval), p(add), p(tick))
+    runs = fn(i64(n), *map(pointer, (lo, hi, needed)), i64(p0), i64(base), i64(max_count), i64(max_add),
+              i64(max_interval), *map(pointer, (hi, count, interval, add, tick)))
     if runs < 0:
         raise MemoryError("rate runs: no memory for the search")
     return count[:runs], interval[:runs], add[:runs], tick

@@ -14,7 +14,7 @@ import numpy as np
 
 from codegen.checks import step_length_mm
 from codegen.kinematics.base import Kinematics
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.schedule import MAX_MODULUS
 from codegen.segments import Segments
 from codegen.stepgen import bresenham_init, segment_steps
@@ -143,11 +143,12 @@ def staircase_error(segments: Segments, kin: Kinematics, which: np.ndarray) -> n
     inverse = np.zeros((3, motors))
     inverse[kin.driven_axes[kin.driven_axes < 3]] = kin.inverse[kin.driven_axes < 3]
     worst = np.empty(len(which))
-    arrays = [np.ascontiguousarray(a, dtype=dtype) for a, dtype in (
-        (steps, np.int64), (modulus, np.int64), (init, np.int64), (first_step, float),
-        (kin.limits.steps_per_mm, float), (inverse, float), (driven, np.int64), (start, float), (end, float))]
+    steps, modulus, init = contiguous(np.int64, steps, modulus, init)
+    first_step, spm, inverse = contiguous(np.float64, first_step, kin.limits.steps_per_mm, inverse)
+    driven, = contiguous(np.int64, driven)
+    start, end = contiguous(np.float64, start, end)
     lib.staircase_error(ctypes.c_int64(len(which)), ctypes.c_int64(motors),
-                        *[a.ctypes.data_as(ctypes.c_void_p) for a in arrays + [worst]])
+                        *map(pointer, (steps, modulus, init, first_step, spm, inverse, driven, start, end, worst)))
     return worst
 
 

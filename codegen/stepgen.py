@@ -15,7 +15,7 @@ import numpy as np
 
 from codegen.curve_timing import CurveBlocks, curve_blocks, retime
 from codegen.kinematics.base import Kinematics
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.planner import Plan
 from codegen.segments import Segments
 
@@ -88,17 +88,15 @@ def _native_times(lib, segments: Segments, plan: Plan, master: _Crossings, block
                   curve: CurveBlocks | None) -> tuple[np.ndarray, np.ndarray]:
     events = int(count.sum())
     time, phase = np.empty(events), np.empty(events, dtype=np.int8)
-    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    arrays = [np.ascontiguousarray(blocks, np.int64), np.ascontiguousarray(count, np.int64)]
-    arrays += [f64(a) for a in (master.x0, master.span, master.p0, master.sign, plan.length, segments.dwell,
-                                plan.v_entry, plan.v_peak, plan.accel, plan.s_acc, plan.s_cruise, plan.t_start)]
+    arrays = contiguous(np.int64, blocks, count)
+    arrays += contiguous(np.float64, master.x0, master.span, master.p0, master.sign, plan.length, segments.dwell,
+                         plan.v_entry, plan.v_peak, plan.accel, plan.s_acc, plan.s_cruise, plan.t_start)
     if curve is None:
         arrays += [None] * 8
     else:
-        arrays += [np.ascontiguousarray(a, np.uint8) for a in (curve.smooth, curve.has_prev, curve.has_next)]
-        arrays += [f64(a) for a in (curve.slope_in, curve.slope_out, curve.u0, curve.span, curve.sign)]
-    ptr = lambda a: None if a is None else a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
-    lib.event_times(ctypes.c_int64(len(blocks)), *map(ptr, arrays), ptr(time), ptr(phase))
+        arrays += contiguous(np.uint8, curve.smooth, curve.has_prev, curve.has_next)
+        arrays += contiguous(np.float64, curve.slope_in, curve.slope_out, curve.u0, curve.span, curve.sign)
+    lib.event_times(ctypes.c_int64(len(blocks)), *map(pointer, arrays), pointer(time), pointer(phase))
     return time, phase
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.native import library
+from codegen.native import contiguous, library, pointer
 from codegen.schedule import FRAC_BITS, Schedule
 
 
@@ -88,33 +88,26 @@ def predict(schedule: Schedule, origin_fx: int = 0, position: np.ndarray | None 
         return predict_numpy(schedule, origin_fx, position)
     motors = len(schedule.motors)
     counts = schedule.events_per_block()
-    signed = np.ascontiguousarray(schedule.block_steps * schedule.block_dirs.astype(np.int64), dtype=np.int64)
-    modulus = np.ascontiguousarray(schedule.block_modulus, dtype=np.int64)
-    init = np.ascontiguousarray(schedule.block_init, dtype=np.int64)
+    signed, modulus, init = contiguous(np.int64, schedule.block_steps * schedule.block_dirs.astype(np.int64),
+                                       schedule.block_modulus, schedule.block_init)
     # Each motor's pulses: after n events of a block, ceil((n * steps - init) / modulus) (codegen/schedule.py).
     made = -((init - counts[:, None] * np.abs(signed)) // modulus[:, None])
     per_motor = np.maximum(made, 0).sum(axis=0)
     motor_first = np.concatenate([[0], np.cumsum(per_motor)]).astype(np.int64)
     events, pulses = int(counts.sum()), int(motor_first[-1])
-    here = np.zeros(motors, dtype=np.int64) if position is None else np.asarray(position, dtype=np.int64)
+    here, = contiguous(np.int64, np.zeros(motors) if position is None else position)
     out = Pulses(tick=np.empty(pulses, np.int64), motor=np.empty(pulses, np.int64), dir=np.empty(pulses, np.int64),
                  event=np.empty(pulses, np.int64), event_tick=np.empty(events, np.int64),
                  event_block=np.empty(events, np.int64), event_position=np.empty((events, motors), np.int64),
                  motor_tick=np.empty(pulses, np.int64), motor_dir=np.empty(pulses, np.int64), motor_first=motor_first)
-    keep = [signed, modulus, init, np.ascontiguousarray(counts, dtype=np.int64), here]
-    runs = [np.ascontiguousarray(a, dtype=np.int64) for a in (schedule.run_count, schedule.run_interval,
-                                                                schedule.run_add)]
+    blocks = [signed, modulus, init, *contiguous(np.int64, counts)]
+    runs = contiguous(np.int64, schedule.run_count, schedule.run_interval, schedule.run_add)
     i64 = ctypes.c_int64
-    lib.play(i64(schedule.n_blocks), i64(motors), *map(_pointer, keep[:4]), i64(len(runs[0])),
-             *map(_pointer, runs), i64(origin_fx), _pointer(here), _pointer(out.event_tick),
-             _pointer(out.event_block), _pointer(out.event_position), _pointer(out.tick), _pointer(out.motor),
-             _pointer(out.dir), _pointer(out.event), _pointer(motor_first), _pointer(out.motor_tick),
-             _pointer(out.motor_dir))
+    lib.play(i64(schedule.n_blocks), i64(motors), *map(pointer, blocks), i64(len(runs[0])), *map(pointer, runs),
+             i64(origin_fx), *map(pointer, (here, out.event_tick, out.event_block, out.event_position, out.tick,
+                                          out.motor, out.dir, out.event, motor_first, out.motor_tick,
+                                          out.motor_dir)))
     return out
-
-
-def _pointer(a: np.ndarray):
-    return a.ctypes.data_as(ctypes.POINTER(ctypes.c_int64))
 
 
 def predict_numpy(schedule: Schedule, origin_fx: int = 0, position: np.ndarray | None = None) -> Pulses:

@@ -66,7 +66,7 @@ class Totals:
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
-        end = 2  # the end marker, counted once for the whole program
+        end = len(end_marker(False))  # counted once for the whole program
         self.duration_s = played.window.plan.total if len(played.window.plan.duration) else self.duration_s
         self.windows += 1
         self.segments += len(played.window.segments)

@@ -10,10 +10,12 @@ import numpy as np
 from codegen.errors import SourceRef
 from codegen.kinematics import make_kinematics
 from codegen.planner import PlannerLimits, plan
+from codegen.schedule import Schedule
 from codegen.staircase import split_long
 from codegen.stepgen import segment_steps
 from codegen.segments import flatten
 from codegen.toolpath import Line, Toolpath
+from tests.reference_player import event_ticks
 
 SRC = SourceRef("test.yaml", 1, 1)
 
@@ -65,3 +67,32 @@ def gcode_job_file(folder: Path, name: str, target: str = "avr", extruder: bool 
     path.write_text(_PRINTER.format(name=Path(name).stem, target=target, extruder=_EXTRUDER if extruder else "",
                                     gcode=GCODE_DATA / name))
     return path
+
+
+def make_schedule(motors, blocks, final_tool=False, runs=None, tick_hz=2_000_000):
+    """A schedule by hand. blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...]),
+    each with runs of its own; or, with `runs` (the whole program's, crossing block starts), (dirs, steps,
+    modulus, init, tool, events)."""
+    m = len(motors)
+    own = runs is None
+    events = [sum(r[2] for r in b[5]) for b in blocks] if own else [b[5] for b in blocks]
+    runs = [r for b in blocks for r in b[5]] if own else runs
+    per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
+    return Schedule(
+        motors=tuple(motors), tick_hz=tick_hz, block_dirs=per_motor(0, np.int8), block_steps=per_motor(1, np.int64),
+        block_modulus=np.array([b[2] for b in blocks], dtype=np.int64), block_init=per_motor(3, np.int64),
+        block_tool=np.array([b[4] for b in blocks], dtype=bool),
+        block_segment=np.zeros(len(blocks), dtype=np.int64),
+        run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
+        run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
+        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,
+        block_events=np.array(events, dtype=np.int64))
+
+
+def block_spans(schedule):
+    """Per block, the ticks of its first and last event (plain Python)."""
+    ticks, spans, first = event_ticks(schedule), [], 0
+    for events in schedule.events_per_block():
+        spans.append((ticks[first], ticks[first + events - 1]))
+        first += events
+    return spans

@@ -6,6 +6,7 @@ tests/reference_player.py's plain readings of the semantics (from the schedule a
 from __future__ import annotations
 
 import subprocess
+from functools import partial
 
 import numpy as np
 import pytest
@@ -14,42 +15,14 @@ from codegen import tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr import build_image, render_sources
-from codegen.schedule import Schedule
 from codegen.sim.avr import simulate
-from tests.reference_player import event_ticks, play, play_stream
+from tests.helpers import block_spans, make_schedule as hand_schedule
+from tests.reference_player import play, play_stream
 
 F_CPU, TICK_HZ = 16_000_000, 2_000_000
 CYCLES = F_CPU // TICK_HZ  # CPU cycles per timer tick
 LATENCY_TOLERANCE = 4  # cycles around the constant compare-match-to-edge latency
-
-
-def make_schedule(motors, blocks, final_tool=False, runs=None):
-    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...]), each with runs of
-    its own; or, with `runs` (the whole program's, crossing block starts), (dirs, steps, modulus, init, tool,
-    events)."""
-    m = len(motors)
-    own = runs is None
-    events = [sum(r[2] for r in b[5]) for b in blocks] if own else [b[5] for b in blocks]
-    runs = [r for b in blocks for r in b[5]] if own else runs
-    per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
-    return Schedule(
-        motors=tuple(motors), tick_hz=TICK_HZ, block_dirs=per_motor(0, np.int8), block_steps=per_motor(1, np.int64),
-        block_modulus=np.array([b[2] for b in blocks], dtype=np.int64), block_init=per_motor(3, np.int64),
-        block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_segment=np.zeros(len(blocks), dtype=np.int64),
-        run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
-        run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
-        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,
-        block_events=np.array(events, dtype=np.int64))
-
-
-def block_spans(schedule):
-    """Per block, the ticks of its first and last event (plain Python)."""
-    ticks, spans, first = event_ticks(schedule), [], 0
-    for events in schedule.events_per_block():
-        spans.append((ticks[first], ticks[first + events - 1]))
-        first += events
-    return spans
+make_schedule = partial(hand_schedule, tick_hz=TICK_HZ)
 
 
 def config(motors, sockets, board="ramps-1.4", inverted=(), pulse_us=2.0):

@@ -5,6 +5,7 @@ and every simulated pulse is compared with tests/reference_player.py's plain rea
 from __future__ import annotations
 
 import json
+from functools import partial
 
 import numpy as np
 import pytest
@@ -13,43 +14,16 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
 from codegen import tables
 from codegen.firmware.mcs51 import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
-from codegen.schedule import Schedule
 from codegen.sim.mcs51 import simulate
-from tests.reference_player import event_ticks, play
+from tests.helpers import block_spans, make_schedule as hand_schedule
+from tests.reference_player import play
 
 CLOCKS = 12  # CPU clocks per timer tick (machine cycle)
 TOLERANCE = 2  # clocks around the constant overflow-to-edge latency
 # On a board with a display main runs between interrupts: an interrupt waits up to one machine cycle more for the
 # end of main's instruction (the display driver has no 4-cycle MUL or DIV).
 BUSY_TOLERANCE = TOLERANCE + CLOCKS
-
-
-def make_schedule(motors, blocks, final_tool=False, runs=None):
-    """blocks: (dirs, steps, modulus, init, tool, [(interval in 1/256 tick, add, count), ...]), each with runs of
-    its own; or, with `runs` (the whole program's), (dirs, steps, modulus, init, tool, events)."""
-    m = len(motors)
-    events = [sum(r[2] for r in b[5]) for b in blocks] if runs is None else [b[5] for b in blocks]
-    own = runs is None
-    runs = [r for b in blocks for r in b[5]] if own else runs
-    per_motor = (lambda k, dtype: np.array([b[k] for b in blocks], dtype=dtype).reshape(len(blocks), m))
-    return Schedule(
-        motors=tuple(motors), tick_hz=1_000_000, block_dirs=per_motor(0, np.int8),
-        block_steps=per_motor(1, np.int64), block_modulus=np.array([b[2] for b in blocks], dtype=np.int64),
-        block_init=per_motor(3, np.int64), block_tool=np.array([b[4] for b in blocks], dtype=bool),
-        block_segment=np.zeros(len(blocks), dtype=np.int64),
-        run_interval=np.array([r[0] for r in runs], dtype=np.int64).reshape(-1),
-        run_add=np.array([r[1] for r in runs], dtype=np.int64).reshape(-1),
-        run_count=np.array([r[2] for r in runs], dtype=np.int64).reshape(-1), final_tool=final_tool,
-        block_events=np.array(events, dtype=np.int64))
-
-
-def block_spans(schedule):
-    """Per block, the ticks of its first and last event (plain Python)."""
-    ticks, spans, first = event_ticks(schedule), [], 0
-    for events in schedule.events_per_block():
-        spans.append((ticks[first], ticks[first + events - 1]))
-        first += events
-    return spans
+make_schedule = partial(hand_schedule, tick_hz=1_000_000)
 
 
 def config(motors, sockets, board="at89c52", inverted=(), pulse_us=2.0):

@@ -13,6 +13,8 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 SOURCE_DIR = Path(__file__).resolve().parent
 BUILD = ("gcc", "-O2", "-std=c99", "-shared", "-fPIC")
 LIBS = ("-lm",)
@@ -21,6 +23,16 @@ LIBS = ("-lm",)
 def _cache_dir() -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "printer-codegen"
+
+
+def pointer(array: np.ndarray | None):
+    """A C pointer to a contiguous array's data, which it keeps alive (None: a null pointer)."""
+    return None if array is None else array.ctypes.data_as(ctypes.c_void_p)
+
+
+def contiguous(dtype, *arrays) -> list[np.ndarray]:
+    """The arrays as C sees them: contiguous, of `dtype`."""
+    return [np.ascontiguousarray(a, dtype=dtype) for a in arrays]
 
 
 @lru_cache(maxsize=None)
