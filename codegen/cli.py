@@ -1,4 +1,4 @@
-"""The command line (CLI.md): build, verify, plan. Exit codes: 0 ok, 1 build/verification failed, 2 bad input."""
+"""The command line (CLI.md): build, verify, plan, and streaming (codegen/cli_stream.py). Exit codes: 0 ok, 1 build/verification failed, 2 bad input."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from codegen import __version__
+from codegen import __version__, cli_stream
 from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
@@ -100,6 +100,8 @@ def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, 
 
 
 def cmd_build(args) -> int:
+    if args.stream:
+        return cli_stream.cmd_build_stream(args)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
     print(f"built {out_dir / image.hex_path.name}: flash {image.flash_bytes} of {image.flash_capacity} bytes "
@@ -109,6 +111,8 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
+    if args.stream:
+        return cli_stream.cmd_verify_stream(args)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     simulator = _target_module("sim", host.target.target)
@@ -143,6 +147,8 @@ def cmd_verify(args) -> int:
 
 
 def cmd_plan(args) -> int:
+    if args.stream:
+        return cli_stream.cmd_plan_stream(args)
     job = load_job(Path(args.job), args.target)
     if args.tables is None:
         host = _host(job, args.strict, keep=False)
@@ -181,16 +187,26 @@ def parser() -> argparse.ArgumentParser:
         ("build", cmd_build, "plan the job and build the firmware image"),
         ("verify", cmd_verify, "build (or reuse the build), run the image in the simulator, compare with the plan"),
         ("plan", cmd_plan, "plan only: no compiler, no simulator"),
+        ("stream", cli_stream.cmd_stream, "plan the job and stream it to a board running the streaming firmware"),
     ):
         v = verbs.add_parser(name, help=help_text)
         v.set_defaults(handler=handler)
         v.add_argument("job", help="the job file (YAML)")
         v.add_argument("--target", choices=("avr", "mcs51"), help="override the job's target")
         v.add_argument("--strict", action="store_true", help="G-code codes skipped with a warning are errors")
-        if name != "plan":
+        if name in ("build", "verify"):
             v.add_argument("--out", help="output folder (default build/<name>/)")
-        if name != "build":
+        if name in ("plan", "verify"):
             v.add_argument("--json", action="store_true", help="print one JSON object")
+        if name != "stream":
+            v.add_argument("--stream", action="store_true",
+                           help="the machine's streaming firmware (no tables inside): the job goes over the link")
+        if name != "build":
+            v.add_argument("--baud", type=int, help="the link's baud rate (default machine.link.baud, or the "
+                                                   "target's: AVR 250000, 8051 9600)")
+        if name == "stream":
+            v.add_argument("--port", required=True, help="the board's serial port, e.g. /dev/ttyACM0")
+            v.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "verify":
             v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
         if name == "plan":

@@ -19,6 +19,7 @@ from codegen.homing import homes, homing_axes
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
+from codegen.link.ring import LinkBudget, LinkPlan, link_plan
 from codegen.lookahead import Lookahead, Window
 from codegen.pieces import front_end
 from codegen.planner import Plan, PlannerLimits, plan
@@ -50,6 +51,7 @@ class HostBuild:
     events: Events | None = None
     compressed: Compressed | None = None
     pulses: Pulses | None = None
+    link_plan: LinkPlan | None = None  # a streamed job's link (host_build's `link`)
 
     @property
     def schedule(self):
@@ -86,15 +88,16 @@ def planner_limits(job, kin: Kinematics, target: TargetInfo) -> PlannerLimits:
 
 
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
-               tables: BinaryIO | None = None) -> HostBuild:
+               tables: BinaryIO | None = None, link: LinkBudget | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator. The program
     is read, planned and played a window at a time (codegen/lookahead.py, codegen/windows.py); `keep` joins
     the windows' results into the whole program's (for an image and its verification), otherwise only their
     totals are kept and memory stays bounded whatever the program's size. `tables` gets the table stream as
-    its windows are made."""
+    its windows are made. With `link`, the job is planned for the streaming player: its costs, and a ring that
+    the link keeps fed (host.link_plan)."""
     watch = watch or Stopwatch()
     try:
-        target = target_info(job.board)
+        target = target_info(job.board, stream=link is not None)
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
@@ -110,7 +113,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
             chunk = next(chunks, None)
         if stages is None:
             stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables)
+                            tables, link)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -129,6 +132,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     stages.finish()
     host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final, program.warnings, homing)
+    if link is not None:
+        host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if keep:
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)

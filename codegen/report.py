@@ -36,6 +36,7 @@ def plan_summary(host: HostBuild) -> dict:
         "max_timing_error_us": _round(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
         "pass": f.ok,
         "problems": list(f.problems),
+        **(host.link_plan.summary() if host.link_plan is not None else {}),
     }
 
 
@@ -140,5 +141,11 @@ def human_plan(summary: dict) -> str:
                      f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
     lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
                  f"timing within {summary['max_timing_error_us']:.2f} us of the plan")
+    if "prefill_bytes" in summary:
+        low = summary["min_ring_fill_bytes"]
+        lines.append(f"  link {summary['baud']} baud: {summary['stream_bytes']} bytes to stream, prefill "
+                     f"{summary['prefill_bytes']} of the {summary['ring_bytes']}-byte ring, lowest fill "
+                     f"{'n/a (the stream fits the ring)' if low is None else f'{low} bytes'}, "
+                     f"{summary['link_slowdown_s']:.3f} s slower for the link")
     lines.extend(f"  problem: {p}" for p in summary["problems"])
     return "\n".join(lines)

@@ -130,11 +130,7 @@ def encode(schedule: Schedule) -> CompactTable:
     runs[run_long, 7:10] = _le(add[run_long] & 0xFFFFFF, 3)
     run_len = np.where(run_long, LONG_RUN_BYTES, SHORT_RUN_BYTES)
 
-    # Records in the order the player needs them: by the event that starts them, a block before a run.
-    block_first = np.cumsum(schedule.events_per_block()) - schedule.events_per_block()
-    run_first = np.cumsum(count) - count
-    key = np.concatenate([2 * block_first, 2 * run_first + 1])
-    order = np.argsort(key, kind="stable")
+    order, key = _record_order(schedule)
     size = max(width, LONG_RUN_BYTES)
     matrix = np.zeros((len(key), size), dtype=np.uint8)
     matrix[:schedule.n_blocks, :width] = blocks
@@ -146,6 +142,26 @@ def encode(schedule: Schedule) -> CompactTable:
     offsets = np.empty(len(key), dtype=np.int64)
     offsets[order] = np.cumsum(length) - length
     return CompactTable(data, offsets[:schedule.n_blocks], block_long, run_long)
+
+
+def _record_order(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
+    """Records in the order the player needs them, blocks first then runs: by the event that starts them, a
+    block before a run (order), and the sort key (2 x that event, + 1 for a run)."""
+    block_first = np.cumsum(schedule.events_per_block()) - schedule.events_per_block()
+    run_first = np.cumsum(schedule.run_count) - schedule.run_count
+    key = np.concatenate([2 * block_first, 2 * run_first + 1])
+    return np.argsort(key, kind="stable"), key
+
+
+def record_events(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
+    """Every record of the stream in order (the end marker aside): the event it starts, and its bytes."""
+    motors = len(schedule.motors)
+    modulus, steps, _ = block_fields(schedule)
+    block_len = np.where(_long_blocks(modulus, steps), long_block_bytes(motors), short_block_bytes(motors))
+    run_len = np.where(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add), LONG_RUN_BYTES,
+                       SHORT_RUN_BYTES)
+    order, key = _record_order(schedule)
+    return key[order] >> 1, np.concatenate([block_len, run_len])[order]
 
 
 def end_marker(final_tool: bool) -> bytes:

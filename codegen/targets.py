@@ -73,11 +73,16 @@ def _load(name: str) -> dict:
     return yaml.safe_load((targets_dir() / f"{name}.yaml").read_text(encoding="utf-8"))
 
 
-def target_info(board: str) -> TargetInfo:
+def target_info(board: str, stream: bool = False) -> TargetInfo:
+    """`stream`: the costs of the streaming player (records from the link's ring buffer, the link's interrupts
+    beside it), where the MCU's or board's file has them (`stream_player_costs`)."""
     board_data = _load(board)
     mcu = board_data["mcu"]
     # A board may carry its own measured player costs (a display makes the interrupt save main's registers).
     mcu_data = {**_load(mcu), **(board_data.get("player_costs") or {})}
+    if stream:
+        mcu_data.update(_load(mcu).get("stream_player_costs") or {})
+        mcu_data.update(board_data.get("stream_player_costs") or {})
     f_cpu = int(mcu_data["f_cpu"])
     tick_hz = int(mcu_data.get("tick_hz", f_cpu))
     return TargetInfo(

@@ -24,13 +24,15 @@ import numpy as np
 
 from codegen.checks import Checker, MotorTrain, corner_jumps
 from codegen.compress import Compressed, compress
+from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
+from codegen.link.ring import LinkBudget, Ring
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
 from codegen.stopwatch import Stopwatch
-from codegen.tables import encode, end_marker
+from codegen.tables import encode, end_marker, record_events
 from codegen.targets import TargetInfo
 from codegen.twin import Pulses, predict
 
@@ -63,6 +65,7 @@ class Totals:
     events: int = 0
     table_bytes: int = 0  # the end marker included
     max_timing_error_ticks: float = 0.0  # the largest distance of an emitted event from its planned time
+    link_slowdown_s: float = 0.0  # time the link's bandwidth added to the plan (streaming)
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -85,6 +88,7 @@ class _Carried:
     origin_fx: int  # 1/256 tick: the last event's time
     position: np.ndarray  # (M,) steps after the last event, from the program's start
     before: Segments | None  # the last segment
+    ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
 
 
 class Stages:
@@ -92,14 +96,16 @@ class Stages:
     stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
 
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
-                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None):
+                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
+                 link: LinkBudget | None = None):
         """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
         `tables` gets each final window's table records as it is made (a window ends at a block and a run
-        start, so they join into the whole program's stream; `finish` adds the end marker)."""
+        start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
+        stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows)."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
         self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
-                                np.zeros(len(kin.motors), dtype=np.int64), None)
+                                np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
         motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
@@ -123,8 +129,15 @@ class Stages:
         for _ in range(RATE_ROUNDS - 1):
             if scale is None:
                 break
-            window, w_exit = self._plan_again(window, *scale)
+            was = window.plan.total
+            window, w_exit = self._plan_again(window, *scale[:2])
+            if scale[2]:
+                self.totals.link_slowdown_s += window.plan.total - was
             played, carried, scale = self._attempt(window, after, last, before)
+        if scale is not None and scale[2]:
+            raise BuildError(f"the link at {carried.ring.budget.baud} baud cannot keep the ring fed between "
+                             f"{window.plan.t_start[0]:.3f} and {window.plan.total:.3f} s into the job, even "
+                             f"slowed {RATE_ROUNDS - 1} times: a faster link, or a larger machine.tolerance")
         if w_exit is not None:
             self.lookahead.resume(w_exit, window.plan.total)
         if self.open is not None:
@@ -171,9 +184,37 @@ class Stages:
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
+        ring = None if before.ring is None else before.ring.copy()
         carried = _Carried(checker, _end_fx(played), position,
-                           window.segments.take(np.arange(n - 1, n)) if n else before.before)
-        return played, carried, self._slow_down(window.plan, event_segment - shift, pulses, hits)
+                           window.segments.take(np.arange(n - 1, n)) if n else before.before, ring)
+        scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
+        if ring is not None:
+            with watch("link"):
+                reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
+                                                           target.tick_hz)
+                short = ring.add(reads, sizes)
+            if scale is None and short is not None:
+                record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
+                return played, carried, self._link_slow_down(window.plan, short, record_segment, sizes,
+                                                             ring.budget.rate)
+        return played, carried, None if scale is None else (*scale, False)
+
+    @staticmethod
+    def _link_slow_down(plan, short, record_segment: np.ndarray, sizes: np.ndarray, rate: float):
+        """From a stretch that drains the ring on, the segments whose records are denser than the link carries,
+        each slowed to the link's bytes a second (the ring absorbs no burst there any more: one round suffices
+        where slowing the stretch alone would move the shortfall on, one stretch a round)."""
+        n = len(plan.duration)
+        span = slice(short.first, None)
+        need = np.bincount(record_segment[span], weights=sizes[span], minlength=n)
+        speed = np.ones(n)
+        dense = need * 1.0 > plan.duration * rate * RETRY_SHARE
+        speed[dense] = plan.duration[dense] * rate * RETRY_SHARE / need[dense]
+        if not dense.any():  # a stretch of segments each within the rate: slow it as a whole
+            first, last = record_segment[short.first], record_segment[short.last]
+            seconds = short.end_s - short.begin_s
+            speed[first:last + 1] = RETRY_SHARE * seconds / (seconds + short.extra_s) if seconds > 0 else RETRY_SHARE
+        return speed, np.ones(n), True
 
     def _corners(self, window: Window, last: Segments | None) -> tuple[np.ndarray, np.ndarray]:
         """The window's corners (`corner_jumps`), the one where it meets the window before (whose last segment
@@ -222,6 +263,14 @@ class Stages:
         again = finish(prof, w, plan.t_start[0])
         again.corner[0], again.corner[-1] = plan.corner[0], plan.corner[-1]
         return replace(window, segments=slowed, plan=again), float(w[-1])
+
+
+def _record_reads(schedule, pulses: Pulses, origin_fx: int, tick_hz: int):
+    """When the player reads each record of a window (s, on the program's clock): at the event before the one
+    it starts (the window's first records at the last event before it); the records' bytes and events."""
+    event, size = record_events(schedule)
+    before = np.concatenate([[origin_fx >> 8], pulses.event_tick])
+    return before[event] / tick_hz, size, event
 
 
 def _end_fx(played: Played) -> int:

@@ -49,6 +49,7 @@ class FirmwareConfig:
     dir_setup_us: float = 1.0
     homing: tuple[HomingAxis, ...] = ()  # axes homed at power-up, round by round, before the table plays
     start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
+    baud: int = 0  # the streaming firmware's link (machine.link.baud); 0: the target's default
 
 
 def board_socket(board_name: str, board: dict, motor: MotorPins) -> dict:

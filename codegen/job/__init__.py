@@ -69,7 +69,7 @@ def _inline_gcode(gcode: str, marks: Marks) -> bool:
 
 
 def _check_gcode_file(job: Job, path: Path, marks: Marks) -> list[Diagnostic]:
-    gcode = job.program.gcode
+    gcode = None if job.program is None else job.program.gcode
     if gcode is None or _inline_gcode(gcode, marks) or (path.parent / gcode).is_file():
         return []
     return [Diagnostic(marks.value(("program", "gcode")), f"program.gcode: no such file '{gcode}'")]
@@ -83,14 +83,15 @@ def _validate(data: dict) -> Job:
         return Job.model_validate(data)
 
 
-def load_job(path: Path, target_override: str | None = None) -> Job:
+def load_job(path: Path, target_override: str | None = None, program_required: bool = True) -> Job:
     """Read and validate a job file.
 
     Returns a `Job` with the defaults filled in (name: the file's stem; target: avr unless `target_override`;
     board: per target), `job.path` absolute, every shape's `source` at its kind key, and `program.gcode_source`
     at the G-code (its first line when inline). Raises `JobError` carrying every diagnostic of the file,
     sorted by position: YAML syntax (one diagnostic), unknown and missing keys, wrong values, cross-key rules,
-    the board, a G-code file that does not exist.
+    the board, a G-code file that does not exist. Without `program_required` (a streaming firmware is the
+    machine's), the program may be missing.
     """
     path = Path(path)
     if target_override is not None and target_override not in TARGETS:
@@ -109,6 +110,9 @@ def load_job(path: Path, target_override: str | None = None) -> Job:
     except ValidationError as e:
         diagnostics += translate(e.errors(), marks)
     diagnostics += cross_check(data, marks)
+    if program_required and "program" not in data:
+        diagnostics.append(Diagnostic(marks.mapping(()), "missing key 'program' (only `build --stream` goes "
+                                                         "without one)"))
     if data.get("target", "avr") in TARGETS:
         diagnostics += _check_board(data, data.get("target", "avr"), marks)
     if job is not None:
@@ -119,6 +123,8 @@ def load_job(path: Path, target_override: str | None = None) -> Job:
     job.path = path.resolve()
     for name, stepper in job.machine.steppers.items():
         stepper.steps_source = marks.value(("machine", "steppers", name, "steps_per_mm"))
+    if job.program is None:
+        return job
     for i, shape in enumerate(job.program.shapes or ()):
         shape.source = marks.key(("program", "shapes", i, shape.kind))
     if "start" in job.program.model_fields_set:

@@ -17,7 +17,7 @@ import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from codegen.errors import Diagnostic, JobError, SourceRef, closest, suggest
-from codegen.job.schema import MOTORS, REQUIRED_MOTORS, SHAPES, Delta, Job, Machine, Program, Stepper
+from codegen.job.schema import MOTORS, REQUIRED_MOTORS, SHAPES, Delta, Homing, Job, Link, Machine, Program, Stepper
 
 YPath = tuple  # of str (mapping keys) and int (list indexes)
 
@@ -310,7 +310,8 @@ def program_issues(p: dict) -> list[Issue]:
 def known_keys(path: tuple) -> tuple[str, ...] | None:
     """The keys allowed in the mapping at a YAML path (for "did you mean"); None when not a model."""
     model = {
-        (): Job, ("machine",): Machine, ("machine", "delta"): Delta, ("program",): Program,
+        (): Job, ("machine",): Machine, ("machine", "delta"): Delta, ("machine", "link"): Link,
+        ("machine", "homing"): Homing, ("program",): Program,
     }.get(tuple(path))
     if model is None and len(path) == 3 and path[:2] == ("machine", "steppers"):
         model = Stepper

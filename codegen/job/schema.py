@@ -162,6 +162,12 @@ class Homing(_Model):
     backoff: Positive = 3.0  # mm away from the switches between the approaches
 
 
+class Link(_Model):
+    """The serial line a streaming firmware (`build --stream`) reads its records from."""
+
+    baud: Optional[Annotated[int, Field(gt=0, le=2_000_000)]] = None  # default: the target's (AVR 250000, 8051 9600)
+
+
 class Machine(_Model):
     kinematics: _choice(*KINEMATICS)  # type: ignore[valid-type]
     steppers: dict[str, Stepper]
@@ -171,6 +177,7 @@ class Machine(_Model):
     dir_setup_us: Annotated[float, BeforeValidator(_number), Field(ge=0, le=100)] = 1.0  # DIR before STEP
     homing: Homing = Homing()
     delta: Optional[Delta] = None
+    link: Link = Link()
 
     @property
     def motor_names(self) -> tuple[str, ...]:
@@ -381,7 +388,7 @@ class Job(_Model):
     target: _choice(*TARGETS) = "avr"  # type: ignore[valid-type]
     board: Text = DEFAULT_BOARDS["avr"]  # default: per target
     machine: Machine
-    program: Program
+    program: Optional[Program] = None  # only `build --stream` goes without one (load_job checks)
     _path: Path = PrivateAttr(default_factory=Path)
 
     @property

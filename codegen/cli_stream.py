@@ -1,0 +1,170 @@
+"""The CLI's streaming verbs (CLI.md): build --stream, plan --stream, verify --stream, stream."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from codegen import __version__, tables
+from codegen.errors import BuildError, render_all
+from codegen.job import load_job
+from codegen.link.host import HostLink
+from codegen.pipeline import HostBuild, host_build
+from codegen.report import human_plan, plan_summary, verify_json, write_json
+from codegen.streaming import SIM_MODULES, StreamSetup, build_stream_firmware, stream_chunks, stream_setup
+from codegen.verify import compare, simulated_switches
+
+
+def _out_dir(job, out: str | None) -> Path:
+    return Path(out) if out else Path("build") / job.name
+
+
+def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
+    lay = setup.layout
+    return {
+        "printer_codegen": __version__, "job": setup.config.job_name, "target": setup.target.target,
+        "board": setup.target.board, "mcu": setup.target.mcu, "stream": True,
+        "identity": f"{setup.identity:08x}",
+        "link": {"baud": lay.baud, "baud_error_pct": round(lay.baud_error_pct, 3), "ring_bytes": lay.ring_bytes,
+                 "ring_where": lay.where, "payload_bytes": setup.budget.payload},
+        "image": {"hex": image.hex_path.name, "elf": image.elf_path.name if image.elf_path else None,
+                  "flash_bytes": image.flash_bytes, "flash_capacity": image.flash_capacity,
+                  "ram_bytes": image.ram_bytes, "ram_capacity": image.ram_capacity,
+                  "flash_parts": dict(image.flash_parts), "sections": dict(image.sections)},
+        "sources": sorted(sources),
+    }
+
+
+def _firmware(job, setup: StreamSetup, out: str | None):
+    out_dir = _out_dir(job, out)
+    image, sources = build_stream_firmware(setup, out_dir)
+    write_json(out_dir / "report.json", _stream_report(setup, image, sources))
+    return image, out_dir
+
+
+def cmd_build_stream(args) -> int:
+    job = load_job(Path(args.job), args.target, program_required=False)
+    setup = stream_setup(job)
+    image, out_dir = _firmware(job, setup, args.out)
+    print(f"built {out_dir / image.hex_path.name}: the streaming firmware for {setup.config.board} "
+          f"(identity {setup.identity:08x}): flash {image.flash_bytes} of {image.flash_capacity} bytes, RAM "
+          f"{image.ram_bytes} of {image.ram_capacity} bytes; {setup.describe()}")
+    return 0
+
+
+def streamed_host(job, setup: StreamSetup, strict: bool, keep: bool, tables_out=None) -> HostBuild:
+    host = host_build(job, strict, keep=keep, tables=tables_out, link=setup.budget)
+    if host.warnings:
+        print(render_all(host.warnings), file=sys.stderr)
+    host.homing = setup.config.homing  # the streaming firmware's homing (codegen/streaming.py)
+    return host
+
+
+def cmd_plan_stream(args) -> int:
+    job = load_job(Path(args.job), args.target)
+    host = streamed_host(job, stream_setup(job, args.baud), args.strict, keep=False)
+    summary = plan_summary(host)
+    print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
+    return 0 if summary["pass"] else 1
+
+
+def cmd_verify_stream(args) -> int:
+    import importlib
+
+    job = load_job(Path(args.job), args.target)
+    setup = stream_setup(job, args.baud)
+    image, out_dir = _firmware(job, setup, args.out)
+    host = streamed_host(job, setup, args.strict, keep=True)
+    if not host.findings.ok:
+        raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
+                         + "\n  ".join(host.findings.problems))
+    data = tables.encode(host.schedule).data
+    link = HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload)
+    simulator = importlib.import_module(SIM_MODULES[setup.target.target])
+    budget = int((host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate)
+                 * setup.target.f_cpu)
+    switches = simulated_switches(host)
+    trace, figures = simulator.simulate_stream(image.hex_path, setup.config, link, budget, switches=switches)
+    verdict = compare(host, trace, switches)
+    problems = list(verdict.problems)
+    if link.outcome != "finished":
+        problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
+    expected = tuple(int(v) for v in host.pulses.final_positions())
+    if link.outcome == "finished" and link.position != expected:
+        problems.append(f"the firmware reports positions {list(link.position)} at the end, the twin "
+                        f"{list(expected)}")
+    if figures.lost_bytes:
+        problems.append(f"{figures.lost_bytes} received bytes were read too late: a real UART would have "
+                        f"lost them")
+    verdict = replace(verdict, problems=problems)
+    result = verify_json(host, verdict, image)
+    result["image"]["table_bytes"] = 0
+    result["link"] = {"baud": figures.baud, "bytes": figures.bytes, "frames": figures.frames,
+                      "retransmits": figures.retransmits, "min_ring_fill_bytes": figures.min_ring_fill_bytes,
+                      "underruns": figures.underruns, "lost_bytes": figures.lost_bytes,
+                      "planned_min_ring_fill_bytes": host.link_plan.min_ring_fill_bytes,
+                      "prefill_bytes": host.link_plan.prefill_bytes,
+                      "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        state = "PASS" if result["pass"] else "FAIL"
+        lk = result["link"]
+        print(f"{state} {job.name}: streamed to {out_dir / 'firmware.hex'} at {lk['baud']} baud, "
+              f"{result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s planned")
+        print(f"  link: {lk['bytes']} bytes in {lk['frames']} frames, {lk['retransmits']} retransmitted, lowest "
+              f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
+              f"{lk['underruns']} underruns")
+        for name, m in result["motors"].items():
+            print(f"  {name}: {m['steps']} steps, net {m['final']:+d}, timing within "
+                  f"{m['max_timing_error_us']} us of the twin")
+        for problem in result["problems"]:
+            print(f"  problem: {problem}")
+    return 0 if result["pass"] else 1
+
+
+def cmd_stream(args) -> int:
+    from codegen.link import serial_port
+
+    job = load_job(Path(args.job), args.target)
+    setup = stream_setup(job, args.baud)
+    motors = len(setup.config.motors)
+    with tempfile.TemporaryFile() as table:
+        host = streamed_host(job, setup, args.strict, keep=False, tables_out=table)
+        if not host.findings.ok:
+            raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
+                             + "\n  ".join(host.findings.problems))
+        table.seek(0)
+        plan = host.link_plan
+        chunks = stream_chunks(table.read(), motors)
+        link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
+                        payload=setup.budget.payload)
+        port = serial_port.open_port(args.port, setup.layout.baud)
+        began = time.monotonic()
+        try:
+            interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet)
+        finally:
+            port.close()
+    took = time.monotonic() - began
+    expected = tuple(int(v) for v in host.expected_final - host.start_steps)
+    if interrupted:
+        where = "" if link.position is None else f" at positions {list(link.position)}"
+        print(f"error: interrupted: sent ABORT; the machine {'stopped' + where if link.outcome == 'aborted' else 'did not answer'}",
+              file=sys.stderr)
+        return 1
+    if link.outcome != "finished":
+        detail = link.message or (f"the firmware reports positions {list(link.position)}" if link.position else "")
+        print(f"error: {job.name}: the stream ended {link.outcome}{': ' + detail if detail else ''}", file=sys.stderr)
+        return 1
+    if link.position != expected:
+        print(f"error: {job.name}: the machine ended at {list(link.position)} steps from its start, the job at "
+              f"{list(expected)}", file=sys.stderr)
+        return 1
+    print(f"streamed {job.name} to {args.port}: {link.stats.data_bytes} stream bytes in {took:.1f} s, "
+          f"{link.stats.retransmits} frames retransmitted; positions {list(link.position)} as planned")
+    return 0

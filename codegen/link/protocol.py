@@ -1,0 +1,180 @@
+"""The link protocol between the host and a streaming firmware: frames, their CRC, the firmware's identity.
+
+Both directions use one frame layout (little-endian fields; the CRC high byte first):
+
+    SYNC 0x7E | LEN u8 (payload bytes) | SEQ u8 | TYPE u8 | payload (LEN bytes) | CRC-16 hi | CRC-16 lo
+
+The CRC is CRC-16/CCITT-FALSE (polynomial 0x1021, initial 0xFFFF, no reflection; Python's binascii.crc_hqx)
+over LEN, SEQ, TYPE and the payload; sent high byte first, so the CRC over LEN..CRC of a good frame is 0. A
+receiver hunts for SYNC, takes the next byte as LEN (over MAX_PAYLOAD: hunt again), and drops a frame whose CRC
+fails; there is no escaping (a SYNC inside a frame is data).
+
+Host to firmware; SEQ counts the host's frames (mod 256). The firmware takes a frame in sequence only: SEQ equal
+to the one it expects next, which it then counts on. HELLO and ABORT are taken whatever their SEQ.
+    DATA   0x01  table stream bytes (codegen/tables.py), appended to the ring; LEN 0 is a ping (asks for an ACK)
+    HELLO  0x02  a session begins: the firmware expects SEQ + 1 next and, when it is not playing, empties its ring
+    START  0x03  play: home (if the machine homes), then play the ring's records from the first
+    STATUS 0x04  asks for a STATUS frame
+    ABORT  0x05  stop stepping at once
+
+Firmware to host; SEQ is the host sequence number the firmware expects next (every frame acknowledges).
+    ACK       0x81  free u16 (ring bytes free after every frame it took), flags u8 (bit 0 REJECTED: the frame
+                    was out of sequence or larger than the free space, and was dropped). Sent for every frame
+                    whose CRC is good, before any other answer to it.
+    IDENT     0x82  version u8, identity u32, ring bytes u16, motors u8: the answer to HELLO
+    STARTED   0x83  the first record is about to play (after homing)
+    FINISHED  0x84  position i32 per motor (steps from power-up): the end marker has played
+    UNDERRUN  0x85  position i32 per motor: the ring ran dry while moving; the firmware plays nothing more until
+                    reset
+    STATUS    0x86  state u8 (STATES), played u32 (stream bytes consumed), fill u16 (ring bytes held), position
+                    i32 per motor (while playing: where the current block ends; stopped: exact)
+    ABORTED   0x87  position i32 per motor: stopped by ABORT; nothing more plays until reset
+    HOMING_FAILED 0x88  status u8 (the flash image's homing fault status); nothing more plays until reset
+
+The player never reads a record unless the ring holds at least `max_record_bytes(motors)` bytes (the longest
+record): fewer while a job plays is an underrun. So the host sends `tail_padding(motors)` zero bytes after the
+end marker.
+"""
+
+from __future__ import annotations
+
+import binascii
+import hashlib
+import json
+import struct
+from dataclasses import dataclass, field
+
+from codegen.tables import LONG_RUN_BYTES, end_marker, long_block_bytes
+
+VERSION = 1
+SYNC = 0x7E
+HEADER_BYTES = 4  # SYNC, LEN, SEQ, TYPE
+CRC_BYTES = 2
+OVERHEAD_BYTES = HEADER_BYTES + CRC_BYTES
+MAX_PAYLOAD = 250  # what a receiver takes at most; the host's DATA frames are smaller (host.py)
+MAX_ANSWER = 32  # the firmware's longest frame payload (STATUS with 4 motors: 23)
+
+DATA, HELLO, START, STATUS, ABORT = 0x01, 0x02, 0x03, 0x04, 0x05
+ACK, IDENT, STARTED, FINISHED, UNDERRUN, STATUS_REPLY, ABORTED, HOMING_FAILED = range(0x81, 0x89)
+REJECTED = 0x01  # ACK flags
+STATES = {0: "idle", 1: "homing", 2: "playing", 3: "finished", 4: "underrun", 5: "aborted", 6: "homing failed"}
+NAMES = {DATA: "DATA", HELLO: "HELLO", START: "START", STATUS: "STATUS", ABORT: "ABORT", ACK: "ACK",
+         IDENT: "IDENT", STARTED: "STARTED", FINISHED: "FINISHED", UNDERRUN: "UNDERRUN", STATUS_REPLY: "STATUS",
+         ABORTED: "ABORTED", HOMING_FAILED: "HOMING_FAILED"}
+
+
+def crc16(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE: the firmware's per-byte form is x = (crc >> 8) ^ byte; x ^= x >> 4;
+    crc = (crc << 8) ^ (x << 12) ^ (x << 5) ^ x (16 bits)."""
+    return binascii.crc_hqx(data, crc)
+
+
+def frame(kind: int, seq: int, payload: bytes = b"") -> bytes:
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"a frame holds at most {MAX_PAYLOAD} payload bytes, not {len(payload)}")
+    body = bytes([len(payload), seq & 0xFF, kind]) + payload
+    return bytes([SYNC]) + body + crc16(body).to_bytes(2, "big")
+
+
+@dataclass(frozen=True)
+class Frame:
+    kind: int
+    seq: int
+    payload: bytes
+
+    @property
+    def name(self) -> str:
+        return NAMES.get(self.kind, f"0x{self.kind:02X}")
+
+
+@dataclass
+class Parser:
+    """Frames out of a byte stream, as the firmware finds them: hunt for SYNC, then LEN, then the rest; a frame
+    whose CRC fails is dropped (counted in `bad`) and the hunt goes on after its SYNC."""
+
+    max_payload: int = MAX_PAYLOAD  # a LEN above this is no frame (the host: the firmware's longest answer)
+    buffer: bytearray = field(default_factory=bytearray)
+    bad: int = 0
+
+    def feed(self, data: bytes) -> list[Frame]:
+        self.buffer += data
+        frames = []
+        while True:
+            start = self.buffer.find(SYNC)
+            if start < 0:
+                self.buffer.clear()
+                return frames
+            del self.buffer[:start]
+            if len(self.buffer) < 2:
+                return frames
+            length = self.buffer[1]
+            if length > self.max_payload:
+                del self.buffer[:1]
+                continue
+            total = OVERHEAD_BYTES + length
+            if len(self.buffer) < total:
+                return frames
+            body = bytes(self.buffer[1:total])
+            if crc16(body) != 0:
+                self.bad += 1
+                del self.buffer[:1]
+                continue
+            frames.append(Frame(body[2], body[1], body[3:3 + length]))
+            del self.buffer[:total]
+
+
+def max_record_bytes(motors: int) -> int:
+    """The longest record of the table stream: what the player needs in its ring before it reads one."""
+    return max(long_block_bytes(motors), LONG_RUN_BYTES)
+
+
+def tail_padding(motors: int) -> bytes:
+    """Zero bytes after the end marker, so that the player finds a whole record's worth in the ring there too."""
+    return bytes(max_record_bytes(motors) - len(end_marker(False)))
+
+
+def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
+    """32 bits naming what a streaming firmware can play: the protocol and table format, the board, the motors
+    and their sockets, pulse timing, homing, clocks. The job's program and name do not count."""
+    from codegen import tables
+
+    canonical = {
+        "protocol": VERSION, "tables": tables.__doc__.split("\n\n")[0], "board": config.board,
+        "target": config.target, "motors": [[m.name, m.socket, m.invert_dir] for m in config.motors],
+        "step_pulse_us": config.step_pulse_us, "dir_setup_us": config.dir_setup_us,
+        "homing": [repr(h) for h in config.homing], "f_cpu": f_cpu, "tick_hz": tick_hz,
+    }
+    digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+def positions(payload: bytes, motors: int, offset: int = 0) -> tuple[int, ...]:
+    return struct.unpack_from(f"<{motors}i", payload, offset)
+
+
+@dataclass(frozen=True)
+class Ident:
+    version: int
+    identity: int
+    ring_bytes: int
+    motors: int
+
+    @staticmethod
+    def parse(payload: bytes) -> "Ident":
+        return Ident(*struct.unpack("<BIHB", payload[:8]))
+
+    def payload(self) -> bytes:
+        return struct.pack("<BIHB", self.version, self.identity, self.ring_bytes, self.motors)
+
+
+@dataclass(frozen=True)
+class Status:
+    state: str
+    played: int
+    fill: int
+    position: tuple[int, ...]
+
+    @staticmethod
+    def parse(payload: bytes, motors: int) -> "Status":
+        state, played, fill = struct.unpack_from("<BIH", payload)
+        return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7))

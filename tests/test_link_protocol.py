@@ -1,0 +1,154 @@
+"""The link protocol's frames and the host's session (codegen/link/), against a byte-level model of the firmware's
+receive side (tests/link_model.py): handshake, credits, retransmission after each kind of line fault."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from codegen.link import protocol as p
+from codegen.link.faults import Faulty, LineFaults
+from codegen.link.host import HostLink
+from tests.link_model import FirmwareModel, run_session
+
+BYTE_S = 10 / 250000
+IDENTITY = 0x1234ABCD
+
+
+def stream(n: int, seed: int = 7) -> bytes:
+    """n pseudo-random stream bytes (with SYNC bytes inside, which frames must carry as data)."""
+    x, out = seed, bytearray()
+    for _ in range(n):
+        x = (1103515245 * x + 12345) & 0x7FFFFFFF
+        out.append((x >> 16) & 0xFF)
+    return bytes(out)
+
+
+def session(data: bytes, faults: LineFaults | None = None, rate: float = 20000.0, ring: int = 1024,
+            prefill: int = 512, identity: int = IDENTITY, **link):
+    chunks = [data[i:i + 300] for i in range(0, len(data), 300)]
+    host = HostLink(chunks, 3, IDENTITY, BYTE_S, prefill, ack_timeout_s=0.005, **link)
+    model = FirmwareModel(identity, 3, ring, rate, len(data))
+    driver = host if faults is None else Faulty(host, faults)
+    run_session(driver, model, BYTE_S, step_s=2e-4)
+    return host, model
+
+
+def test_crc_is_ccitt_false_and_a_good_frame_checks_to_zero():
+    assert p.crc16(b"123456789") == 0x29B1
+    f = p.frame(p.DATA, 300, b"\x7e\x00\xff")
+    assert f[:4] == bytes([p.SYNC, 3, 300 & 0xFF, p.DATA])
+    assert p.crc16(f[1:]) == 0
+
+
+def test_parser_finds_frames_among_noise_and_drops_a_bad_crc():
+    good = p.frame(p.ACK, 9, b"\x10\x00\x00")
+    bad = bytearray(p.frame(p.ACK, 8, b"\x20\x00\x00"))
+    bad[5] ^= 1
+    parser = p.Parser(p.MAX_ANSWER)
+    frames = parser.feed(b"\x00\x13" + bytes(bad) + good[:3]) + parser.feed(good[3:])
+    assert [(f.kind, f.seq, f.payload) for f in frames] == [(p.ACK, 9, b"\x10\x00\x00")]
+    assert parser.bad == 1
+
+
+def test_a_frame_over_the_payload_limit_is_refused():
+    with pytest.raises(ValueError, match="at most 250"):
+        p.frame(p.DATA, 0, bytes(251))
+
+
+def test_a_clean_session_delivers_every_byte_in_order():
+    data = stream(20000)
+    host, model = session(data)
+    assert host.outcome == "finished", host.message
+    assert bytes(model.received) == data
+    assert host.stats.retransmits == 0
+    assert host.stats.data_bytes == len(data)
+    assert model.min_fill >= p.max_record_bytes(3)
+    assert host.started_at is not None
+
+
+def test_credits_never_overflow_the_ring():
+    data = stream(30000)
+    host, model = session(data, ring=300, prefill=200, rate=5000.0)
+    assert host.outcome == "finished", host.message
+    assert bytes(model.received) == data  # a DATA frame over the free space would have been REJECTED
+
+
+@pytest.mark.parametrize("faults", [
+    LineFaults(corrupt_bytes=frozenset({700})),
+    LineFaults(drop_bytes=frozenset({1500})),
+    LineFaults(duplicate_frames=frozenset({12})),
+    LineFaults(swap_frames=frozenset({20})),
+    LineFaults(corrupt_bytes=frozenset({100, 2000, 2001}), drop_bytes=frozenset({5000}),
+               duplicate_frames=frozenset({40}), swap_frames=frozenset({60})),
+], ids=["corrupted", "dropped", "duplicated", "out-of-order", "all"])
+def test_faults_are_retransmitted_and_the_stream_arrives_whole(faults):
+    data = stream(12000)
+    host, model = session(data, faults, rate=10000.0)
+    assert host.outcome == "finished", host.message
+    assert bytes(model.received) == data
+    if faults.duplicate_frames != frozenset({12}):  # a duplicate is only rejected: nothing is missing
+        assert host.stats.retransmits > 0
+
+
+def test_a_host_pause_longer_than_the_ring_ends_in_an_underrun():
+    data = stream(40000)
+    host, model = session(data, LineFaults(pause=(0.2, 0.5)))
+    assert host.outcome == "underrun"
+    assert model.state == "underrun"
+    assert host.position == (int(model.played),) * 3
+
+
+def test_firmware_of_another_identity_is_refused():
+    host, model = session(stream(1000), identity=0x0BADF00D)
+    assert host.outcome == "refused"
+    assert "built for another machine" in host.message
+    assert model.state == "idle" and not model.received
+
+
+def test_no_answer_gives_up_after_some_hellos():
+    host = HostLink([b"x"], 3, IDENTITY, BYTE_S, 1, ack_timeout_s=0.001)
+    now = 0.0
+    while not host.done:
+        host.transmit(now)
+        now = host.wake_at()
+    assert host.outcome == "no answer"
+    assert host.stats.frames == 5
+
+
+def test_status_is_answered_and_abort_stops_with_positions():
+    data = stream(60000)
+    chunks = [data[i:i + 300] for i in range(0, len(data), 300)]
+    host = HostLink(chunks, 3, IDENTITY, BYTE_S, 512, ack_timeout_s=0.005)
+    model = FirmwareModel(IDENTITY, 3, 1024, 20000.0, len(data))
+
+    class AbortLater:
+        """Asks for a status at 0.1 s and aborts at 0.5 s."""
+        done = property(lambda self: host.done)
+        wake_at = host.wake_at
+        receive = host.receive
+        asked = aborted = False
+
+        def transmit(self, now):
+            if now >= 0.1 and not self.asked:
+                self.asked = True
+                host.request_status()
+            if now >= 0.5 and not self.aborted:
+                self.aborted = True
+                host.abort()
+            return host.transmit(now)
+
+    run_session(AbortLater(), model, BYTE_S, step_s=2e-4)
+    assert host.status is not None and host.status.state == "playing"
+    assert host.outcome == "aborted"
+    assert model.state == "aborted"
+    assert host.position == (int(model.played),) * 3
+    assert 0 < model.played < len(data)
+
+
+def test_ident_payload_round_trip():
+    ident = p.Ident(1, 0xDEADBEEF, 4096, 4)
+    assert p.Ident.parse(ident.payload()) == ident
+    status = p.Status.parse(struct.pack("<BIH3i", 2, 1000, 77, 1, -2, 3), 3)
+    assert status == p.Status("playing", 1000, 77, (1, -2, 3))
