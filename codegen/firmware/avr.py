@@ -29,7 +29,8 @@ from codegen.schedule import TOOL_BIT, Schedule
 CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
 ASFLAGS = ("-Wa,--fatal-warnings",)
 STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
-PLAYER_OBJECTS = ("player", "player_isr")  # what _flash_parts counts as the player's code
+# The objects whose functions _flash_parts counts as each part of flash.
+OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link": ("stream", "link_rx", "link_tx")}
 # Pushes, calls, Y-relative frame slots and SP accesses (0x3d/0x3e) in the naked ISR.
 _STACK_USE = re.compile(
     r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
@@ -128,12 +129,22 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
-    pins = board_pins(config)
-    mcu = load_target(pins.mcu)
+    context = player_context(config, stream=False)
     try:
         table = tables.encode(schedule)
     except ValueError as exc:
-        raise BuildError(f"the schedule cannot be played by the {pins.mcu} player: {exc}") from exc
+        raise BuildError(f"the schedule cannot be played by the {context['mcu']} player: {exc}") from exc
+    context.update({"table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
+                    "chunks": table_chunks(table)})
+    names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
+    return {name: render(f"avr/{name}.j2", **context) for name in names}
+
+
+def player_context(config: FirmwareConfig, stream: bool) -> dict:
+    """What the player's templates need besides the table: the board's pins by port, the step interrupt's
+    registers (templates/avr/player_isr.S.j2, `stream`: reading the link's ring), homing."""
+    pins = board_pins(config)
+    mcu = load_target(pins.mcu)
     motors = []
     for index, w in enumerate(pins.motors):
         motors.append({"name": w.name, "socket": w.socket, "id": _ident(w.name).upper(), "var": _ident(w.name),
@@ -172,16 +183,13 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         "enable_active_low": pins.enable_active_low,
         "output_ports": [(p, " | ".join(bits)) for p, bits in sorted(outputs.items())],
         "enable_ports": [(p, " | ".join(bits)) for p, bits in sorted(enables.items())],
-        "step_pulse_us": config.step_pulse_us, "step_pulse_cycles": pulse_cycles,
-        "table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
-        "chunks": table_chunks(table), "dir_ports": dir_ports,
-        "tool_port": {"port": pins.tool.port, "entries": [tool_entry]}, "pad_plan": pad_plan,
+        "step_pulse_us": config.step_pulse_us, "step_pulse_cycles": pulse_cycles, "dir_ports": dir_ports,
+        "tool_port": {"port": pins.tool.port, "entries": [tool_entry]}, "pad_plan": pad_plan, "stream": stream,
     }
     context.update(isr_context(motors, step_ports, dir_ports + [context["tool_port"]], invert_mask, f_cpu,
                                tick_hz, pulse_cycles))
     context.update(homing_context(config, pins, motors, mcu))
-    names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
-    return {name: render(f"avr/{name}.j2", **context) for name in names}
+    return context
 
 
 def pad_plan(cycles: int) -> dict:
@@ -226,14 +234,16 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
 
 def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
     """Every byte of flash by what it is: the step table, the player's own code (the functions player.o and
-    player_isr.o define), the homing code (homing.o's, in an image that homes), the initial values of RAM variables, and
-    the rest (interrupt vectors, C start-up, libgcc)."""
+    player_isr.o define), the homing code (homing.o's, in an image that homes), the link's (a streaming image's
+    stream.o, link_rx.o and link_tx.o), the initial values of RAM variables, and the rest (interrupt vectors, C start-up,
+    libgcc, alignment)."""
     own: dict[str, set[str]] = {}
-    for obj in (name for name in (*PLAYER_OBJECTS, "homing") if (cwd / f"{name}.o").exists()):
-        symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
-        part = "homing" if obj == "homing" else "player"
-        own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "Tt")
-    table = player = homing = 0
+    for part, objects in OBJECT_PARTS.items():
+        for obj in (name for name in objects if (cwd / f"{name}.o").exists()):
+            symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
+            own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "Tt")
+    sizes = dict.fromkeys(own, 0)
+    table = 0
     for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
         parts = line.split()
         if len(parts) != 4 or parts[2] not in "Tt":
@@ -241,14 +251,14 @@ def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, in
         size = int(parts[1], 16)
         if parts[3].startswith("table_chunk_"):
             table += size
-        elif parts[3] in own["player"]:
-            player += size
-        elif parts[3] in own.get("homing", ()):
-            homing += size
+        for part, symbols in own.items():
+            if parts[3] in symbols:
+                sizes[part] += size
+                break
     text = sections.get(".text", 0)
-    parts = {"table": table, "player": player, "ram_initial_values": sections.get(".data", 0),
-             "vectors_startup_libgcc": text - table - player - homing}
-    return {**parts, "homing": homing} if "homing" in own else parts
+    counted = {"table": table, "player": sizes.get("player", 0), "ram_initial_values": sections.get(".data", 0),
+               "vectors_startup_libgcc": text - table - sum(sizes.values())}
+    return {**counted, **{part: size for part, size in sizes.items() if part != "player"}}
 
 
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:

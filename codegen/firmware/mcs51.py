@@ -2,26 +2,25 @@
 measure the fit.
 
 The player (templates/mcs51/) plays the compact stream of codegen/tables.py from code memory with a Timer0
-interrupt written in assembly. Everything here is deterministic: the same schedule and config give
-byte-identical sources, and the same sources give an identical firmware.hex. Next to the hex, firmware.sym.json gives the simulator the addresses it
-needs (the timer start and halt()), and firmware.map is SDCC's map of the image.
+interrupt written in assembly (the streaming firmware, mcs51_stream.py, builds on this module). Everything here is
+deterministic: the same schedule and config give byte-identical sources, and the same sources an identical
+firmware.hex. Next to it, firmware.sym.json gives the simulator the addresses it needs (the timer start and
+halt()), and firmware.map is SDCC's map of the image.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import re
-import subprocess
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
-
 
 from codegen import tables
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
+from codegen.firmware import FirmwareConfig, board_socket
 from codegen.firmware.avr import load_target
+# The build (SDCC, its map and memory report) is mcs51_sdcc.py's; its names stay importable from here.
+from codegen.firmware.mcs51_sdcc import (MAP_FILE, SYMBOLS_FILE, VECTOR_TIMER0, BuildPlan, build_image,  # noqa: F401
+                                         flash_parts, read_map, read_mem)
 from codegen.render import render
 from codegen.schedule import TOOL_BIT, Schedule
 
@@ -37,14 +36,7 @@ RAISE_REGS = ("a", "r0", "r1", "b")
 MAX_PAD = 511
 BLOCK_REGS = (3, 4, 5, 6)  # bank 0 registers a block load uses (saved when main runs)
 LONG_REGS = (2, 3, 4, 5, 6, 7)  # and a long wait
-VECTOR_TIMER0 = 0x000B
-SYMBOLS_FILE = "firmware.sym.json"
-MAP_FILE = "firmware.map"
 SFR = {0: 0x80, 1: 0x90, 2: 0xA0, 3: 0xB0}
-_ROM_FULL = "Insufficient ROM/EPROM/FLASH memory"
-_XRAM_FULL = "Insufficient EXTERNAL RAM memory"
-_IRAM_FULL = re.compile(r"Could not get (\d+) consecutive bytes in internal RAM for area (\w+)")
-UNBOUNDED_CODE = 65536
 # The 8-phase half-step sequence of a 4-wire coil drive over (coil 1, 2, 3, 4); + direction = the next phase.
 HALF_STEPS = ((1, 0, 0, 0), (1, 1, 0, 0), (0, 1, 0, 0), (0, 1, 1, 0), (0, 0, 1, 0), (0, 0, 1, 1), (0, 0, 0, 1),
               (1, 0, 0, 1))
@@ -152,12 +144,33 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
-    from codegen.firmware.mcs51_lcd import board_lcd, render_lcd  # here: that module builds on this one
+    context, lcd = player_context(config)
+    table = tables.encode(schedule)
+    context.update(table_bytes=len(table.data), blocks=schedule.n_blocks, runs=schedule.n_runs, **table.counts(),
+                   lines=tables.table_lines(table, schedule, LINE_BYTES))
+    return render_player(context, lcd, config, ("config.h", "table.h", "table.c"))
+
+
+def render_player(context: dict, lcd, config: FirmwareConfig, first: tuple[str, ...]) -> dict[str, str]:
+    """The templates `first` (by file name), the display's files, player.c, and homing.c if the machine homes."""
+    from codegen.firmware.mcs51_lcd import render_lcd  # here: that module builds on this one
+
+    sources = {name: render(f"mcs51/{name}.j2", **context) for name in first}
+    if lcd is not None:
+        sources.update(render_lcd(lcd, context))
+    sources["player.c"] = _tidy_asm(render("mcs51/player.c.j2", **context))
+    if config.homing:
+        sources["homing.c"] = render("mcs51/homing.c.j2", **context)
+    return sources
+
+
+def player_context(config: FirmwareConfig, stream: bool = False) -> tuple[dict, object]:
+    """What the player's templates need but the table (pins, ports, timing, homing, display), and the board's
+    display (mcs51_lcd.Lcd) or None. `stream`: the streaming player's (codegen/firmware/mcs51_stream.py)."""
+    from codegen.firmware.mcs51_lcd import board_lcd  # here: that module builds on this one
 
     pins = board_pins(config)
     mem = memories(config.board)
-    table = tables.encode(schedule)
-    data = table.data
     motors = []
     for index, w in enumerate(pins["motors"]):
         entry = {"name": w["name"], "socket": w["socket"], "id": re.sub(r"\W", "_", w["name"]).upper(),
@@ -221,10 +234,7 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         "short_run_bytes": tables.SHORT_RUN_BYTES, "long_run_bytes": tables.LONG_RUN_BYTES,
         "short_block_bytes": tables.short_block_bytes(len(motors)),
         "long_block_bytes": tables.long_block_bytes(len(motors)),
-        "table_bytes": len(data), "blocks": schedule.n_blocks, "runs": schedule.n_runs, **table.counts(),
-        "lines": tables.table_lines(table, schedule, LINE_BYTES),
     }
-    sources = {name: render(f"mcs51/{name}.j2", **context) for name in ("config.h", "table.h", "table.c")}
     from codegen.firmware.mcs51_homing import homing_context  # here: that module builds on this one
 
     context.update(homing_context(config, pins, motors, pulse_ticks))
@@ -232,15 +242,11 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
         m["start_steps"] = int(start) % 65536  # the display shows signed 16-bit positions
-    # With a display, main runs its code while the interrupt plays: the interrupt saves what it uses, and keeps
-    # every motor's position at each block start for main to show.
-    context.update(busy_main=lcd is not None, positions=lcd is not None, block_regs=BLOCK_REGS, long_regs=LONG_REGS)
-    if lcd is not None:
-        sources.update(render_lcd(lcd, context))
-    sources["player.c"] = _tidy_asm(render("mcs51/player.c.j2", **context))
-    if config.homing:
-        sources["homing.c"] = render("mcs51/homing.c.j2", **context)
-    return sources
+    # With a display (or a link), main runs its code while the interrupt plays: the interrupt saves what it uses,
+    # and keeps every motor's position at each block start for main to show (and report).
+    context.update(busy_main=lcd is not None or stream, positions=lcd is not None or stream, display=lcd is not None,
+                   stream=stream, block_regs=BLOCK_REGS, long_regs=LONG_REGS)
+    return context, lcd
 
 
 def _tidy_asm(text: str) -> str:
@@ -254,131 +260,3 @@ def _tidy_asm(text: str) -> str:
         out.append(line)
     return "\n".join(out)
 
-
-def _sdcc_flags(mem: dict, code_size: int, xram_size: int) -> list[str]:
-    return ["-mmcs51", "--Werror", f"--model-{mem['model']}", "--iram-size", str(mem["iram"]),
-            "--xram-size", str(xram_size), "--code-size", str(code_size)]
-
-
-def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
-    return run_tool(cmd, cwd, what, "sdcc")
-
-
-def _link(mem: dict, objects: list[str], code_size: int, xram_size: int, cwd: Path) -> subprocess.CompletedProcess:
-    cmd = ["sdcc", *_sdcc_flags(mem, code_size, xram_size), "-o", "firmware.ihx", *objects]
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
-
-
-def read_mem(path: Path) -> dict[str, int]:
-    """SDCC's .mem file: internal RAM bytes in use (registers, data, bits, overlays, idata), where the stack
-    starts and how much it has, XRAM and code memory in use."""
-    text = path.read_text(encoding="utf-8", errors="replace")
-    used = 0
-    for line in text.splitlines():
-        if re.match(r"0x[0-9a-f]0:\|", line):
-            used += sum(1 for cell in line.split("|")[1:17] if cell.strip() not in ("", "S"))
-    out = {"iram": used}
-    stack = re.search(r"Stack starts at: 0x([0-9a-fA-F]+) \(sp set to 0x[0-9a-fA-F]+\) with (\d+) bytes", text)
-    if stack:
-        out["stack_start"], out["stack_bytes"] = int(stack.group(1), 16), int(stack.group(2))
-    for key, label in (("xram", "EXTERNAL RAM"), ("flash", "ROM/EPROM/FLASH")):
-        m = re.search(rf"^\s*{re.escape(label)}\s+(?:0x[0-9a-f]+\s+0x[0-9a-f]+\s+)?(\d+)\s+(\d+)", text, re.M)
-        out[key] = int(m.group(1)) if m else 0
-    return out
-
-
-def read_map(path: Path) -> tuple[dict[str, tuple[int, str]], dict[str, int]]:
-    """Areas (name -> (bytes, attributes)) and global symbols (name -> address) from SDCC's .map file."""
-    text = path.read_text(encoding="utf-8", errors="replace")
-    areas = {m.group(1): (int(m.group(2), 16), m.group(3))
-             for m in re.finditer(r"^(\w+)\s+[0-9A-F]{8}\s+([0-9A-F]{8}) =\s+\d+\. bytes \(([A-Z,]+)\)", text, re.M)}
-    symbols = {m.group(2): int(m.group(1), 16) for m in re.finditer(r"^\s*C:\s+([0-9A-F]{8})\s+(\w+)", text, re.M)}
-    return areas, symbols
-
-
-def flash_parts(areas: dict[str, tuple[int, str]], table_bytes: int) -> dict[str, int]:
-    """Every byte of code memory by what it holds: the step table, the player (the interrupt, which fills HOME from
-    its vector on, and CSEG: halt, the start, main), SDCC's start-up (the reset and start-up jumps before the
-    vector, GSINIT*, GSFINAL) and any other constants."""
-    code = {name: size for name, (size, attrs) in areas.items() if "CODE" in attrs.split(",") and size}
-    home = code.pop("HOME", 0)
-    player = home - VECTOR_TIMER0 + code.pop("CSEG", 0)
-    constants = code.pop("CONST", 0) - table_bytes
-    return {"table": table_bytes, "player": player, "startup": VECTOR_TIMER0 + sum(code.values()),
-            "constants": constants}
-
-
-def _overflow(done: subprocess.CompletedProcess, mem: dict, objects: list[str], table_bytes: int,
-              cwd: Path) -> BuildError:
-    """A BuildError that says which memory overflowed, by how much when a bigger link can tell, and the limit."""
-    out = done.stderr + done.stdout
-    iram = _IRAM_FULL.search(out)
-    if _ROM_FULL in out:
-        again = _link(mem, objects, UNBOUNDED_CODE, max(int(mem["xram"]), 1), cwd)
-        needed = read_mem(cwd / "firmware.mem")["flash"] if again.returncode == 0 else None
-        size = f"it needs {needed} bytes" if needed else "it needs more than 64 KB"
-        return BuildError(f"the image does not fit in code memory: {size} (table {table_bytes} bytes), "
-                          f"{mem['flash']} available on the {mem['mcu']}; what helps: a larger machine.tolerance "
-                          f"(fewer chords), a board without the display, or fewer moves")
-    if _XRAM_FULL in out:
-        again = _link(mem, objects, int(mem["flash"]), 65536, cwd)
-        needed = read_mem(cwd / "firmware.mem")["xram"] if again.returncode == 0 else None
-        size = f"it needs {needed} bytes" if needed else "it needs more"
-        return BuildError(f"the image does not fit in external RAM: {size}, {mem['xram']} available")
-    if iram:
-        return BuildError(f"the image does not fit in internal RAM: its {iram.group(2)} area needs {iram.group(1)} "
-                          f"consecutive bytes, more than are free of the {mem['iram']} bytes of the {mem['mcu']}")
-    return BuildError(f"linking firmware.ihx failed:\n{out.strip()}")
-
-
-def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Image:
-    """Write `sources` into out_dir and build firmware.hex (with firmware.map and firmware.sym.json); BuildError
-    leaves no firmware.hex behind."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    hex_path = out_dir / "firmware.hex"
-    for stale in (hex_path, out_dir / SYMBOLS_FILE, out_dir / MAP_FILE):
-        stale.unlink(missing_ok=True)
-    for name, text in sorted(sources.items()):
-        (out_dir / name).write_text(text, encoding="utf-8")
-    board = re.search(r'#define BOARD_NAME "([^"]+)"', sources.get("config.h", ""))
-    if not board:
-        raise BuildError("config.h does not name its board")
-    mem = memories(board.group(1))
-    with tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp:
-        work = Path(tmp)
-        for name, text in sorted(sources.items()):
-            (work / name).write_text(text, encoding="utf-8")
-        # main() is in player.c, which must come first on the link line.
-        names = sorted((n for n in sources if n.endswith(".c")), key=lambda n: (n != "player.c", n))
-        objects = []
-        for name in names:
-            objects.append(name[:-2] + ".rel")
-            _run(["sdcc", *_sdcc_flags(mem, int(mem["flash"]), int(mem["xram"])), "-c", name], work,
-                 f"sdcc on {name}")
-        done = _link(mem, objects, int(mem["flash"]), int(mem["xram"]), work)
-        if done.returncode != 0 or "?ASlink-Error" in done.stderr + done.stdout:
-            raise _overflow(done, mem, objects, table_bytes, work)
-        use = read_mem(work / "firmware.mem")
-        areas, symbols = read_map(work / "firmware.map")
-        missing = [s for s in ("_halt", "_timer_start", "_player_isr", "_table") if s not in symbols]
-        if missing:
-            raise BuildError(f"firmware.map lacks {', '.join(missing)}")
-        if symbols["_player_isr"] != VECTOR_TIMER0:
-            raise BuildError(f"the step interrupt is at 0x{symbols['_player_isr']:04X}, not at the Timer0 vector "
-                             f"0x{VECTOR_TIMER0:04X} (SDCC's HOME area changed?)")
-        hex_text = _run(["packihx", "firmware.ihx"], work, "packihx").stdout
-        (work / "firmware.hex").write_text(hex_text, encoding="ascii")
-        sym = {"halt": symbols["_halt"], "timer_start": symbols["_timer_start"], "isr": symbols["_player_isr"],
-               "start_ticks": START_TICKS, "clocks_per_tick": mem["f_cpu"] // mem["tick_hz"]}
-        (work / SYMBOLS_FILE).write_text(json.dumps(sym, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-        # The map and the symbols first, the hex (what gets flashed) last.
-        (work / "firmware.map").replace(out_dir / MAP_FILE)
-        (work / SYMBOLS_FILE).replace(out_dir / SYMBOLS_FILE)
-        (work / "firmware.hex").replace(hex_path)
-    # Code areas from the map; RAM from the .mem file (the map's data areas are the linker's reservations).
-    sections = {name: size for name, (size, attrs) in sorted(areas.items()) if size and "CODE" in attrs.split(",")}
-    sections.update({"iram_used": use["iram"], "xram_used": use["xram"], "stack_free": use.get("stack_bytes", 0)})
-    return Image(hex_path=hex_path, elf_path=None, flash_bytes=use["flash"], ram_bytes=use["iram"],
-                 table_bytes=table_bytes, flash_capacity=int(mem["flash"]), ram_capacity=int(mem["iram"]),
-                 sections=sections, flash_parts=flash_parts(areas, table_bytes))

@@ -23,13 +23,14 @@ Firmware to host; SEQ is the host sequence number the firmware expects next (eve
                     whose CRC is good, before any other answer to it.
     IDENT     0x82  version u8, identity u32, ring bytes u16, motors u8: the answer to HELLO
     STARTED   0x83  the first record is about to play (after homing)
-    FINISHED  0x84  position i32 per motor (steps from power-up): the end marker has played
+    FINISHED  0x84  position i32 per motor (net steps since START, after homing): the end marker has played
     UNDERRUN  0x85  position i32 per motor: the ring ran dry while moving; the firmware plays nothing more until
                     reset
     STATUS    0x86  state u8 (STATES), played u32 (stream bytes consumed), fill u16 (ring bytes held), position
                     i32 per motor (while playing: where the current block ends; stopped: exact)
     ABORTED   0x87  position i32 per motor: stopped by ABORT; nothing more plays until reset
-    HOMING_FAILED 0x88  status u8 (the flash image's homing fault status); nothing more plays until reset
+    HOMING_FAILED 0x88  status u8: the failed axes' bits (low nibble) and the homing phase << 4; nothing more plays
+                    until reset
 
 The player never reads a record unless the ring holds at least `max_record_bytes(motors)` bytes (the longest
 record): fewer while a job plays is an underrun. So the host sends `tail_padding(motors)` zero bytes after the

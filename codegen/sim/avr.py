@@ -26,7 +26,8 @@ from codegen.firmware.avr_homing import homing_ticks_bound
 from codegen.firmware.avr_player import START_TICKS
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
-HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr")
+HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"))  # the second #included by the first
+HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr", f"-I{HARNESS_SOURCE.parent}")
 HARNESS_LIBS = ("-lsimavr", "-lelf")
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
 EXIT_STATES = {0: "done", 1: "crashed", 2: "budget"}
@@ -70,9 +71,9 @@ def _cache_dir() -> Path:
 
 
 def harness_binary() -> Path:
-    """The compiled harness, keyed by a hash of its source and build command; built atomically if missing."""
-    source = HARNESS_SOURCE.read_bytes()
-    key = hashlib.sha256(source + " ".join(HARNESS_BUILD + HARNESS_LIBS).encode()).hexdigest()[:16]
+    """The compiled harness, keyed by a hash of its sources and build command; built atomically if missing."""
+    source = b"".join(path.read_bytes() for path in HARNESS_SOURCES)
+    key = hashlib.sha256(source + " ".join(HARNESS_BUILD[:-1] + HARNESS_LIBS).encode()).hexdigest()[:16]
     binary = _cache_dir() / f"simavr-harness-{key}"
     if binary.is_file():
         return binary
@@ -109,9 +110,10 @@ def switch_thresholds(config: FirmwareConfig, switches: dict[int, int | None]) -
             for k, h in enumerate(config.homing)}
 
 
-def _switch_args(config: FirmwareConfig, pins, switches: dict[int, int | None]) -> list[str]:
+def switch_args(config: FirmwareConfig, switches: dict[int, int | None]) -> list[str]:
     """The harness's switch=... arguments, one per homing axis: closed once the sum over its motors of (their
     direction towards it x their position) reaches (the switch's distance towards it x the number of motors)."""
+    pins = board_pins(config)
     args = []
     for k, towards in switch_thresholds(config, switches).items():
         h = config.homing[k]
@@ -156,15 +158,14 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     if config.homing:
         bound = homing_ticks_bound(config, switch_thresholds(config, switches), tick_hz)
         cycle_budget = int(cycle_budget) + bound * (f_cpu // tick_hz)
-    watched = [p for w in pins.motors for p in (w.step, w.dir)] + [pins.tool]
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges_path), str(int(cycle_budget)),
-               *_switch_args(config, pins, switches), *[f"{p.port}{p.bit}" for p in watched]]
+               *switch_args(config, switches), *watched_pins(config)]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
-        rec = np.fromfile(edges_path, dtype=EDGE_RECORD)
+        rec = read_edges(edges_path)
     fields = dict(kv.split("=", 1) for kv in done.stdout.strip().splitlines()[-1].split())
     state, cycles = EXIT_STATES[done.returncode], int(fields["cycles"])
     if state == "crashed":
@@ -173,9 +174,28 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         raise BuildError(f"the firmware did not finish within {cycle_budget} cycles "
                          f"({cycle_budget / f_cpu:.3f} s simulated; {hex_path})")
 
+    # The harness notes the cycle that starts Timer1; tick 0 is the compare match START_TICKS ticks later.
+    timer_start = int(fields.get("timer_start", "-1"))
+    tick0 = timer_start + START_TICKS * (f_cpu // tick_hz) if timer_start >= 0 else None
+    status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
+    return decode_edges(rec, config, state, cycles, tick0, _homing_fault(config, *status))
+
+
+def read_edges(path: Path) -> np.ndarray:
+    return np.fromfile(path, dtype=EDGE_RECORD)
+
+
+def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: int, tick0: int | None,
+                 fault: str | None, since: int = 0) -> SimTrace:
+    """The trace of the harness's pin records (watched pins: STEP and DIR of each motor, then the tool) from cycle
+    `since` on (levels before it count: DIR at a pulse, the tool's edges); pulses from tick 0 on are the run's."""
+    pins = board_pins(config)
+    mcu = load_target(pins.mcu)
+    f_cpu = int(mcu["f_cpu"])
     step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []
     for m, wiring in enumerate(pins.motors):
         rise, fall = _rises_falls(rec, 2 * m)
+        rise, fall = rise[rise >= since], fall[fall >= since]
         dir_mine = rec[rec["pin"] == 2 * m + 1]
         dir_cycles, dir_levels = dir_mine["cycle"].astype(np.int64), dir_mine["level"].astype(np.int64)
         # DIR level at each rising edge: the last DIR change before it (pins start low after reset).
@@ -186,24 +206,24 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         n = min(len(rise), len(fall))
         high_min.append(int((fall[:n] - rise[:n]).min()) if n else None)
         # DIR setup: from each DIR change to the next STEP rise of the same motor.
+        dir_cycles = dir_cycles[dir_cycles >= since]
         nxt = np.searchsorted(rise, dir_cycles, side="right")
         followed = nxt < len(rise)
         setup_min.append(int((rise[nxt[followed]] - dir_cycles[followed]).min()) if followed.any() else None)
     cyc, mot, dirs = (np.concatenate(a) if a else np.zeros(0, np.int64) for a in (step_cycle, step_motor, step_dir))
     order = np.lexsort((mot, cyc))
-    tool = rec[rec["pin"] == len(watched) - 1]
+    tool = rec[(rec["pin"] == 2 * len(pins.motors)) & (rec["cycle"] >= since)]
     tool_on = tool["level"].astype(int) ^ (0 if pins.tool_active_high else 1)
-    # The harness notes the cycle that starts Timer1; tick 0 is the compare match START_TICKS ticks later.
-    timer_start = int(fields.get("timer_start", "-1"))
-    if timer_start >= 0:
-        timer_start += START_TICKS * (f_cpu // tick_hz)
-    run = cyc[order] >= timer_start if timer_start >= 0 else np.zeros(len(order), dtype=bool)
-    status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
-    fault = _homing_fault(config, *status)
-    return SimTrace(state=state, cycles=cycles, f_cpu=f_cpu,
-                    timer_start_cycle=timer_start if timer_start >= 0 else None,
+    run = cyc[order] >= tick0 if tick0 is not None else np.zeros(len(order), dtype=bool)
+    return SimTrace(state=state, cycles=cycles, f_cpu=f_cpu, timer_start_cycle=tick0,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
                     homing_failed=fault is not None, homing_fault=fault)
+
+
+def watched_pins(config: FirmwareConfig) -> list[str]:
+    """The harness's PIN arguments: STEP and DIR of each motor, then the tool."""
+    pins = board_pins(config)
+    return [f"{p.port}{p.bit}" for w in pins.motors for p in (w.step, w.dir)] + [f"{pins.tool.port}{pins.tool.bit}"]

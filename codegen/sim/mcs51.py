@@ -98,7 +98,7 @@ def _levels(rec: np.ndarray, port: int, bit: int) -> tuple[np.ndarray, np.ndarra
     return mine[changed, 0], level[changed]
 
 
-def _switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | None],
+def switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | None],
                   ) -> tuple[tuple[str, ...], dict[int, str]]:
     """The script's prelude and per-port expressions that play the endstop keys (see the top of this file):
     axis k's key closes once the axis has made `switches[k]` steps (signed, machine coordinates) from where the
@@ -167,7 +167,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     if config.homing:
         cycle_budget = int(cycle_budget) + homing_ticks_bound(config, towards, int(mem["tick_hz"])) * int(
             sym["clocks_per_tick"])
-        prelude, on_write = _switch_model(config, pins, switches)
+        prelude, on_write = switch_model(config, pins, switches)
         fault = read_map(hex_path.with_name(MAP_FILE))[1].get("_homing_fault")
         if fault is None:
             raise BuildError(f"{hex_path.with_name(MAP_FILE)} lacks _homing_fault: the image does not home")
@@ -210,7 +210,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     clocks = int(sym["clocks_per_tick"])
     starts = rec[rec[:, 1] == TAG_TIMER, 0]
     timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None
-    trace = _trace(rec, pins, f_cpu, cycles, timer_start, int(starts[0]) if len(starts) else None)
+    trace = trace_of(rec, pins, f_cpu, cycles, timer_start, int(starts[0]) if len(starts) else None)
     trace.homing_failed, trace.homing_fault = fault is not None, fault
     # Coil ports: every write (clock, latch), to check the exact patterns (an attribute only coil boards have).
     coil_ports = sorted({c.port for m in pins["motors"] for c in m["coils"] or []})
@@ -251,7 +251,7 @@ def coil_steps(rec: np.ndarray, coils: list) -> tuple[np.ndarray, np.ndarray]:
     return np.array(clock, dtype=np.int64), np.array(way, dtype=np.int64)
 
 
-def _trace(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None,
+def trace_of(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: int | None,
            run_from: int | None) -> SimTrace:
     """The trace of the records; steps from clock `run_from` on (the player's timer start) are the table's."""
     step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []

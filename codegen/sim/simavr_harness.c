@@ -1,7 +1,10 @@
 /* printer-codegen simavr harness: run a firmware .hex, log pin level changes with exact cycle times, and
- * drive endstop switches from the simulated motor positions.
+ * drive endstop switches from the simulated motor positions; in link mode, carry a host's bytes to USART0 and the
+ * firmware's back (the host, in Python, drives it through stdin and stdout: simavr_link.c).
  *
- * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [SWITCH...] PIN...     (PIN like F0, L3, B5)
+ * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [OPTION...] PIN...     (PIN like F0, L3, B5)
+ *   OPTION: a SWITCH, or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
+ *   then the boot's, until the firmware turns its receiver on)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
  *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open, moved by one or two
  *     motors: each motor's STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT
@@ -23,6 +26,7 @@
 #include <string.h>
 
 #include <avr_ioport.h>
+#include <avr_uart.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
 #include <sim_hex.h>
@@ -63,6 +67,7 @@ static endstop_t endstops[MAX_SWITCHES];
 static int n_endstops;
 static int reassert; /* a PORT write (the pull-up) overrode a driven switch level */
 static int moved;    /* a motor stepped: the switches follow once the instruction is over */
+static int every_start; /* link mode: timer_start is the latest start of the player's timer (each session's) */
 
 static void drive(endstop_t *s)
 {
@@ -125,7 +130,7 @@ static void tccr1b_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value
     (void)core;
     (void)addr;
     (void)param;
-    if (timer_start < 0 && (value & TIMER1_CLOCK_BITS) && avr->data[TIMSK1_ADDR])
+    if ((value & TIMER1_CLOCK_BITS) && avr->data[TIMSK1_ADDR] && (timer_start < 0 || every_start))
         timer_start = (long long)avr->cycle;
 }
 
@@ -211,14 +216,32 @@ static int parse_switch(const char *spec, int n_pins)
     return 0;
 }
 
+/* After each instruction: the switches follow the motors, a driven level wins over a PORT write. */
+static void follow_switches(void)
+{
+    if (moved) { /* after the whole port write: belts that step together move a corexy's switch once */
+        moved = 0;
+        for (int i = 0; i < n_endstops; i++)
+            drive(&endstops[i]);
+    }
+    if (reassert) {
+        reassert = 0;
+        for (int i = 0; i < n_endstops; i++)
+            if ((endstops[i].irq->value ? 1 : 0) != endstops[i].driven)
+                avr_raise_irq(endstops[i].irq, endstops[i].driven);
+    }
+}
+
+#include "simavr_link.c"
+
 int main(int argc, char **argv)
 {
-    int n_switches = 0;
-    while (6 + n_switches < argc && strncmp(argv[6 + n_switches], "switch=", 7) == 0)
-        n_switches++;
-    const int first_pin = 6 + n_switches, n_pins = argc - first_pin;
-    if (argc < 7 || n_pins < 1 || n_pins > MAX_PINS || n_switches > MAX_SWITCHES) {
-        fprintf(stderr, "usage: %s MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [SWITCH...] PIN...\n", argv[0]);
+    int n_options = 0;
+    while (6 + n_options < argc && strchr(argv[6 + n_options], '='))
+        n_options++;
+    const int first_pin = 6 + n_options, n_pins = argc - first_pin;
+    if (argc < 7 || n_pins < 1 || n_pins > MAX_PINS) {
+        fprintf(stderr, "usage: %s MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [OPTION...] PIN...\n", argv[0]);
         return 3;
     }
     elf_firmware_t fw;
@@ -251,26 +274,20 @@ int main(int argc, char **argv)
         avr_irq_register_notify(irq, pin_notify, (void *)(uintptr_t)(i - first_pin));
     }
     for (int i = 6; i < first_pin; i++)
-        if (parse_switch(argv[i], n_pins) != 0)
+        if (strncmp(argv[i], "switch=", 7) == 0 ? parse_switch(argv[i], n_pins) : link_option(argv[i]))
             return 3;
     for (int i = 0; i < n_endstops; i++)
         drive(&endstops[i]);
     avr_register_io_write(avr, TCCR1B_ADDR, tccr1b_written, NULL);
+    if (link.byte_cycles) {
+        every_start = 1;
+        return link_serve(budget);
+    }
 
     int state = cpu_Running;
     while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget) {
         state = avr_run(avr);
-        if (moved) { /* after the whole port write: belts that step together move a corexy's switch once */
-            moved = 0;
-            for (int i = 0; i < n_endstops; i++)
-                drive(&endstops[i]);
-        }
-        if (reassert) {
-            reassert = 0;
-            for (int i = 0; i < n_endstops; i++)
-                if ((endstops[i].irq->value ? 1 : 0) != endstops[i].driven)
-                    avr_raise_irq(endstops[i].irq, endstops[i].driven);
-        }
+        follow_switches();
     }
 
     fclose(edges);

@@ -1,0 +1,187 @@
+"""Closed-loop simulation of the streaming ATmega2560 firmware (codegen/firmware/avr_stream.py): a host with
+HostLink's interface (codegen/link/host.py; codegen/link/faults.py's Faulty) talks to the firmware's USART0 in
+simavr, in lockstep on simulated time.
+
+The harness's link mode (simavr_link.c) puts the bytes host.transmit(now) gives on the RX line back to back at
+10 bit times each and runs until a frame from the firmware has fully arrived, the line has gone idle, or
+host.wake_at(); then host.receive(bytes, now) and host.transmit(now) again, with now = cycle / F_CPU. One round
+trip per frame, not per byte. The pins are logged as in codegen/sim/avr.py, so the session's SimTrace goes to
+codegen.verify.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
+are the phase "home".
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from codegen.errors import BuildError
+from codegen.firmware import FirmwareConfig
+from codegen.firmware.avr import board_pins, load_target
+from codegen.firmware.avr_homing import homing_ticks_bound
+from codegen.firmware.avr_player import START_TICKS
+from codegen.firmware.avr_stream import elf_symbols, ring_layout
+from codegen.link import protocol
+from codegen.link.host import LinkFigures
+from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
+                             switch_args, switch_thresholds, watched_pins)
+
+COMMAND = struct.Struct("<QQBI")  # wake, budget, reset the figures, bytes for the line
+ANSWER = struct.Struct("<QBBqIIHIIQIIQII")  # see simavr_link.c
+OUT_BYTE = np.dtype([("cycle", "<u8"), ("byte", "u1")])
+NO_WAKE = (1 << 64) - 1
+NO_FREE = (1 << 32) - 1
+BOOT_CYCLES = 1_000_000  # the firmware turns its receiver on within this many cycles of reset
+STATES = {0: "running", 1: "done", 2: "crashed"}
+FREE_SYMBOL, CHECK_PREFIX = "rb_free", "pl_check_"  # the ring's free space; where the player reads a record
+
+
+@dataclass(frozen=True)
+class Answer:
+    """What the harness says after a run: where it stopped and the figures since the last reset."""
+
+    cycle: int
+    state: str  # running | done | crashed
+    timer_start: int  # the latest start of the player's timer (-1: none yet)
+    lost_bytes: int
+    max_free: int | None  # the ring's free space when the player went for a record, the most
+    sp_min: int  # the lowest stack pointer
+    rx_bytes: int  # bytes the line brought
+    isr_max: tuple[int, int]  # receive, transmit interrupt: the longest, dispatch to RETI (simavr's cycles)
+    isr_cycles: tuple[int, int]  # their total
+    isr_count: tuple[int, int]  # how many
+    data: bytes  # the firmware's bytes that have arrived
+    arrived: np.ndarray  # when each did (cycles)
+
+
+class StreamSim:
+    """One simulated machine running a streaming image: a session per host (`session`), the firmware going on
+    between them. Use as a context manager (the harness is a process).
+
+    `switches` as for codegen.sim.avr.simulate: where each homing axis's switch closes, from the machine's start;
+    the firmware's ELF must be beside `hex_path` (firmware.elf: the ring's symbols)."""
+
+    def __init__(self, hex_path: Path, config: FirmwareConfig, switches: dict[int, int | None] | None = None):
+        pins = board_pins(config)
+        mcu = load_target(pins.mcu)
+        self.config = config
+        self.f_cpu = int(mcu["f_cpu"])
+        self.tick_hz = int(mcu.get("tick_hz", self.f_cpu))
+        self.layout = ring_layout(config)
+        self.switches = {k: 0 for k in range(len(config.homing))} if switches is None else switches
+        elf = Path(hex_path).with_suffix(".elf")
+        if not elf.is_file():
+            raise BuildError(f"{elf} is missing: the simulation reads the ring's addresses from it")
+        symbols = elf_symbols(elf)
+        checks = [f"check={v}" for name, v in sorted(symbols.items()) if name.startswith(CHECK_PREFIX)]
+        if FREE_SYMBOL not in symbols or not checks:
+            raise BuildError(f"{elf} is not a streaming image (no {FREE_SYMBOL} or {CHECK_PREFIX}*)")
+        self.ring_bytes = symbols["ring_end"] - symbols["ring_start"]
+        self._tmp = tempfile.TemporaryDirectory(prefix="printer-codegen-link-")
+        self._edges = Path(self._tmp.name) / "edges.bin"
+        self._stderr = open(Path(self._tmp.name) / "stderr.txt", "w+b")
+        cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self._edges), str(BOOT_CYCLES),
+               *switch_args(config, self.switches), f"link={self.layout.byte_cycles}",
+               f"free={symbols[FREE_SYMBOL]}", *checks, *watched_pins(config)]
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr)
+        self.last = self._read()
+        if self.last.state != "running":
+            raise BuildError(f"the streaming firmware {self.last.state} at boot ({hex_path})")
+
+    def __enter__(self) -> StreamSim:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.stdin.close()
+            self._proc.wait()
+        self._stderr.close()
+        self._tmp.cleanup()
+
+    def exchange(self, data: bytes, wake: int | None, budget: int, reset: bool = False) -> Answer:
+        """Give the line `data`, run until an answer (see the module docstring); wake and budget are cycles."""
+        self._proc.stdin.write(COMMAND.pack(NO_WAKE if wake is None else wake, budget, reset, len(data)) + data)
+        self._proc.stdin.flush()
+        self.last = self._read()
+        return self.last
+
+    def _read(self) -> Answer:
+        head = self._proc.stdout.read(ANSWER.size)
+        if len(head) != ANSWER.size:
+            self._stderr.seek(0)
+            raise BuildError(f"the simavr harness stopped: {self._stderr.read().decode(errors='replace').strip()}")
+        (cycle, state, _why, start, lost, free, sp, rx, rx_max, rx_total, rx_count, tx_max, tx_total, tx_count,
+         n) = ANSWER.unpack(head)
+        out = np.frombuffer(self._proc.stdout.read(n * OUT_BYTE.itemsize), dtype=OUT_BYTE)
+        return Answer(cycle, STATES[state], start, lost, None if free == NO_FREE else free, sp, rx,
+                      (rx_max, tx_max), (rx_total, tx_total), (rx_count, tx_count), out["byte"].tobytes(),
+                      out["cycle"].astype(np.int64))
+
+    def session(self, host, cycle_budget: int) -> tuple[SimTrace, LinkFigures]:
+        """Run `host` to its end (host.done) within `cycle_budget` cycles (homing's bound on top, for an image that
+        homes); BuildError on a crash or the budget."""
+        wall = time.perf_counter()
+        start = self.last.cycle
+        if self.config.homing:
+            bound = homing_ticks_bound(self.config, switch_thresholds(self.config, self.switches), self.tick_hz)
+            cycle_budget += bound * (self.f_cpu // self.tick_hz)
+        end = start + int(cycle_budget)
+        frames = protocol.Parser(protocol.MAX_ANSWER)
+        underruns, fault = 0, None
+        answer, now = self.last, start / self.f_cpu
+        reset = True
+        while not host.done:
+            data = host.transmit(now)
+            wake = host.wake_at()
+            answer = self.exchange(data, self._wake_cycle(wake, now, answer.cycle), end, reset)
+            reset = False
+            now = answer.cycle / self.f_cpu
+            if answer.data:
+                for f in frames.feed(answer.data):
+                    underruns += f.kind == protocol.UNDERRUN
+                    if f.kind == protocol.HOMING_FAILED and f.payload:
+                        fault = _homing_fault(self.config, HOMING_FAILED, f.payload[0] & 0x0F, f.payload[0] >> 4)
+                host.receive(answer.data, int(answer.arrived[-1]) / self.f_cpu)
+            if answer.state == "crashed":
+                raise BuildError(f"the streaming firmware crashed in simavr after {answer.cycle} cycles")
+            if answer.cycle >= end and not host.done:
+                raise BuildError(f"the streaming session did not end within {cycle_budget} cycles "
+                                 f"({cycle_budget / self.f_cpu:.3f} s simulated)")
+        tick0 = answer.timer_start + START_TICKS * (self.f_cpu // self.tick_hz) if answer.timer_start >= start else None
+        trace = decode_edges(read_edges(self._edges), self.config, "done", answer.cycle, tick0, fault, since=start)
+        stats = getattr(host, "link", host).stats  # a Faulty wraps its HostLink
+        figures = LinkFigures(baud=self.layout.baud, bytes=stats.bytes, frames=stats.frames,
+                              retransmits=stats.retransmits, min_ring_fill_bytes=self.min_fill(answer),
+                              underruns=underruns, lost_bytes=answer.lost_bytes, wall_s=time.perf_counter() - wall)
+        return trace, figures
+
+    def _wake_cycle(self, wake: float | None, now: float, cycle: int) -> int | None:
+        """The first cycle whose time (cycle / F_CPU, as the host reckons it) is at `wake`; None for a time already
+        passed: the host waits for bytes."""
+        if wake is None or wake <= now:
+            return None
+        wake_cycle = max(math.ceil(wake * self.f_cpu), cycle + 1)
+        while wake_cycle / self.f_cpu < wake:  # the product rounds
+            wake_cycle += 1
+        return wake_cycle
+
+    def min_fill(self, answer: Answer) -> int | None:
+        """The fewest ring bytes the player held when it went for a record (since the figures' reset)."""
+        return None if answer.max_free is None else self.ring_bytes - answer.max_free
+
+
+def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,
+                    switches: dict[int, int | None] | None = None) -> tuple[SimTrace, LinkFigures]:
+    """One session of `host` with a freshly reset streaming firmware (see StreamSim.session)."""
+    with StreamSim(hex_path, config, switches) as sim:
+        return sim.session(host, cycle_budget)
