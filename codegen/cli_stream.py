@@ -20,7 +20,8 @@ from codegen.verify import compare, simulated_switches
 
 
 def _out_dir(job, out: str | None) -> Path:
-    return Path(out) if out else Path("build") / job.name
+    """The streaming firmware's folder: beside the job's flash image, never over it."""
+    return Path(out) if out else Path("build") / job.name / "stream"
 
 
 def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
