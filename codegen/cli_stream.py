@@ -85,13 +85,14 @@ def cmd_verify_stream(args) -> int:
                          + "\n  ".join(host.findings.problems))
     data = tables.encode(host.schedule).data
     link = HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
-                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload)
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    stream_bytes=host.link_plan.stream_bytes)
     simulator = importlib.import_module(SIM_MODULES[setup.target.target])
     budget = int((host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate)
                  * setup.target.f_cpu)
     switches = simulated_switches(host)
     trace, figures = simulator.simulate_stream(image.hex_path, setup.config, link, budget, switches=switches)
-    verdict = compare(host, trace, switches)
+    verdict = compare(host, trace, switches, streamed=True)
     problems = list(verdict.problems)
     if link.outcome != "finished":
         problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))

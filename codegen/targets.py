@@ -41,8 +41,9 @@ class TargetInfo:
     def block_gap_ticks(self, step_pulse_us: float = 2.0, dir_setup_us: float = 1.0) -> int:
         """The closest two events may be when the second starts a block: the worst-case block load, and the
         new DIR levels must stand `dir_setup_us` before the block's first STEP edge."""
-        dir_ready = (int(self.mcu_data["block_dir_write_cycles"]) - int(self.mcu_data["isr_latency_cycles"])
-                     + self._cycles(dir_setup_us))
+        # The next block's first STEP edge may come as early as the shortest latency after its tick.
+        shortest = self.mcu_data.get("isr_latency_min_cycles", self.mcu_data["isr_latency_cycles"])
+        dir_ready = int(self.mcu_data["block_dir_write_cycles"]) - int(shortest) + self._cycles(dir_setup_us)
         cycles = max(int(self.mcu_data["min_event_cycles"]), dir_ready) + self._pad(step_pulse_us)
         return int(np.ceil(cycles * self.tick_hz / self.f_cpu))
 

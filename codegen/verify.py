@@ -81,8 +81,9 @@ class Verdict:
         return not self.problems and self.findings.ok
 
 
-def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
-    """The simulated run (the table's steps, after any homing) against the twin; homing on its own."""
+def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False) -> Verdict:
+    """The simulated run (the table's steps, after any homing) against the twin; homing on its own. A streaming
+    firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the machine."""
     homing, homing_problems = homing_report(host, full_trace, switches)
     trace = full_trace.run_only()
     names = host.kin.motors
@@ -162,21 +163,21 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int]) -> Verdict:
         if us is not None and us < cfg.dir_setup_us:
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
     problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
-    problems.extend(display_problems(host, trace))
+    problems.extend(display_problems(host, trace, streamed))
     display = None if trace.display is None else list(trace.display.lines)
     return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
                    homing_problems + problems, homing, display, not_compared)
 
 
-def display_problems(host: HostBuild, trace) -> list[str]:
-    """A board's status display: its decoded text at the end shows every motor's final position, and the
-    firmware drove it within the display's timing."""
+def display_problems(host: HostBuild, trace, streamed: bool = False) -> list[str]:
+    """A board's status display: its decoded text at the end shows every motor's final position (a streaming
+    firmware's: its steps since the job's start), and the firmware drove it within the display's timing."""
     if trace.display is None:
         return []
     from codegen.firmware.mcs51_lcd import board_lcd
 
     lcd = board_lcd(host.target.board, host.kin.motors)
-    final = host.start_steps + host.pulses.final_positions()
+    final = host.pulses.final_positions() + (0 if streamed else host.start_steps)
     expected = lcd.expected_text([int(v) for v in final])
     problems = [f"display at clock {p.clock}: {p.message}" for p in trace.display.problems[:5]]
     if tuple(trace.display.lines) != tuple(expected):

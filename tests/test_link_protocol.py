@@ -152,3 +152,34 @@ def test_ident_payload_round_trip():
     assert p.Ident.parse(ident.payload()) == ident
     status = p.Status.parse(struct.pack("<BIH3i", 2, 1000, 77, 1, -2, 3), 3)
     assert status == p.Status("playing", 1000, 77, (1, -2, 3))
+
+
+@pytest.mark.parametrize("window_s, outcome", [(0.02, "finished"), (1.0, "underrun")])
+def test_a_bad_byte_costs_a_round_trip_not_the_line_queue(window_s, outcome):
+    """The player takes more than the line carries (a dense stretch played from the ring): credit allows kilobytes
+    on the line, and every frame behind a bad byte is rejected. Within the window the resend comes a round trip
+    later; with all the credit on the line (window_s 1 s), it waits behind kilobytes and the ring runs dry."""
+    host, model = session(stream(100000), LineFaults(corrupt_bytes=frozenset({60000})), rate=24000.0, ring=7805,
+                          prefill=7000, window_s=window_s)
+    assert host.outcome == outcome
+    assert host.stats.retransmits > 0
+
+
+def test_the_faulty_line_shows_the_links_figures():
+    host = HostLink([b"x"], 3, IDENTITY, BYTE_S, 1)
+    line = Faulty(host, LineFaults(corrupt_bytes=frozenset({0})))
+    line.transmit(0.0)
+    assert line.stats is host.stats and line.stats.frames == 1
+    assert line.outcome is None and line.position is None
+
+
+def test_pings_leave_a_slow_line_mostly_free():
+    """9600 baud, the ring full and the player slow: the host pings for credit, at most every 48 byte times."""
+    byte_s = 10 / 9600
+    data = stream(3000)
+    host = HostLink([data], 3, IDENTITY, byte_s, 256, ack_timeout_s=0.2)
+    model = FirmwareModel(IDENTITY, 3, 256, 20.0, len(data))
+    run_session(host, model, byte_s, limit_s=5.0, step_s=1e-3)
+    data_frames = -(-256 // host.payload) + (5.0 * 20.0) // host.payload + 3  # prefill, what 5 s play, START
+    pings = host.stats.frames - data_frames
+    assert 0 < pings <= 5.0 / (48 * byte_s) + 1

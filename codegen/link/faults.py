@@ -1,5 +1,6 @@
 """Faults on the line from the host to the firmware, for `verify --stream` and its tests: the host's frames as
-they would arrive over a bad cable or from a stalled host. `Faulty` wraps a HostLink and has its interface."""
+they would arrive over a bad cable or from a stalled host. `Faulty` wraps a HostLink and has its interface
+(and its figures: stats, outcome, position and the rest are the wrapped link's)."""
 
 from __future__ import annotations
 
@@ -37,9 +38,8 @@ class Faulty:
         self._held: list[bytes] = []  # a frame kept back to swap with the next
         self._parser = p.Parser()
 
-    @property
-    def done(self) -> bool:
-        return self.link.done
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)  # only for what Faulty does not define itself
 
     def wake_at(self) -> float | None:
         wake = self.link.wake_at()

@@ -9,12 +9,15 @@ and the time, so the same code drives a real serial port (`printer-codegen strea
         link.receive(data, now)
 
 The session: HELLO until IDENT answers (a firmware of another identity is refused); DATA frames while the
-firmware's credit (the free ring space of its last ACK, less what has been sent since) holds them; START once
+firmware's credit (the free ring space of its last ACK, less what has been sent since) holds them, and no more
+than `window_s` of the line's bytes unacknowledged (what is on the line cannot be taken back: a frame resent
+after a bad byte, or an ABORT, waits behind it); START once
 `prefill_bytes` of the stream have gone out (or all of it); then the rest, and the end: FINISHED, UNDERRUN,
 ABORTED or HOMING_FAILED. Every frame stays in flight until an ACK counts past it: an ACK that says REJECTED, or
 no ACK within `ack_timeout_s` of a frame's last byte, sends every frame in flight again from the first the
 firmware lacks (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame)
-every `ping_s` for a fresh ACK.
+every `ping_s`, and never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow
+line), for a fresh ACK. Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ from codegen.link import protocol as p
 HELLO_TRIES = 5
 MAX_IN_FLIGHT = 100  # frames: far below the 256 sequence numbers
 ANSWER_BYTES = 12  # an ACK's bytes on the line, and a few byte times for the firmware to answer
+PING_BYTES = 48  # byte times between pings at the least: a ping and its ACK take under a third of the line
+MIN_WINDOW_FRAMES = 2  # frames on the line unacknowledged at the least, whatever window_s says
+TIME_SLACK_S = 1e-9
 
 
 @dataclass
@@ -57,6 +63,9 @@ class HostLink:
     payload: int = 64  # DATA bytes per frame
     ack_timeout_s: float = 0.05  # after a frame's last byte
     ping_s: float = 0.01
+    window_s: float = 0.02  # seconds of line bytes that may be unacknowledged: more than a round trip
+    latency_s: float = 0.0  # the line's answer delay beyond its byte times (a USB serial adapter: milliseconds)
+    stream_bytes: int | None = None  # the stream's length, when known (for `in_tail`)
     stats: LinkStats = field(default_factory=LinkStats)
     outcome: str | None = None  # finished | underrun | aborted | homing failed | refused | no answer
     message: str = ""
@@ -96,6 +105,12 @@ class HostLink:
     def request_status(self) -> None:
         self._status_wanted = True
 
+    @property
+    def in_tail(self) -> bool:
+        """Less than the firmware's ring of the stream is left to send: from here the ring may drain as planned."""
+        ring = self.ident.ring_bytes if self.ident else 0
+        return self.stream_bytes is not None and self._streamed >= self.stream_bytes - ring
+
     def wake_at(self) -> float | None:
         """When to call transmit again if no byte arrives first (None: only when bytes arrive)."""
         times = [t for t in (self._ack_deadline(), self._ping_due) if t is not None]
@@ -111,7 +126,7 @@ class HostLink:
             self._abort = False
             out += self._send(p.ABORT, b"", now, track=False)
         if self.ident is None:
-            if now >= self._hello_due:
+            if now >= self._hello_due - TIME_SLACK_S:
                 if self._hello_tries == HELLO_TRIES:
                     self._end("no answer", f"no IDENT after {HELLO_TRIES} HELLOs: is the streaming firmware "
                                            "flashed, and the baud rate right?")
@@ -123,7 +138,7 @@ class HostLink:
                 self._hello_due = self._line_free + self.ack_timeout_s + 20 * self.byte_s
             return bytes(out)
         deadline = self._ack_deadline()
-        if self._resend_from is None and deadline is not None and now >= deadline:
+        if self._resend_from is None and deadline is not None and now >= deadline - TIME_SLACK_S:
             self._resend_from = self._acked
         if self._resend_from is not None:
             for sent in self._flight:
@@ -154,15 +169,17 @@ class HostLink:
                 break
             self._fill(self.payload)
             size = min(self.payload, len(self._pending))
+            if self._unacknowledged() + p.OVERHEAD_BYTES + size > self._window():
+                break  # an ACK will come for what is on the line
             if size > self._credit():
                 if not any(s.kind == p.DATA for s in self._flight) and self._ping_due is None:
-                    self._ping_due = now + self.ping_s
+                    self._ping_due = now + max(self.ping_s, PING_BYTES * self.byte_s)
                 break
             chunk = bytes(self._pending[:size])
             del self._pending[:size]
             self._streamed += size
             out += self._send(p.DATA, chunk, now)
-        if self._ping_due is not None and now >= self._ping_due and not self._flight:
+        if self._ping_due is not None and now >= self._ping_due - TIME_SLACK_S and not self._flight:
             self._ping_due = None
             out += self._send(p.DATA, b"", now)
         return bytes(out)
@@ -209,8 +226,14 @@ class HostLink:
         # A rejection that comes after the last copy of the frame the firmware lacks has arrived: that copy
         # was lost too (rejections of the frames that were queued behind an earlier copy come before).
         if (flags & p.REJECTED and self._flight and self._flight[0].seq == expected
-                and now >= self._flight[0].done_at + ANSWER_BYTES * self.byte_s):
+                and now >= self._flight[0].done_at + ANSWER_BYTES * self.byte_s + self.latency_s):
             self._resend_from = expected
+
+    def _unacknowledged(self) -> int:
+        return sum(p.OVERHEAD_BYTES + len(s.payload) for s in self._flight)
+
+    def _window(self) -> int:
+        return max(MIN_WINDOW_FRAMES * (p.OVERHEAD_BYTES + self.payload), int(self.window_s / self.byte_s))
 
     def _credit(self) -> int:
         return self._free - sum(len(s.payload) for s in self._flight if s.kind == p.DATA)

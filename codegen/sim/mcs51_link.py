@@ -228,10 +228,11 @@ def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: 
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
-    link = host if hasattr(host, "stats") else host.link  # a HostLink, or a wrapper of one (link.faults.Faulty)
-    # A finished job's last records find the ring holding all the stream has left: those do not count.
+    link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
+    # As the plan counts it: a finished job's last ring of the stream drains the ring, and does not count.
     finished = link.outcome == "finished"
-    fills = [fill for fill, committed in run.fills if not finished or committed < final_committed]
+    fills = [fill for fill, committed in run.fills
+             if not finished or committed - fill <= final_committed - layout.ring_bytes]
     figures = LinkFigures(baud=layout.baud, bytes=link.stats.bytes, frames=link.stats.frames,
                           retransmits=link.stats.retransmits, min_ring_fill_bytes=min(fills) if fills else None,
                           underruns=int(link.outcome == "underrun"), lost_bytes=run.lost_bytes(),
