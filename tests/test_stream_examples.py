@@ -94,3 +94,14 @@ def test_the_seed_plotter_set_at_the_default_tolerance_streams_to_seed51(tmp_pat
     assert_streamed_as_planned(result, baud=9600)
     assert result["board"] == "seed-51"
     assert result["max_path_error_mm"] <= result["path_limit_mm"]
+
+
+@needs_mcs51
+def test_the_seed_delta_streams_after_homing_and_shows_its_steps_since_the_start(tmp_path, capsys):
+    """The streaming firmware does not know where a job puts the machine: its LCD shows each carriage's steps
+    since START (after homing), the numbers it reports over the link."""
+    result = verify_stream(capsys, ROOT / "examples" / "delta-seed-51.yaml", tmp_path)
+    assert result["pass"] is True and result["problems"] == []
+    finals = [result["motors"][m]["final"] for m in "abc"]
+    assert finals == [result["motors"][m]["expected_final"] for m in "abc"]
+    assert result["display"] == [f"A{finals[0]:6d} B{finals[1]:6d} ", f"C{finals[2]:6d}         "]
