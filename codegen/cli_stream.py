@@ -145,7 +145,8 @@ def cmd_stream(args) -> int:
         plan = host.link_plan
         chunks = stream_chunks(table.read(), motors)
         link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
-                        payload=setup.budget.payload)
+                        payload=setup.budget.payload, stream_bytes=plan.stream_bytes,
+                        answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S)
         port = serial_port.open_port(args.port, setup.layout.baud)
         began = time.monotonic()
         try:
@@ -154,10 +155,9 @@ def cmd_stream(args) -> int:
             port.close()
     took = time.monotonic() - began
     expected = tuple(int(v) for v in host.expected_final - host.start_steps)
-    if interrupted:
-        where = "" if link.position is None else f" at positions {list(link.position)}"
-        print(f"error: interrupted: sent ABORT; the machine {'stopped' + where if link.outcome == 'aborted' else 'did not answer'}",
-              file=sys.stderr)
+    if interrupted and link.outcome in ("aborted", None):  # else the session's own end came before the ABORT
+        machine = "did not answer" if link.outcome is None else f"stopped at positions {list(link.position)}"
+        print(f"error: interrupted: sent ABORT; the machine {machine}", file=sys.stderr)
         return 1
     if link.outcome != "finished":
         detail = link.message or (f"the firmware reports positions {list(link.position)}" if link.position else "")

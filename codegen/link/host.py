@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from codegen.link import protocol as p
 
-HELLO_TRIES = 5
+HELLO_TRIES = 5  # at the least, before giving up
 MAX_IN_FLIGHT = 100  # frames: far below the 256 sequence numbers
 ANSWER_BYTES = 12  # an ACK's bytes on the line, and a few byte times for the firmware to answer
 PING_BYTES = 48  # byte times between pings at the least: a ping and its ACK take under a third of the line
@@ -62,6 +62,7 @@ class HostLink:
     prefill_bytes: int
     payload: int = 64  # DATA bytes per frame
     ack_timeout_s: float = 0.05  # after a frame's last byte
+    answer_within_s: float = 0.0  # HELLOs go on this long at the least (a board that resets when its port opens)
     ping_s: float = 0.01
     window_s: float = 0.02  # seconds of line bytes that may be unacknowledged: more than a round trip
     latency_s: float = 0.0  # the line's answer delay beyond its byte times (a USB serial adapter: milliseconds)
@@ -85,6 +86,7 @@ class HostLink:
         self._free = 0  # ring bytes free at the last ACK
         self._line_free = 0.0
         self._hello_tries = 0
+        self._first_hello: float | None = None
         self._hello_due = 0.0
         self._start_sent = False
         self._streamed = 0  # stream bytes framed so far
@@ -127,9 +129,12 @@ class HostLink:
             out += self._send(p.ABORT, b"", now, track=False)
         if self.ident is None:
             if now >= self._hello_due - TIME_SLACK_S:
-                if self._hello_tries == HELLO_TRIES:
-                    self._end("no answer", f"no IDENT after {HELLO_TRIES} HELLOs: is the streaming firmware "
-                                           "flashed, and the baud rate right?")
+                if self._first_hello is None:
+                    self._first_hello = now
+                if self._hello_tries >= HELLO_TRIES and now >= self._first_hello + self.answer_within_s:
+                    self._end("no answer", f"no IDENT after {self._hello_tries} HELLOs in "
+                                           f"{now - self._first_hello:.1f} s: is the streaming firmware flashed, and "
+                                           f"the baud rate right?")
                     return bytes(out)
                 self._hello_tries += 1
                 self._next_seq = self._acked = 0
