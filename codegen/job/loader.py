@@ -17,7 +17,10 @@ import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from codegen.errors import Diagnostic, JobError, SourceRef, closest, suggest
-from codegen.job.schema import MOTORS, REQUIRED_MOTORS, SHAPES, Delta, Homing, Job, Link, Machine, Program, Stepper
+from codegen.job.schema import (
+    DEFAULT_MAX_TEMP_C, HEATERS, MOTORS, REQUIRED_MOTORS, SHAPES, BangBang, Control, CustomSensor, Delta, Heater,
+    Homing, Job, Link, Machine, PidGains, PlantOverrides, Program, Stepper,
+)
 
 YPath = tuple  # of str (mapping keys) and int (list indexes)
 
@@ -198,7 +201,7 @@ def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Dia
 # ---- validation: every problem of the file, as diagnostics ----
 
 _CUSTOM = {"number", "text", "flag", "enum", "point", "sweep", "range", "rod", "length", "expr", "interval",
-           "name", "shape"}
+           "name", "shape", "sensor", "control"}
 _PLAIN = {
     "model_type": "expected a mapping", "model_attributes_type": "expected a mapping",
     "dict_type": "expected a mapping", "list_type": "expected a list", "tuple_type": "expected a list",
@@ -217,6 +220,8 @@ def _yaml_path(loc: tuple) -> YPath:
     """A pydantic location as a YAML path (the list of a `points` shape is wrapped as {'points': [...]})."""
     if len(loc) >= 5 and loc[:2] == ("program", "shapes") and loc[3:5] == ("points", "points"):
         return loc[:4] + loc[5:]
+    if len(loc) >= 5 and loc[:2] == ("machine", "heaters") and loc[3] == "sensor" and loc[4] in ("preset", "custom"):
+        return loc[:4] + loc[5:]  # the sensor union's tag
     return tuple(loc)
 
 
@@ -269,7 +274,7 @@ Issue = tuple[tuple, str, tuple, str]
 
 
 def machine_issues(m: dict) -> list[Issue]:
-    """Motors against the kinematics; `delta:` exactly when the kinematics is delta."""
+    """Motors against the kinematics; heater names; `delta:` exactly when the kinematics is delta."""
     kin = m.get("kinematics")
     if kin not in MOTORS:
         return []
@@ -286,6 +291,14 @@ def machine_issues(m: dict) -> list[Issue]:
             if name not in steppers:
                 message = f"missing motor '{name}' (required for {kin} kinematics)"
                 issues.append((("steppers",), message, ("steppers",), "key"))
+    heaters = m.get("heaters")
+    if isinstance(heaters, dict):
+        for name in heaters:
+            if name not in HEATERS:
+                hint = suggest(str(name), HEATERS) or f"; heaters are {', '.join(HEATERS)}"
+                issues.append((("heaters",), f"unknown heater '{name}'{hint}", ("heaters", name), "key"))
+            elif isinstance(heaters[name], dict):
+                issues += _temperature_order(name, heaters[name])
     if kin == "delta" and "delta" not in m:
         issues.append(((), "missing key 'delta' (required for delta kinematics)", (), "mapping"))
     elif kin == "delta" and m["delta"] is None:
@@ -293,6 +306,17 @@ def machine_issues(m: dict) -> list[Issue]:
     elif kin != "delta" and m.get("delta") is not None:
         issues.append((("delta",), "only allowed with kinematics: delta", ("delta",), "key"))
     return issues
+
+
+def _temperature_order(name: str, heater: dict) -> list[Issue]:
+    """min_temp_c below max_temp_c, either of them given or the heater's default."""
+    low = heater.get("min_temp_c", Heater.model_fields["min_temp_c"].default)
+    high = heater.get("max_temp_c", DEFAULT_MAX_TEMP_C[name])
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (low, high))
+    if not numbers or low < high:
+        return []
+    at = ("heaters", name, "min_temp_c" if "min_temp_c" in heater else "max_temp_c")
+    return [(at, f"min_temp_c ({low:g}) must be below max_temp_c ({high:g})", at, "value")]
 
 
 def program_issues(p: dict) -> list[Issue]:
@@ -315,6 +339,9 @@ def known_keys(path: tuple) -> tuple[str, ...] | None:
     }.get(tuple(path))
     if model is None and len(path) == 3 and path[:2] == ("machine", "steppers"):
         model = Stepper
+    if model is None and len(path) >= 3 and path[:2] == ("machine", "heaters"):
+        model = {(): Heater, ("sensor",): CustomSensor, ("control",): Control, ("control", "pid"): PidGains,
+                 ("control", "bang_bang"): BangBang, ("plant",): PlantOverrides}.get(tuple(path[3:]))
     if model is None and len(path) == 4 and path[:2] == ("program", "shapes") and path[3] in SHAPES:
         model = SHAPES[path[3]]
     if model is None:

@@ -18,6 +18,8 @@ from pydantic import ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from codegen.errors import SourceRef, suggest
+from codegen.heaters.control import fixed_gains
+from codegen.heaters.sensors import OPEN_BELOW_C, SHORT_ABOVE_C, THERMISTORS
 from codegen.job.expr import Expr, ExprError, parse
 
 TARGETS = ("avr", "mcs51")
@@ -168,6 +170,110 @@ class Link(_Model):
     baud: Optional[Annotated[int, Field(gt=0, le=2_000_000)]] = None  # default: the target's (AVR 250000, 8051 9600)
 
 
+# ---- heaters ----
+
+HEATERS = ("hotend", "bed")
+DEFAULT_SENSOR = "EPCOS 100K B57560G104F"
+DEFAULT_MAX_TEMP_C = {"hotend": 275.0, "bed": 125.0}
+
+
+class CustomSensor(_Model):
+    """A thermistor that is not a preset: `{beta, r25_ohm}` or `{steinhart_hart: [a, b, c]}`."""
+
+    beta: Optional[Positive] = None  # K
+    r25_ohm: Optional[Positive] = None  # ohms at 25 degC
+    steinhart_hart: Optional[Annotated[tuple[float, float, float], _numbers((3,), "a list of 3 numbers")]] = None
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "CustomSensor":
+        beta = (self.beta, self.r25_ohm)
+        if (None in beta) if self.steinhart_hart is None else (beta != (None, None)):
+            raise _fail("sensor", "expected either {beta, r25_ohm} or {steinhart_hart: [a, b, c]}")
+        if self.steinhart_hart is not None and not (self.steinhart_hart[1] > 0 and self.steinhart_hart[2] >= 0):
+            raise _fail("sensor", "expected b > 0 and c >= 0 (an NTC)", at=("steinhart_hart",))
+        return self
+
+
+def _preset(v: Any) -> str:
+    if v in THERMISTORS:
+        return v
+    listed = ", ".join(f"'{name}'" for name in THERMISTORS)
+    starting = [name for name in THERMISTORS if name.lower().startswith(v.strip().lower())]  # "epcos 100k"
+    hint = f" (did you mean '{starting[0]}'?)" if len(starting) == 1 and v.strip() else suggest(v, THERMISTORS)
+    raise _fail("enum", f"unknown thermistor '{v}'{hint}; presets are {listed}")
+
+
+def _sensor_item(v: Any) -> Any:
+    if not isinstance(v, (str, dict, CustomSensor)):
+        raise _fail("sensor", "expected a thermistor preset's name or {beta, r25_ohm} or {steinhart_hart: [a, b, c]}")
+    return v
+
+
+SensorItem = Annotated[
+    Union[Annotated[Annotated[str, AfterValidator(_preset)], Tag("preset")], Annotated[CustomSensor, Tag("custom")]],
+    Discriminator(lambda v: "preset" if isinstance(v, str) else "custom"),
+    BeforeValidator(_sensor_item),
+]
+
+
+class PidGains(_Model):
+    """Marlin's M301 values: kp in duty (0..255) per degC, ki per second, kd in seconds."""
+
+    kp: Annotated[float, BeforeValidator(_number), Field(ge=0)]
+    ki: Annotated[float, BeforeValidator(_number), Field(ge=0)]
+    kd: Annotated[float, BeforeValidator(_number), Field(ge=0)]
+
+
+class BangBang(_Model):
+    hysteresis_c: Annotated[float, BeforeValidator(_number), Field(ge=0, le=50)] = 1.0  # on below s-h, off above s+h
+
+
+class Control(_Model):
+    """Exactly one of `pid` and `bang_bang`."""
+
+    pid: Optional[PidGains] = None
+    bang_bang: Optional[BangBang] = None
+
+    @model_validator(mode="after")
+    def _one_law(self) -> "Control":
+        if (self.pid is None) == (self.bang_bang is None):
+            raise _fail("control", "give either 'pid' or 'bang_bang'")
+        return self
+
+    def as_dict(self) -> dict:
+        """The form codegen.heaters.control.fixed_control takes."""
+        return self.model_dump(exclude_none=True)
+
+
+class PlantOverrides(_Model):
+    """The simulated heater (codegen.heaters.plant.Plant); a key left out keeps the default plant's value."""
+
+    capacity_j_per_k: Optional[Positive] = None
+    loss_w_per_k: Optional[Positive] = None
+    heater_w: Optional[Positive] = None
+    ambient_c: Optional[Annotated[float, BeforeValidator(_number), Field(ge=-20, le=60)]] = None
+
+
+class Heater(_Model):
+    sensor: SensorItem = DEFAULT_SENSOR
+    pullup_ohm: Positive = 4700.0
+    control: Optional[Control] = None  # default: the board's (codegen.heaters.control.DEFAULT_CONTROL)
+    max_power: Annotated[float, BeforeValidator(_number), Field(gt=0, le=1)] = 1.0  # of the heater's full power
+    min_temp_c: Annotated[float, BeforeValidator(_number), Field(gt=OPEN_BELOW_C)] = 5.0
+    max_temp_c: Optional[Annotated[float, BeforeValidator(_number), Field(lt=SHORT_ABOVE_C)]] = None  # per heater
+    plant: Optional[PlantOverrides] = None
+
+    @model_validator(mode="after")
+    def _gains_fit(self) -> "Heater":
+        if self.control is not None and self.control.pid is not None:
+            g = self.control.pid
+            try:
+                fixed_gains(g.kp, g.ki, g.kd, max_power=self.max_power)
+            except ValueError as e:
+                raise _fail("control", str(e), at=("control", "pid")) from None
+        return self
+
+
 class Machine(_Model):
     kinematics: _choice(*KINEMATICS)  # type: ignore[valid-type]
     steppers: dict[str, Stepper]
@@ -178,6 +284,7 @@ class Machine(_Model):
     homing: Homing = Homing()
     delta: Optional[Delta] = None
     link: Link = Link()
+    heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
 
     @property
     def motor_names(self) -> tuple[str, ...]:
