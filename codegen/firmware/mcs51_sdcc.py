@@ -31,6 +31,8 @@ class BuildPlan:
 
     model: str | None = None  # SDCC's memory model (None: the board's)
     xram: int | None = None  # XRAM bytes SDCC may place variables in (None: all the board has)
+    iram: int | None = None  # internal RAM bytes SDCC may use from address 0, stack included (None: all of it)
+    stack: int = 0  # stack bytes that must be free above the variables (SDCC starts the stack after them)
     symbols: tuple[tuple[str, str], ...] = FLASH_SYMBOLS  # firmware.sym.json key, map symbol (code or data)
     required: tuple[str, ...] = ("_table",)  # map symbols the image must also have
     sym_extra: dict = field(default_factory=dict)  # more firmware.sym.json entries
@@ -38,7 +40,7 @@ class BuildPlan:
 
 
 def _sdcc_flags(mem: dict, code_size: int, xram_size: int) -> list[str]:
-    return ["-mmcs51", "--Werror", f"--model-{mem['model']}", "--iram-size", str(mem["iram"]),
+    return ["-mmcs51", "--Werror", f"--model-{mem['model']}", "--iram-size", str(mem["iram_limit"]),
             "--xram-size", str(xram_size), "--code-size", str(code_size)]
 
 
@@ -108,8 +110,11 @@ def _overflow(done: subprocess.CompletedProcess, mem: dict, objects: list[str], 
         size = f"it needs {needed} bytes" if needed else "it needs more"
         return BuildError(f"the image does not fit in external RAM: {size}, {mem['xram']} available")
     if iram:
+        limit = mem["iram_limit"]
+        below = "" if limit == mem["iram"] else f", of which it may use those below 0x{limit:02X}"
         return BuildError(f"the image does not fit in internal RAM: its {iram.group(2)} area needs {iram.group(1)} "
-                          f"consecutive bytes, more than are free of the {mem['iram']} bytes of the {mem['mcu']}")
+                          f"consecutive bytes, more than are free of the {mem['iram']} bytes of the {mem['mcu']}"
+                          f"{below}")
     return BuildError(f"linking firmware.ihx failed:\n{out.strip()}")
 
 
@@ -129,7 +134,8 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int, plan: 
     if not board:
         raise BuildError("config.h does not name its board")
     mem = memories(board.group(1))
-    mem.update({"model": plan.model or mem["model"], "xram": mem["xram"] if plan.xram is None else plan.xram})
+    mem.update({"model": plan.model or mem["model"], "xram": mem["xram"] if plan.xram is None else plan.xram,
+                "iram_limit": plan.iram or mem["iram"]})
     with tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp:
         work = Path(tmp)
         for name, text in sorted(sources.items()):
@@ -145,6 +151,10 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int, plan: 
         if done.returncode != 0 or "?ASlink-Error" in done.stderr + done.stdout:
             raise _overflow(done, mem, objects, table_bytes, work)
         use = read_mem(work / "firmware.mem")
+        if use.get("stack_bytes", 0) < plan.stack:
+            raise BuildError(f"the image's variables end at 0x{use.get('stack_start', 0):02X} in internal RAM, "
+                             f"which leaves {use.get('stack_bytes', 0)} bytes of stack below 0x{mem['iram_limit']:02X} "
+                             f"(the end of the internal RAM it may use), fewer than the {plan.stack} it needs")
         areas, symbols = read_map(work / "firmware.map", data=True)
         missing = [s for s in (*dict(plan.symbols).values(), *plan.required) if s not in symbols]
         if missing:
