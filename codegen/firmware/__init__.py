@@ -39,6 +39,23 @@ class HomingAxis:
 
 
 @dataclass(frozen=True)
+class HeaterFirmware:
+    """A heater the firmware controls (codegen/firmware/avr_heaters.py renders it): its pins, the sensor's ADC
+    table, the integer control law and the thermal protection (codegen.heaters), the start sequence's target.
+    Temperatures are int16 deci-degrees (0.1 degC), times are control periods (PID_PERIOD_S = 0.1 s)."""
+
+    name: str  # hotend, bed: names the heater in the sources and in the reports
+    pwm_pin: str  # the MOSFET's gate, a hardware PWM pin: PB4 (D10, OC2A), PH5 (D8, OC4C)
+    sensor_pin: str  # the thermistor's analog input: PK5 (A13), PK6 (A14)
+    table: tuple[int, ...]  # deci-degrees by 10-bit ADC reading (1024 entries), codegen.heaters.sensors
+    control: object  # codegen.heaters.control.FixedPid or FixedBangBang
+    protection: object  # codegen.heaters.protection.FixedProtection: limits, sensor readings, watch and runaway
+    start_target_dc: int = 0  # the start sequence's target (M104 / M140 S); 0: off
+    wait: bool = False  # M109 / M190: the table waits until this heater has settled at its target
+    end_off: bool = False  # the heater goes off when the table has played (a sliced file's M104 S0)
+
+
+@dataclass(frozen=True)
 class FirmwareConfig:
     job_name: str
     job_file: str  # shown in the generated header
@@ -50,6 +67,7 @@ class FirmwareConfig:
     homing: tuple[HomingAxis, ...] = ()  # axes homed at power-up, round by round, before the table plays
     start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
     baud: int = 0  # the streaming firmware's link (machine.link.baud); 0: the target's default
+    heaters: tuple[HeaterFirmware, ...] = ()  # heaters run beside the player (flash image, AVR)
 
 
 def board_socket(board_name: str, board: dict, motor: MotorPins) -> dict:

@@ -20,6 +20,7 @@ import yaml
 from codegen import tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
+from codegen.firmware.avr_heaters import heaters_context
 from codegen.firmware.avr_homing import homing_context
 from codegen.firmware.avr_player import isr_context, table_chunks
 from codegen.paths import targets_dir
@@ -30,11 +31,14 @@ CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reo
 ASFLAGS = ("-Wa,--fatal-warnings",)
 STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
 # The objects whose functions _flash_parts counts as each part of flash.
-OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link": ("stream", "link_rx", "link_tx")}
+OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link": ("stream", "link_rx", "link_tx"),
+                "heaters": ("heaters", "heaters_table", "heaters_hook")}
 # Pushes, calls, Y-relative frame slots and SP accesses (0x3d/0x3e) in the naked ISR.
 _STACK_USE = re.compile(
     r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
 _TEXT_FULL = re.compile(r"region [`']text'")  # ld: "will not fit in region `text'" / "region `text' overflowed"
+# libgcc's division and float routines: the firmware does integer arithmetic without division (DESIGN.md).
+_NOT_INTEGER_ONLY = re.compile(r"^__(u?divmod\w*|u?div[a-z]{2}\d|fp_\w+|fix\w+|float\w+|\w+[sd]f\d?)$")
 UNBOUNDED_FLASH = 8 << 20  # a link that only measures an oversized image
 MAX_STEP_PORTS = 4  # one PEND register each (the format has at most 4 motors)
 
@@ -124,8 +128,9 @@ def _ident(name: str) -> str:
 
 
 def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]:
-    """The sources of the image (file name -> text): config.h, table.h, table.c, player.c, player_isr.S, and
-    homing.c when the config homes motors."""
+    """The sources of the image (file name -> text): config.h, table.h, table.c, player.c, player_isr.S,
+    homing.c when the config homes motors, heaters.h, heaters.c, heaters_table.c and heaters_hook.S when it has
+    heaters."""
     if tuple(m.name for m in config.motors) != tuple(schedule.motors):
         raise BuildError(f"firmware motors {[m.name for m in config.motors]} differ from the schedule's "
                          f"{list(schedule.motors)}")
@@ -137,6 +142,7 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     context.update({"table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
                     "chunks": table_chunks(table)})
     names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
+    names += ("heaters.h", "heaters.c", "heaters_table.c", "heaters_hook.S") if config.heaters else ()
     return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 
@@ -189,6 +195,9 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     context.update(isr_context(motors, step_ports, dir_ports + [context["tool_port"]], invert_mask, f_cpu,
                                tick_hz, pulse_cycles))
     context.update(homing_context(config, pins, motors, mcu))
+    if stream and config.heaters:
+        raise BuildError("the streaming firmware does not run heaters yet")
+    context.update(heaters_context(config, f_cpu, tick_hz))
     return context
 
 
@@ -235,13 +244,14 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
 def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
     """Every byte of flash by what it is: the step table, the player's own code (the functions player.o and
     player_isr.o define), the homing code (homing.o's, in an image that homes), the link's (a streaming image's
-    stream.o, link_rx.o and link_tx.o), the initial values of RAM variables, and the rest (interrupt vectors, C start-up,
+    stream.o, link_rx.o and link_tx.o), the heaters' (heaters.o's, heaters_hook.o's and the ADC tables of
+    heaters_table.o), the initial values of RAM variables, and the rest (interrupt vectors, C start-up,
     libgcc, alignment)."""
     own: dict[str, set[str]] = {}
     for part, objects in OBJECT_PARTS.items():
         for obj in (name for name in objects if (cwd / f"{name}.o").exists()):
             symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
-            own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "Tt")
+            own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "TtRr")
     sizes = dict.fromkeys(own, 0)
     table = 0
     for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
@@ -269,6 +279,14 @@ def _check_isr_stackless(elf: Path, cwd: Path) -> None:
     if not body or bad:
         raise BuildError(f"the step interrupt {STEP_ISR} uses the stack, which it may not (it saves nothing): "
                          f"{'; '.join(bad[:3]) or 'not found'}")
+
+
+def _check_integer_only(elf: Path, cwd: Path) -> None:
+    """No division and no float in the image: none of libgcc's routines for them is linked in."""
+    out = _run(["avr-nm", "--defined-only", elf.name], cwd, "avr-nm").stdout
+    found = sorted({line.split()[-1] for line in out.splitlines() if _NOT_INTEGER_ONLY.match(line.split()[-1])})
+    if found:
+        raise BuildError(f"the firmware links division or float routines ({', '.join(found)}): integers only")
 
 
 def _link(arch: list[str], objects: list[str], elf: str, flash: int, ram: int,
@@ -318,6 +336,7 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
         elf = work / "firmware.elf"
         _check_table_contiguous(elf, work)
         _check_isr_stackless(elf, work)
+        _check_integer_only(elf, work)
         sections = {k: v for k, v in _section_sizes(elf, work).items() if k in (".text", ".data", ".bss")}
         flash_parts = _flash_parts(elf, work, sections)
         _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")

@@ -26,9 +26,11 @@ from codegen.firmware.avr_homing import homing_ticks_bound
 from codegen.firmware.avr_player import START_TICKS
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
-HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"))  # the second #included by the first
+PLANT_SOURCE = HARNESS_SOURCE.with_name("simavr_plant.c")  # compiled beside the harness
+HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"),  # the second #included by the first
+                   PLANT_SOURCE, PLANT_SOURCE.with_suffix(".h"))
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr", f"-I{HARNESS_SOURCE.parent}")
-HARNESS_LIBS = ("-lsimavr", "-lelf")
+HARNESS_LIBS = ("-lsimavr", "-lelf", "-lm")
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
 EXIT_STATES = {0: "done", 1: "crashed", 2: "budget"}
 PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
@@ -80,7 +82,7 @@ def harness_binary() -> Path:
     binary.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=binary.name + ".", dir=binary.parent)
     os.close(fd)
-    cmd = [*HARNESS_BUILD, str(HARNESS_SOURCE), *HARNESS_LIBS, "-o", tmp]
+    cmd = [*HARNESS_BUILD, str(HARNESS_SOURCE), str(PLANT_SOURCE), *HARNESS_LIBS, "-o", tmp]
     try:
         done = subprocess.run(cmd, capture_output=True, text=True)
     except FileNotFoundError as exc:

@@ -4,7 +4,8 @@
  *
  * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [OPTION...] PIN...     (PIN like F0, L3, B5)
  *   OPTION: a SWITCH, or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
- *   then the boot's, until the firmware turns its receiver on)
+ *   then the boot's, until the firmware turns its receiver on), or plant=FILE (thermal plants behind the ADC and
+ *   the heaters' PWM: simavr_plant.c)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
  *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open, moved by one or two
  *     motors: each motor's STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT
@@ -31,6 +32,8 @@
 #include <sim_elf.h>
 #include <sim_hex.h>
 #include <sim_io.h>
+
+#include "simavr_plant.h"
 
 #define MAX_PINS 32
 #define MAX_SWITCHES 8
@@ -274,7 +277,9 @@ int main(int argc, char **argv)
         avr_irq_register_notify(irq, pin_notify, (void *)(uintptr_t)(i - first_pin));
     }
     for (int i = 6; i < first_pin; i++)
-        if (strncmp(argv[i], "switch=", 7) == 0 ? parse_switch(argv[i], n_pins) : link_option(argv[i]))
+        if (strncmp(argv[i], "switch=", 7) == 0   ? parse_switch(argv[i], n_pins)
+            : strncmp(argv[i], "plant=", 6) == 0 ? plant_setup(avr, argv[i] + 6)
+                                                  : link_option(argv[i]))
             return 3;
     for (int i = 0; i < n_endstops; i++)
         drive(&endstops[i]);
@@ -288,8 +293,10 @@ int main(int argc, char **argv)
     while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget) {
         state = avr_run(avr);
         follow_switches();
+        plant_follow(avr);
     }
 
+    plant_finish(avr);
     fclose(edges);
     const char *name = state == cpu_Done ? "done" : state == cpu_Crashed ? "crashed" : "budget";
     printf("state=%s cycles=%llu timer_start=%lld status=%u status1=%u status2=%u\n", name,

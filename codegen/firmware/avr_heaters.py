@@ -1,0 +1,145 @@
+"""The ATmega2560 heater runtime (templates/avr/heaters.c.j2, heaters.h.j2, heaters_hook.S.j2): what its
+templates need from FirmwareConfig.heaters.
+
+The runtime adds no interrupt: Timer3 counts the 0.1 s control period in CTC mode (its compare flag, polled),
+the ADC is started and polled, the heaters' MOSFETs are driven by hardware fast PWM (Timer2 OC2A, Timer4 OC4C at
+61 Hz). A period's work is cut into stages (read a thermistor; check a heater's temperature and protection; its
+control law in two halves). Before the table, main's loop runs them (and waits for the start sequence's M109 /
+M190 heaters). While the table plays, every register belongs to the step interrupt, so main's idle loop
+(player_isr.S) calls heaters_hook.S when a period is due or a stage pending; with interrupts off, the hook saves
+the registers C may change and runs stages one after another only while Timer1's next compare is at least
+SLICE_CYCLES away: no stage delays a step; the hook's check alone can (31 cycles at most).
+"""
+
+from __future__ import annotations
+
+import math
+
+from codegen.errors import BuildError
+from codegen.firmware import FirmwareConfig, HeaterFirmware
+from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid
+from codegen.heaters.protection import REASONS
+from codegen.heaters.settings import HeaterSettings
+from codegen.toolpath import Arc, Curve, Line, Lines, Output
+
+PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
+SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...
+SETTLE_PERIODS = 30  # ... for 3 s
+SLICE_CYCLES = 400  # a stage (274 measured: tests/test_avr_heaters.py) and the hook around it (77 counted)
+HOOK_SAVED = ("r20", "r21", "r22", "r23", "r24", "r25", "r26", "r27", "r30", "r31")  # call-used, the player's state
+HEATERS_FAULT_BIT = 7  # GPIOR0: the heaters stopped the machine (GPIOR1: 1 + the reason's index, GPIOR2: heater)
+HEATERS_BUSY_BIT = 6  # GPIOR0: a stage of the period is pending (the hook comes back for it)
+TABLE_LINE = 12  # table entries per line of heaters.c
+
+# Hardware PWM outputs of the ATmega2560 that the boards use for MOSFETs: the timer and its channel, each timer
+# in 8-bit fast PWM (TOP 0xFF, prescaler 1024: 61 Hz).
+PWM_CHANNELS = {
+    "PB4": {"timer": 2, "channel": "A"},  # D10: RAMPS hot end (E0)
+    "PH6": {"timer": 2, "channel": "B"},  # D9: RAMPS fan / second hot end
+    "PH5": {"timer": 4, "channel": "C"},  # D8: RAMPS bed
+    "PH4": {"timer": 4, "channel": "B"},  # D7
+    "PH3": {"timer": 4, "channel": "A"},  # D6
+}
+TIMER_SETUP = {
+    2: {"tccra": "_BV(WGM21) | _BV(WGM20)", "tccrb": "_BV(CS22) | _BV(CS21) | _BV(CS20)",
+        "what": "fast PWM, TOP 0xFF, prescaler 1024: 61 Hz"},
+    4: {"tccra": "_BV(WGM40)", "tccrb": "_BV(WGM42) | _BV(CS42) | _BV(CS40)",
+        "what": "fast PWM 8-bit (mode 5), TOP 0xFF, prescaler 1024: 61 Hz"},
+}
+FAN_PIN = "PH6"  # RAMPS D9: held off until the table format carries M106
+RAMPS_PINS = {"hotend": ("PB4", "PK5"), "bed": ("PH5", "PK6")}  # MOSFET and thermistor: D10 / T0 (A13), D8 / T1 (A14)
+
+
+def start_sequence(items) -> dict[str, dict]:
+    """What a program's heater outputs (codegen.toolpath.Output: M104 / M109 hot end, M140 / M190 bed) give the
+    firmware until the table format carries them: per heater, the target before the first move (the last one set
+    there wins; homing is the firmware's, before the table, so G28 is not a move), whether any of them waits (the
+    firmware waits for that target), and whether the program's last setting after that is 0 (the firmware turns
+    it off when the table has played). Heater settings between moves are not played yet."""
+    first = next((k for k, item in enumerate(items) if isinstance(item, (Line, Lines, Arc, Curve))), len(items))
+    out: dict[str, dict] = {}
+    for k, item in enumerate(items):
+        if not isinstance(item, Output) or item.name not in RAMPS_PINS:
+            continue
+        heater = out.setdefault(item.name, {"start_target_c": 0.0, "wait": False, "end_off": False})
+        if k < first:
+            heater["start_target_c"] = item.value
+            heater["wait"] = heater["wait"] or item.wait
+        else:
+            heater["end_off"] = item.value == 0
+    return out
+
+
+def heater_firmware(settings: HeaterSettings, start_target_c: float = 0.0, wait: bool = False,
+                    end_off: bool = False, pins: dict[str, tuple[str, str]] = RAMPS_PINS) -> HeaterFirmware:
+    """A job's heater (codegen.heaters.settings) as the firmware's config, on the board's pins."""
+    pwm_pin, sensor_pin = pins[settings.name]
+    return HeaterFirmware(settings.name, pwm_pin, sensor_pin, tuple(int(v) for v in settings.table()),
+                          settings.fixed_control(), settings.fixed_protection(), round(start_target_c * 10), wait,
+                          end_off)
+
+
+def adc_channel(pin) -> int:
+    """The ADC input of an analog pin: PF0..PF7 are ADC0..7, PK0..PK7 ADC8..15 (MUX5 in ADCSRB)."""
+    if pin.port not in "FK":
+        raise BuildError(f"{pin.name} is not an analog input of the ATmega2560 (PF0..PF7, PK0..PK7)")
+    return pin.bit + (8 if pin.port == "K" else 0)
+
+
+def _pwm(pin) -> dict:
+    if pin.name not in PWM_CHANNELS:
+        raise BuildError(f"{pin.name} has no hardware PWM the heater runtime drives ({', '.join(PWM_CHANNELS)})")
+    c = PWM_CHANNELS[pin.name]
+    t, ch = c["timer"], c["channel"]
+    return {**c, "pin": pin.__dict__, "ocr": f"OCR{t}{ch}", "tccra": f"TCCR{t}A", "com": f"COM{t}{ch}1"}
+
+
+def _control(h: HeaterFirmware) -> dict:
+    c = h.control
+    if isinstance(c, FixedPid):
+        return {"kind": "pid", "kp_q": c.kp_q, "ki_q": c.ki_q, "kd_q": c.kd_q, "shift": c.shift, "i_max": c.i_max,
+                "max_duty": c.max_duty, "hysteresis_dc": 0}
+    if isinstance(c, FixedBangBang):
+        return {"kind": "bang_bang", "kp_q": 0, "ki_q": 0, "kd_q": 0, "shift": 0, "i_max": 0,
+                "max_duty": c.max_duty, "hysteresis_dc": c.hysteresis_dc}
+    raise BuildError(f"heater {h.name}: unknown control {c!r}")
+
+
+def _table_lines(table: tuple[int, ...]) -> list[str]:
+    if len(table) != 1024 or not all(-32768 <= int(v) <= 32767 for v in table):
+        raise BuildError("a heater's ADC table must hold 1024 int16 deci-degrees")
+    return [", ".join(f"{int(v):6d}" for v in table[i:i + TABLE_LINE]) for i in range(0, 1024, TABLE_LINE)]
+
+
+def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
+    """heaters.c.j2's context (and the player's: `heaters`, the hook's SLICE_TICKS)."""
+    from codegen.firmware.avr import parse_pin  # avr.py imports this module
+
+    if not config.heaters:
+        return {"heaters": []}
+    heaters, timers, pins_used = [], {}, set()
+    for k, h in enumerate(config.heaters):
+        pwm, sensor = _pwm(parse_pin(h.pwm_pin)), parse_pin(h.sensor_pin)
+        for pin in (pwm["pin"]["name"], sensor.name):
+            if pin in pins_used:
+                raise BuildError(f"heater {h.name}: pin {pin} is used twice")
+            pins_used.add(pin)
+        timers.setdefault(pwm["timer"], TIMER_SETUP[pwm["timer"]])
+        p = h.protection
+        if not (0 <= p.adc_short < p.adc_open <= 1023 and p.min_temp_dc < p.max_temp_dc
+                and 0 <= h.start_target_dc <= p.max_temp_dc):
+            raise BuildError(f"heater {h.name}: inconsistent limits or start target")
+        heaters.append({
+            "index": k, "name": h.name, "pwm": pwm, "sensor": sensor.__dict__, "adc": adc_channel(sensor),
+            "table": _table_lines(h.table), "control": _control(h), "protection": p,
+            "start_target_dc": h.start_target_dc, "wait": h.wait, "end_off": h.end_off})
+    fan = _pwm(parse_pin(FAN_PIN))
+    period_ticks = round(PID_PERIOD_S * f_cpu / PERIOD_PRESCALE)
+    return {"heaters": heaters, "heater_timers": sorted(timers.items()),
+            "fan": fan if fan["pin"]["name"] not in pins_used else None,
+            "period_ticks": period_ticks, "period_prescale": PERIOD_PRESCALE,
+            "settle_window_dc": SETTLE_WINDOW_DC, "settle_periods": SETTLE_PERIODS,
+            "pid_range_dc": PID_FUNCTIONAL_RANGE_DC, "d_filter_shift": D_FILTER_SHIFT, "reasons": REASONS,
+            "slice_ticks": math.ceil(SLICE_CYCLES * tick_hz / f_cpu),
+            "slice_cycles": SLICE_CYCLES, "hook_saved": HOOK_SAVED, "fault_bit": HEATERS_FAULT_BIT,
+            "busy_bit": HEATERS_BUSY_BIT}
