@@ -5,7 +5,7 @@ the one before, within +-TOLERANCE clocks and the jitter of the instructions the
 for: main's and the serial interrupt's, at most LINK_JITTER machine cycles), streamed into the streaming firmware
 (templates/mcs51/link.c.j2) in the closed-loop simulation (codegen/sim/mcs51_link.py), and the line kept busy
 from START to the end by DATA frames out of sequence, of the host's payload for the ring (codegen/link/ring.py:
-31 bytes for a 255-byte ring, 16 for 63): the serial interrupt takes every byte (CRC, state) and answers each
+31 bytes for a 255-byte ring, 8 for 63): the serial interrupt takes every byte (CRC, state) and answers each
 frame with an ACK (9 bytes). The whole table goes into the ring before START where the ring holds it (the cases
 are cut to fit: 30 run loads, 6 blocks; a 63-byte ring holds 3 to 7 run loads); 6 blocks that it does not hold
 stream as they play, the host's own session (codegen/link/host.py) between the filler frames. A case counts only

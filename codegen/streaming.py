@@ -66,8 +66,10 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
         step_pulse_us=job.machine.step_pulse_us, dir_setup_us=job.machine.dir_setup_us,
         homing=homing_axes(job, kin, target.tick_hz) if stream_homes(job) else (),
         baud=int(baud or job.machine.link.baud or 0))
-    layout = stream_module(target.target).ring_layout(config)
-    budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors))
+    module = stream_module(target.target)
+    layout = module.ring_layout(config)
+    budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),
+                         window_updates=getattr(module, "WINDOW_UPDATES", False))  # else the host pings for room
     return StreamSetup(config, target, layout, budget,
                        protocol.firmware_identity(config, target.f_cpu, target.tick_hz))
 

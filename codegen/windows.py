@@ -26,7 +26,7 @@ from codegen.checks import Checker, MotorTrain, corner_jumps
 from codegen.compress import Compressed, compress
 from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
-from codegen.link.ring import LinkBudget, Ring
+from codegen.link.ring import LinkBudget, Ring, Shortfall
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
 from codegen.segments import Segments, concat
@@ -37,6 +37,7 @@ from codegen.targets import TargetInfo
 from codegen.twin import Pulses, predict
 
 RATE_ROUNDS = 8  # plans of a window at most: a stretch over a motor's rate or acceleration slows it
+LINK_ROUNDS = 16  # and where the ring runs short: slowing one stretch may move a shortfall on to the next
 RETRY_SHARE = 0.95  # of the rate and acceleration those segments (and their neighbours) then aim at
 
 
@@ -125,19 +126,21 @@ class Stages:
             window, before = merge(self.open[0].window, window), self.open[1]
             self.open = None
             played, carried, scale = self._attempt(window, after, last, before)
-        w_exit = None
-        for _ in range(RATE_ROUNDS - 1):
-            if scale is None:
-                break
+        w_exit, rounds = None, 0
+        while scale is not None and rounds < (RATE_ROUNDS if scale[2] is None else LINK_ROUNDS) - 1:
+            rounds += 1
             was = window.plan.total
             window, w_exit = self._plan_again(window, *scale[:2])
-            if scale[2]:
+            if scale[2] is not None:
                 self.totals.link_slowdown_s += window.plan.total - was
             played, carried, scale = self._attempt(window, after, last, before)
-        if scale is not None and scale[2]:
-            raise BuildError(f"the link at {carried.ring.budget.baud} baud cannot keep the ring fed between "
-                             f"{window.plan.t_start[0]:.3f} and {window.plan.total:.3f} s into the job, even "
-                             f"slowed {RATE_ROUNDS - 1} times: a faster link, or a larger machine.tolerance")
+        if scale is not None and scale[2] is not None:
+            budget, short = carried.ring.budget, scale[2]
+            raise BuildError(f"the link at {budget.baud} baud cannot keep the streaming player's ring of "
+                             f"{budget.ring_bytes} bytes (the host keeps {budget.usable} of them filled) fed between "
+                             f"{short.begin_s:.3f} and {short.end_s:.3f} s into the job, even slowed "
+                             f"{rounds} times: a board with a larger ring (XRAM), a faster link "
+                             f"(machine.link.baud), or a larger machine.tolerance")
         if w_exit is not None:
             self.lookahead.resume(w_exit, window.plan.total)
         if self.open is not None:
@@ -158,7 +161,8 @@ class Stages:
 
     def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
         """Play the window from what came before: its results, what it hands on, and how to slow it down where
-        the checks found a motor over its limits (None: nowhere)."""
+        the checks found a motor over its limits or the ring runs short: each segment's share of its speed and
+        of its acceleration, and the ring's first Shortfall (None for a motor's limits); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
         with watch("step times"):
             events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
@@ -192,29 +196,33 @@ class Stages:
             with watch("link"):
                 reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
                                                            target.tick_hz)
-                short = ring.add(reads, sizes)
-            if scale is None and short is not None:
+                shortfalls = ring.add(reads, sizes)
+            if scale is None and shortfalls:
                 record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
-                return played, carried, self._link_slow_down(window.plan, short, record_segment, sizes,
-                                                             ring.budget.rate)
-        return played, carried, None if scale is None else (*scale, False)
+                return played, carried, (*self._link_slow_down(window.plan, shortfalls, record_segment, sizes,
+                                                               ring.budget.rate), shortfalls[0])
+        return played, carried, None if scale is None else (*scale, None)
 
     @staticmethod
-    def _link_slow_down(plan, short, record_segment: np.ndarray, sizes: np.ndarray, rate: float):
-        """From a stretch that drains the ring on, the segments whose records are denser than the link carries,
-        each slowed to the link's bytes a second (the ring absorbs no burst there any more: one round suffices
-        where slowing the stretch alone would move the shortfall on, one stretch a round)."""
+    def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,
+                        rate: float) -> tuple[np.ndarray, np.ndarray]:
+        """From the first stretch that drains the ring on, the segments whose records are denser than the link
+        carries, each slowed to the link's bytes a second (the ring absorbs no burst there any more: one round
+        suffices where slowing the stretches alone would move each shortfall on); and the segments of each
+        stretch, in acceleration, by the time it lacks: records come densest where a motor speeds up from rest (a
+        block and a run at once, then short runs), which a lower top speed leaves as it was."""
         n = len(plan.duration)
-        span = slice(short.first, None)
+        span = slice(shortfalls[0].first, None)
         need = np.bincount(record_segment[span], weights=sizes[span], minlength=n)
-        speed = np.ones(n)
+        speed, accel = np.ones(n), np.ones(n)
         dense = need * 1.0 > plan.duration * rate * RETRY_SHARE
         speed[dense] = plan.duration[dense] * rate * RETRY_SHARE / need[dense]
-        if not dense.any():  # a stretch of segments each within the rate: slow it as a whole
-            first, last = record_segment[short.first], record_segment[short.last]
+        for short in shortfalls:
             seconds = short.end_s - short.begin_s
-            speed[first:last + 1] = RETRY_SHARE * seconds / (seconds + short.extra_s) if seconds > 0 else RETRY_SHARE
-        return speed, np.ones(n), True
+            share = RETRY_SHARE * seconds / (seconds + short.extra_s) if seconds > 0 else RETRY_SHARE
+            stretch = slice(record_segment[short.first], record_segment[short.last] + 1)
+            accel[stretch] = np.minimum(accel[stretch], share ** 2)  # from rest, a distance takes 1 / sqrt(accel)
+        return speed, accel
 
     def _corners(self, window: Window, last: Segments | None) -> tuple[np.ndarray, np.ndarray]:
         """The window's corners (`corner_jumps`), the one where it meets the window before (whose last segment

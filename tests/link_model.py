@@ -1,8 +1,10 @@
 """A model of a streaming firmware's link side, byte by byte as the MCU parses it (codegen/link/protocol.py), and a
 line between it and the host with byte times: to test the host's protocol code fast, without a simulator.
 
-The model's player takes `rate` ring bytes per second once started (a record at a time: it needs
-max_record_bytes in the ring before each), until it has taken `total` bytes.
+The model's player takes `rate` ring bytes per second once started, or records at the times `read_at` gives (a
+record at a time: it needs max_record_bytes in the ring before each), until it has taken `total` bytes. With
+`window_update` (a DATA payload), the model sends window updates as the 8051 firmware does: an ACK unasked once
+the player has made room for a frame after an ACK that reported less.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ class FirmwareModel:
     identity: int
     motors: int
     ring_bytes: int
-    rate: float  # bytes/s the player consumes while playing
+    rate: float  # bytes/s the player consumes while playing (unless read_at says when)
     total: int  # stream bytes the job has (the tail padding included)
     received: bytearray = field(default_factory=bytearray)  # the stream as committed
     fill: int = 0
@@ -29,11 +31,16 @@ class FirmwareModel:
     played: float = 0.0
     min_fill: int | None = None
     out: bytearray = field(default_factory=bytearray)
+    window_update: int = 0  # the host's DATA payload: the room that owes it an ACK unasked (0: no window updates)
+    window_updates: int = 0  # ACKs sent unasked
+    read_at: tuple[float, ...] = ()  # when the player reads each record, s after START
 
     def __post_init__(self):
         self._hunt = True
         self._frame = bytearray()
-        self._owed = 0.0  # bytes the player is due but has not taken (it takes whole bytes)
+        self._clock = 0.0  # s since START
+        self._records = 0  # records read
+        self._reported_free = self.ring_bytes  # what the last ACK said
 
     def feed(self, byte: int) -> None:
         """One received byte, as the receive interrupt handles it."""
@@ -75,7 +82,7 @@ class FirmwareModel:
                 self.state = "playing"
                 self._reply(p.STARTED, b"", ack_first=True)
                 return
-        self._reply(p.ACK, struct.pack("<HB", self.ring_bytes - self.fill, rejected))
+        self._ack(rejected)
         if kind == p.HELLO:
             self._reply(p.IDENT, p.Ident(p.VERSION, self.identity, self.ring_bytes, self.motors).payload())
         elif kind == p.ABORT and self.state == "aborted":
@@ -85,21 +92,25 @@ class FirmwareModel:
 
     def _reply(self, kind: int, payload: bytes, ack_first: bool = False) -> None:
         if ack_first:
-            self._reply(p.ACK, struct.pack("<HB", self.ring_bytes - self.fill, 0))
+            self._ack(0)
         self.out += p.frame(kind, self.expected, payload)
+
+    def _ack(self, flags: int) -> None:
+        self._reported_free = self.ring_bytes - self.fill
+        self.out += p.frame(p.ACK, self.expected, struct.pack("<HB", self._reported_free, flags))
 
     def _positions(self) -> bytes:
         return struct.pack(f"<{self.motors}i", *([int(self.played)] * self.motors))
 
     def advance(self, dt: float) -> None:
-        """The player takes records of RECORD bytes for dt seconds, each when `rate` says, and needs
+        """The player takes records of RECORD bytes for dt seconds, each when `rate` or `read_at` says, and needs
         max_record_bytes in the ring before each (fewer, short of the stream's end, is an underrun)."""
         if self.state != "playing":
             return
-        self._owed += self.rate * dt
+        self._clock += dt
         need = p.max_record_bytes(self.motors)
-        while self._owed >= RECORD and self.state == "playing":
-            self._owed -= RECORD
+        while self._due() and self.state == "playing":
+            self._records += 1
             left = self.total - self.played
             if self.played + self.fill < self.total:  # the stream's tail may be all the ring holds
                 self.min_fill = self.fill if self.min_fill is None else min(self.min_fill, self.fill)
@@ -110,9 +121,18 @@ class FirmwareModel:
             take = min(RECORD, left)
             self.played += take
             self.fill -= take
+            if self._reported_free < self.window_update <= self.ring_bytes - self.fill:
+                self.window_updates += 1
+                self._ack(0)
             if self.played >= self.total:
                 self.state = "finished"
                 self.out += p.frame(p.FINISHED, self.expected, self._positions())
+
+    def _due(self) -> bool:
+        """The next record's time has come: read_at's, else RECORD bytes' worth of `rate` after the one before."""
+        if self.read_at:
+            return self._records < len(self.read_at) and self.read_at[self._records] <= self._clock
+        return self.rate * self._clock >= (self._records + 1) * RECORD
 
 
 def run_session(host, model: FirmwareModel, byte_s: float, limit_s: float = 60.0, step_s: float = 1e-3) -> float:

@@ -1,16 +1,19 @@
 """The link protocol's frames and the host's session (codegen/link/), against a byte-level model of the firmware's
-receive side (tests/link_model.py): handshake, credits, retransmission after each kind of line fault."""
+receive side (tests/link_model.py): handshake, credits, retransmission after each kind of line fault, window
+updates."""
 
 from __future__ import annotations
 
 import struct
 
+import numpy as np
 import pytest
 
 from codegen.link import protocol as p
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
-from tests.link_model import FirmwareModel, run_session
+from codegen.link.ring import Ring, link_budget
+from tests.link_model import RECORD, FirmwareModel, run_session
 
 BYTE_S = 10 / 250000
 IDENTITY = 0x1234ABCD
@@ -180,6 +183,42 @@ def test_pings_leave_a_slow_line_mostly_free():
     host = HostLink([data], 3, IDENTITY, byte_s, 256, ack_timeout_s=0.2)
     model = FirmwareModel(IDENTITY, 3, 256, 20.0, len(data))
     run_session(host, model, byte_s, limit_s=5.0, step_s=1e-3)
-    data_frames = -(-256 // host.payload) + (5.0 * 20.0) // host.payload + 3  # prefill, what 5 s play, START
-    pings = host.stats.frames - data_frames
-    assert 0 < pings <= 5.0 / (48 * byte_s) + 1
+    assert 0 < host.stats.pings <= 5.0 / (48 * byte_s) + 1
+
+
+def bursts(idle_s: float, records: int, spacing_s: float, cycles: int) -> np.ndarray:
+    """When the player reads each record (s after START): the first at once, then `cycles` times `idle_s` of
+    nothing and `records` records `spacing_s` apart."""
+    cycle = idle_s + records * spacing_s
+    return np.concatenate([[0.0]] + [c * cycle + idle_s + np.arange(records) * spacing_s for c in range(cycles)])
+
+
+@pytest.mark.parametrize("updates", [True, False], ids=["window updates", "pings only"])
+def test_window_updates_keep_a_small_ring_fed_as_the_plan_counts(updates):
+    """9600 baud into the at89c52's ring of 63 bytes, in 8-byte frames: bursts of 10 records 6 ms apart (1 kB/s,
+    twice what the link carries), each after 100 ms in which the ring fills and the host, blocked on credit, has
+    nothing in flight. The plan, counting on window updates (the refill starts an ACK and a frame after the player
+    makes room), finds the ring just holds them: its lowest fill is `need`. The firmware model that sends them
+    stays above that without a ping; without them the host hears of the room only from its ping, up to 50 ms on,
+    and the ring runs dry in the first burst (as the plan without window updates would have said: it keeps no
+    more than `need` bytes for the player, and slows every burst)."""
+    byte_s = 10 / 9600
+    times = bursts(0.1, 10, 0.006, 10)
+    sizes = np.full(len(times), RECORD)
+    data = stream(int(sizes.sum()))
+    budget = link_budget(9600, 63, 3, window_updates=True)
+    ring = Ring(budget)
+    assert ring.add(times, sizes) == []
+    prefill, low = ring.result(len(data))
+    assert (budget.usable, budget.need, prefill, low) == (41, 15, 31, 15)
+    without = link_budget(9600, 63, 3)
+    assert without.usable == without.need and len(Ring(without).add(times, sizes)) == 50
+    host = HostLink([data], 3, IDENTITY, byte_s, prefill, payload=budget.payload, ack_timeout_s=0.2)
+    model = FirmwareModel(IDENTITY, 3, 63, 0.0, len(data), window_update=budget.payload if updates else 0,
+                          read_at=tuple(times))
+    run_session(host, model, byte_s, step_s=1e-4)
+    if updates:
+        assert (host.outcome, host.stats.pings, model.window_updates, model.min_fill) == ("finished", 0, 10, 20)
+        assert bytes(model.received) == data
+    else:
+        assert (host.outcome, host.stats.pings, model.window_updates, model.min_fill) == ("underrun", 1, 0, 10)

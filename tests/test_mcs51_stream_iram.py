@@ -34,7 +34,7 @@ pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s5
 
 ROOT = Path(__file__).resolve().parent.parent
 RING_WHERE = "internal RAM 0xC0-0xFF (MOV @Ri), the variables and the stack below it"
-PREFILL = 48  # three DATA frames of 16 bytes: what the 63-byte ring takes before START
+PREFILL = 48  # six DATA frames of 8 bytes before START, of the 63 the ring takes
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +53,8 @@ def slow_schedule(events=100, seed=7):
 
 
 def host_for(schedule, cfg):
-    """The host's session in the DATA frames the link plan takes for the ring (codegen/link/ring.py: 16 bytes),
-    three of them before START."""
+    """The host's session in the DATA frames the link plan takes for the ring (codegen/link/ring.py: 8 bytes),
+    six of them before START."""
     data = stream_of(schedule)
     budget = link_budget(BAUD, ring_layout(cfg).ring_bytes, len(cfg.motors))
     return HostLink([data], len(cfg.motors), protocol.firmware_identity(cfg, F_CPU, TICK_HZ), 10 / BAUD,
@@ -103,6 +103,53 @@ def test_a_host_pause_longer_than_the_ring_lasts_ends_in_underrun(at89):
     assert figures.lost_bytes == 0
 
 
+def test_window_updates_spare_the_host_its_pings(at89, tmp_path):
+    """The player takes 6 bytes every 20-25 ms, half what the link carries: the ring fills and the host, blocked on
+    credit, waits. main's window update (an ACK unasked once the player has made room for a DATA frame) brings the
+    next frame before the host's ping would: no ping, 25 ACKs beyond one per frame. The same firmware without
+    them leaves the host pinging every 50 ms for its credit."""
+    image, cfg = at89
+    sources = render_stream_sources(cfg)
+    assert sources["link.c"].count("    window_update();\n") == 1
+    sources["link.c"] = sources["link.c"].replace("    window_update();\n", "")
+    without = build_stream_image(sources, tmp_path)
+    sched = slow_schedule()
+    counts = []
+    for hex_path in (image.hex_path, without.hex_path):
+        link = host_for(sched, cfg)
+        parser, acks, receive = protocol.Parser(protocol.MAX_ANSWER), [0], link.receive
+
+        def counted(data, now, parser=parser, acks=acks, receive=receive):
+            acks[0] += sum(f.kind == protocol.ACK for f in parser.feed(data))
+            receive(data, now)
+
+        link.receive = counted
+        trace, figures = simulate_stream(hex_path, cfg, link, BUDGET)
+        assert link.outcome == "finished", link.message
+        check_pulses(sched, trace)
+        assert figures.lost_bytes == 0 and figures.underruns == 0
+        counts.append((link.stats.pings, acks[0] - link.stats.frames))
+    assert counts == [(0, 25), (12, 0)]
+
+
+def test_the_plotter_set_streams_into_internal_ram(tmp_path, capsys):
+    """`verify --stream` of the plotter set on the at89c52 at 9600 baud: the plan counts on what the host keeps in
+    the 63-byte ring with window updates (41 bytes), slows the stretches whose records come faster than the ring
+    can take them (starts from rest), and the simulated ring never falls below the plan's lowest fill."""
+    code = main(["verify", "--stream", str(ROOT / "examples" / "plotter-set-51.yaml"), "--json", "--out",
+                 str(tmp_path)])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 0 and result["pass"] is True and result["problems"] == [], result["problems"]
+    link = result["link"]
+    assert link["baud"] == 9600 and link["prefill_bytes"] == 41
+    assert link["retransmits"] == 0 and link["underruns"] == 0 and link["lost_bytes"] == 0
+    assert link["min_ring_fill_bytes"] >= link["planned_min_ring_fill_bytes"] >= protocol.max_record_bytes(2)
+    assert link["link_slowdown_s"] > 0
+    for name, motor in result["motors"].items():
+        assert motor["final"] == motor["expected_final"], name
+    assert abs(result["duration_s"] - result["planned_duration_s"]) < 1e-3
+
+
 def test_the_build_report_says_where_the_ring_is(tmp_path):
     """`build --stream` of the plotter set (board at89c52): the ring's 64 bytes at the top of internal RAM, the
     variables where iram_need counts them, at least STACK_RESERVE bytes of stack between them and the ring."""
@@ -110,7 +157,7 @@ def test_the_build_report_says_where_the_ring_is(tmp_path):
     assert main(["build", "--stream", str(ROOT / "examples" / "plotter-set-51.yaml"), "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["link"]["ring_bytes"] == 63 and report["link"]["ring_where"] == RING_WHERE
-    assert report["link"]["payload_bytes"] == 16
+    assert report["link"]["payload_bytes"] == 8
     sections = report["image"]["sections"]
     cfg = config("at89c52", motors=("x", "y"))
     assert sections["ring_bytes"] == 64 and sections["xram_used"] == 0
@@ -136,7 +183,7 @@ def test_too_little_internal_ram_for_the_ring_or_the_stack_is_refused(tmp_path, 
     axes = tuple(HomingAxis((m,), (1,), key, 1, 2000, 1000, 3000, 50) for m, key in enumerate(("x_max", "y_max",
                                                                                                 "z_max")))
     message = ("board at89c52 has no XRAM, and its internal RAM leaves too little for the streaming player's ring "
-               "buffer: the ring must hold 59 bytes (two DATA frames of 16 bytes + 6 of overhead each, and the "
+               "buffer: the ring must hold 43 bytes (two DATA frames of 8 bytes + 6 of overhead each, and the "
                "longest record of 3 motors: 15); the largest ring of 128, 64, 32 bytes that fits holds 31 (50 of "
                "the 256 bytes are free after the variables' 186 and a stack of 20); use fewer motors or homed axes, "
                "or a board with XRAM")

@@ -26,10 +26,11 @@ from codegen.firmware import FirmwareConfig, Image
 from codegen.firmware.mcs51 import board_data, memories, player_context, render_player
 from codegen.firmware.mcs51_sdcc import BuildPlan, build_image
 from codegen.link import protocol
+from codegen.link.ring import MIN_PAYLOAD, link_budget
 
 PAGE_BYTES = 256  # MOVX @Ri reaches one page; its indexes wrap at 256
 RING_BYTES = PAGE_BYTES - 1  # a full ring and an empty one must differ
-MIN_PAYLOAD = 16  # bytes: the smallest DATA payload the host sends (codegen/link/ring.py link_budget)
+WINDOW_UPDATES = True  # main ACKs unasked once the ring has room for a DATA frame again (link.c.j2: window_update)
 IRAM_RING_SIZES = (128, 64, 32)  # bytes: a power of two at the top of internal RAM, so index | base addresses it
 # Where the streaming firmware's variables end in internal RAM, and SDCC starts the stack (below a ring there):
 # under 0x20 the register banks 0-2 and the overlay; from 0x20 the bit variables, then data and idata (a port:
@@ -176,6 +177,7 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         link={"version": protocol.VERSION, "baud": layout.baud, "baud_error_pct": layout.baud_error_pct,
               "reload": layout.reload, "actual_baud": layout.actual_baud, "sync": protocol.SYNC,
               "max_payload": protocol.MAX_PAYLOAD, "types": types, "rejected": protocol.REJECTED, "states": states,
+              "payload": link_budget(layout.baud, layout.ring_bytes, len(config.motors)).payload,
               "ident": list(ident), "max_answer": max(len(ident), STATUS_HEAD + 4 * len(config.motors))})
     return render_player(context, lcd, config, ("config.h", "link.h", "link.c"))
 

@@ -17,7 +17,10 @@ ABORTED or HOMING_FAILED. Every frame stays in flight until an ACK counts past i
 no ACK within `ack_timeout_s` of a frame's last byte, sends every frame in flight again from the first the
 firmware lacks (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame)
 every `ping_s`, and never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow
-line), for a fresh ACK. Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
+line), for a fresh ACK; a firmware that sends window updates (an ACK unasked once its ring has room for a DATA
+frame again, after an ACK that said it had not: the 8051's) leaves the pings a fallback. `refill_byte_times` says
+how late the host starts to refill a ring that was full, either way (the plan counts on it: codegen/link/ring.py).
+Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
 """
 
 from __future__ import annotations
@@ -31,9 +34,20 @@ from codegen.link import protocol as p
 HELLO_TRIES = 5  # at the least, before giving up
 MAX_IN_FLIGHT = 100  # frames: far below the 256 sequence numbers
 ANSWER_BYTES = 12  # an ACK's bytes on the line, and a few byte times for the firmware to answer
+PING_S = 0.01  # between pings, blocked on credit (HostLink.ping_s)
 PING_BYTES = 48  # byte times between pings at the least: a ping and its ACK take under a third of the line
 MIN_WINDOW_FRAMES = 2  # frames on the line unacknowledged at the least, whatever window_s says
 TIME_SLACK_S = 1e-9
+
+
+def refill_byte_times(payload: int, baud: int, window_updates: bool) -> float:
+    """Byte times from when the ring has room for a DATA frame again, the host blocked on credit, to when that
+    frame's last byte is in the ring: the firmware's ACK and its time to answer (ANSWER_BYTES), then the frame;
+    without window updates the ACK answers the host's next ping, up to a ping interval and the ping later."""
+    frame = p.OVERHEAD_BYTES + payload
+    if window_updates:
+        return ANSWER_BYTES + frame
+    return max(PING_S * baud / 10, PING_BYTES) + p.OVERHEAD_BYTES + ANSWER_BYTES + frame
 
 
 @dataclass
@@ -41,6 +55,7 @@ class LinkStats:
     bytes: int = 0  # sent on the line, every frame and retransmission included
     frames: int = 0
     retransmits: int = 0  # frames sent again
+    pings: int = 0  # empty DATA frames, sent blocked on credit for a fresh ACK
     data_bytes: int = 0  # table stream bytes (with the tail padding) acknowledged by the firmware
     bad_frames: int = 0  # firmware frames whose CRC failed
 
@@ -63,7 +78,7 @@ class HostLink:
     payload: int = 64  # DATA bytes per frame
     ack_timeout_s: float = 0.05  # after a frame's last byte
     answer_within_s: float = 0.0  # HELLOs go on this long at the least (a board that resets when its port opens)
-    ping_s: float = 0.01
+    ping_s: float = PING_S
     window_s: float = 0.02  # seconds of line bytes that may be unacknowledged: more than a round trip
     latency_s: float = 0.0  # the line's answer delay beyond its byte times (a USB serial adapter: milliseconds)
     stream_bytes: int | None = None  # the stream's length, when known (for `in_tail`)
@@ -183,9 +198,11 @@ class HostLink:
             chunk = bytes(self._pending[:size])
             del self._pending[:size]
             self._streamed += size
+            self._ping_due = None  # credit came (a window update, an ACK of another frame): no ping is due
             out += self._send(p.DATA, chunk, now)
         if self._ping_due is not None and now >= self._ping_due - TIME_SLACK_S and not self._flight:
             self._ping_due = None
+            self.stats.pings += 1
             out += self._send(p.DATA, b"", now)
         return bytes(out)
 

@@ -20,7 +20,8 @@ to the one it expects next, which it then counts on. HELLO and ABORT are taken w
 Firmware to host; SEQ is the host sequence number the firmware expects next (every frame acknowledges).
     ACK       0x81  free u16 (ring bytes free after every frame it took), flags u8 (bit 0 REJECTED: the frame
                     was out of sequence or larger than the free space, and was dropped). Sent for every frame
-                    whose CRC is good, before any other answer to it.
+                    whose CRC is good, before any other answer to it; and by the 8051 unasked (a window update,
+                    flags 0) once its ring has room for a DATA frame after an ACK that said it had not.
     IDENT     0x82  version u8, identity u32, ring bytes u16, motors u8: the answer to HELLO
     STARTED   0x83  the first record is about to play (after homing)
     FINISHED  0x84  position i32 per motor (net steps since START, after homing): the end marker has played

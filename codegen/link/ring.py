@@ -6,13 +6,13 @@ records), and needs `need` bytes (protocol.max_record_bytes) in the ring before 
 the frames' overhead, with a margin) whenever the ring has room. With C(t) the bytes taken before t, what has
 arrived by t is
 
-    D(t) = min(prefill + rate t,  min over s <= t of  C(s) + ring + rate (t - s))
+    D(t) = min(prefill + rate t,  min over s <= t of  C(s) + usable + rate (t - s))
 
-(the second term: the ring was full at s, then refilled at the link's rate), and the fill when record i is
-read at t_i is D(t_i) - C(t_i). Both minima run over the records in order, so the fill is known window by
-window in constant memory: `Ring.add` takes a window's records and says where the fill would fall short even
-with the ring full at the start (`Shortfall`: slow that stretch down); `Ring.result` gives the smallest
-prefill that feeds every record and the lowest fill it leaves.
+(the second term: the ring was as full as the host keeps it at s, `LinkBudget.usable`, then refilled at the
+link's rate), and the fill when record i is read at t_i is D(t_i) - C(t_i). Both minima run over the records in
+order, so the fill is known window by window in constant memory: `Ring.add` takes a window's records and says
+where the fill would fall short even with the ring full at the start (`Shortfall`: slow that stretch down);
+`Ring.result` gives the smallest prefill that feeds every record and the lowest fill it leaves.
 
 The lowest fill counts the records before the last ring's worth of the stream (the fill must fall at the end,
 when nothing more is to come); a job whose stream fits the ring has none.
@@ -26,11 +26,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from codegen.link import protocol
+from codegen.link.host import refill_byte_times
 from codegen.tables import end_marker
 
 RATE_MARGIN = 0.97  # of the link's stream bytes per second the plan counts on
 PAYLOAD_SHARE = 8  # DATA frames carry at most an eighth of the ring
 PREFILL_MARGIN = 2  # frames sent before START beyond what the plan needs
+MIN_PAYLOAD = 8  # DATA bytes a frame carries at the least (a 64-byte ring: an eighth)
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,7 @@ class LinkBudget:
     ring_bytes: int  # the firmware's ring
     need: int  # bytes the player needs in the ring before it reads a record
     payload: int  # DATA bytes per frame
+    window_updates: bool = False  # the firmware ACKs unasked once its ring has room for a frame again
 
     @property
     def rate(self) -> float:
@@ -46,14 +49,25 @@ class LinkBudget:
         return self.baud / 10 * self.payload / (self.payload + protocol.OVERHEAD_BYTES) * RATE_MARGIN
 
     @property
+    def refill_latency_s(self) -> float:
+        """From when a ring the host had filled has room for a frame again to when that frame is in it."""
+        return refill_byte_times(self.payload, self.baud, self.window_updates) * 10 / self.baud
+
+    @property
     def usable(self) -> int:
-        """Ring bytes the host can count on filling: the credit of an ACK is a frame and a round trip late."""
-        return max(self.ring_bytes - 2 * self.payload - 4 * protocol.OVERHEAD_BYTES, self.need)
+        """Ring bytes the host can count on keeping filled: the ring, less a frame that does not fit (the host
+        sends whole frames, so it stops up to payload - 1 short of full), less what the link would have carried
+        while the host, blocked on credit, waits to hear that a frame fits again (refill_latency_s): the player
+        may take that much before the refill starts."""
+        room = self.ring_bytes - (self.payload - 1) - self.rate * self.refill_latency_s
+        return max(math.floor(room), self.need)
 
 
-def link_budget(baud: int, ring_bytes: int, motors: int) -> LinkBudget:
-    payload = max(16, min(128, ring_bytes // PAYLOAD_SHARE))
-    return LinkBudget(baud, ring_bytes, protocol.max_record_bytes(motors), payload)
+def link_budget(baud: int, ring_bytes: int, motors: int, window_updates: bool = False) -> LinkBudget:
+    """`window_updates`: the firmware tells the host unasked when its ring has room for a frame again (else the
+    host learns it by pinging)."""
+    payload = max(MIN_PAYLOAD, min(128, ring_bytes // PAYLOAD_SHARE))
+    return LinkBudget(baud, ring_bytes, protocol.max_record_bytes(motors), payload, window_updates)
 
 
 @dataclass(frozen=True)
@@ -75,38 +89,64 @@ class Ring:
     start_low: float = math.inf  # min over records so far of rate t - C (prefill aside)
     low_full: float = math.inf  # min over records so far of the fill with the ring full at some record
     windows: list[tuple[int, float, float]] = field(default_factory=list)  # (C at the end, start_low, low_full)
+    last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # the last window's C, start_low, low_full by record
 
     def copy(self) -> "Ring":
         return replace(self, windows=list(self.windows))
 
-    def add(self, times: np.ndarray, sizes: np.ndarray) -> Shortfall | None:
-        """A window's records: when each is read (s, on the program's clock) and its bytes. Nothing is kept
-        when the window falls short (it is planned again and added once more)."""
+    def add(self, times: np.ndarray, sizes: np.ndarray) -> list[Shortfall]:
+        """A window's records: when each is read (s, on the program's clock) and its bytes; the stretches where
+        the ring would run short (none: the window is fed). Nothing is kept when the window falls short (it is
+        planned again and added once more)."""
         if len(times) == 0:
-            return None
+            return []
         b = self.budget
         before = self.taken + np.concatenate([[0], np.cumsum(sizes[:-1])])  # C just before each record
         full = np.minimum.accumulate(np.minimum(before + b.usable - b.rate * times, self.full_low))
         start = b.rate * times - before
         fill_full = np.minimum(full, b.usable) + start  # the fill, with the ring full before the first record
-        short = np.flatnonzero(fill_full < b.need)
-        if len(short):
-            i = int(short[0])
-            k = int(np.argmin(before[:i + 1] + b.usable - b.rate * times[:i + 1]))
-            return Shortfall(k, i, float(times[k]), float(times[i]), float(b.need - fill_full[i]) / b.rate)
+        if np.any(fill_full < b.need):
+            return self._shortfalls(times, before, fill_full)
         self.full_low = float(full[-1])
-        self.start_low = min(self.start_low, float(start.min()))
-        self.low_full = min(self.low_full, float((full + start).min()))
+        start_lows = np.minimum.accumulate(np.minimum(start, self.start_low))
+        full_lows = np.minimum.accumulate(np.minimum(full + start, self.low_full))
+        self.last = (before, start_lows, full_lows)
+        self.start_low, self.low_full = float(start_lows[-1]), float(full_lows[-1])
         self.taken = int(before[-1] + sizes[-1])
         self.windows.append((self.taken, self.start_low, self.low_full))
-        return None
+        return []
+
+    def _shortfalls(self, times: np.ndarray, before: np.ndarray, fill: np.ndarray) -> list[Shortfall]:
+        """Each stretch that drains the ring below `need`, the first from `fill`, each next one with the ring
+        full again after the one before (as if that one were slowed enough): the plan slows them all at once."""
+        b = self.budget
+        stretches: list[Shortfall] = []
+        lo = 0
+        while lo < len(times):
+            short = np.flatnonzero(fill < b.need)
+            if not len(short):
+                break
+            i = lo + int(short[0])
+            k = lo + int(np.argmin(before[lo:i + 1] - b.rate * times[lo:i + 1]))  # where the ring was last full
+            stretches.append(Shortfall(k, i, float(times[k]), float(times[i]),
+                                       float(b.need - fill[short[0]]) / b.rate))
+            lo = i + 1
+            level = before[lo:] - b.rate * times[lo:]
+            fill = b.usable - (level - np.minimum.accumulate(level))
+        return stretches
 
     def result(self, stream_bytes: int) -> tuple[int, int | None]:
         """(prefill bytes, lowest fill while more than a ring's worth of the stream was still to come)."""
         b = self.budget
         prefill = b.need if math.isinf(self.start_low) else int(math.ceil(b.need - self.start_low))
         prefill = min(prefill + PREFILL_MARGIN * b.payload, b.usable, stream_bytes)  # margin: a late host
-        counted = [(s, f) for taken, s, f in self.windows if taken <= stream_bytes - b.ring_bytes]
+        end = stream_bytes - b.ring_bytes  # records read after the player has taken this many: the ring's drain
+        counted = [(s, f) for taken, s, f in self.windows if taken <= end]
+        if self.last is not None:  # the end falls in the last window: its records before it count too
+            before, start_lows, full_lows = self.last
+            i = int(np.searchsorted(before, end, side="right")) - 1
+            if i >= 0:
+                counted.append((float(start_lows[i]), float(full_lows[i])))
         if not counted:
             return prefill, None
         start_low, low_full = counted[-1]
