@@ -11,13 +11,14 @@ import os
 import sys
 from pathlib import Path
 
-from codegen import __version__, cli_stream
-from codegen.errors import BuildError, JobError, render_all
+from codegen import __version__, cli_stream, cli_tune
+from codegen.errors import BuildError, Diagnostic, JobError, SourceRef, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build
 from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
+from codegen.verify_heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -47,7 +48,8 @@ def _fingerprint(sources: dict[str, str]) -> str:
 def _image_from_report(out_dir: Path, data: dict) -> Image:
     elf = out_dir / data["elf"] if data.get("elf") else None
     return Image(out_dir / data["hex"], elf, data["flash_bytes"], data["ram_bytes"], data["table_bytes"],
-                 data["flash_capacity"], data["ram_capacity"], dict(data["sections"]), dict(data["flash_parts"]))
+                 data["flash_capacity"], data["ram_capacity"], dict(data["sections"]), dict(data["flash_parts"]),
+                 dict(data["ram_parts"]))
 
 
 def _host(job, strict: bool, keep: bool = True) -> HostBuild:
@@ -111,39 +113,56 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
+    if args.stream and args.fault:
+        raise JobError([Diagnostic(SourceRef("--fault"), "the streaming firmware runs no heaters: --fault needs "
+                                                         "the flash image (verify without --stream)")])
     if args.stream:
         return cli_stream.cmd_verify_stream(args)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
-    simulator = _target_module("sim", host.target.target)
-    budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
-    switches = simulated_switches(host)
-    trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
-    verdict = compare(host, trace, switches)
-    result = verify_json(host, verdict, image)
+    faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
+    if host.heaters:
+        result, trace = verify_heaters(host, image, faults)
+    else:
+        simulator = _target_module("sim", host.target.target)
+        budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
+        switches = simulated_switches(host)
+        trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
+        result = verify_json(host, compare(host, trace, switches), image)
     if args.trace:
         write_trace(Path(args.trace), host, trace)
     if args.json:
         print(json.dumps(result, indent=2))
-    else:
-        state = "PASS" if result["pass"] else "FAIL"
-        print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in {SIMULATORS[host.target.target]}, "
-              f"{result['duration_s']:.4f} s simulated, "
-              f"{result['planned_duration_s']:.4f} s planned")
-        for name, m in result["motors"].items():
-            timing = ("timing not compared" if m["max_timing_error_us"] is None
-                      else f"timing within {m['max_timing_error_us']:.2f} us of the twin")
-            print(f"  {name}: {m['steps']} steps, {motion(m)}, {timing}, rate {100 * m['max_rate_ratio']:.1f} %"
-                  f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
-        if result["max_path_error_mm"] is not None:
-            print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
-        for reason in result["not_compared"]:
-            print(f"  not compared: {reason}")
-        if result.get("display") is not None:
-            print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
-        for problem in result["problems"]:
+        return 0 if result["pass"] else 1
+    state = "PASS" if result["pass"] else "FAIL"
+    print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in {SIMULATORS[host.target.target]}, "
+          f"{result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s planned")
+    if "trip" in result:  # the thermal protection stopped the machine (codegen/verify_heaters.py)
+        print("\n".join(trip_lines(result) + heater_lines(result)))
+        for problem in result["problems"][1:]:
             print(f"  problem: {problem}")
+        return 1
+    _print_verdict(result)
     return 0 if result["pass"] else 1
+
+
+def _print_verdict(result: dict) -> None:
+    """verify's text lines after the first: motors, path, display, heaters, problems."""
+    for name, m in result["motors"].items():
+        timing = ("timing not compared" if m["max_timing_error_us"] is None
+                  else f"timing within {m['max_timing_error_us']:.2f} us of the twin")
+        print(f"  {name}: {m['steps']} steps, {motion(m)}, {timing}, rate {100 * m['max_rate_ratio']:.1f} %"
+              f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
+    if result["max_path_error_mm"] is not None:
+        print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+    for reason in result["not_compared"]:
+        print(f"  not compared: {reason}")
+    if result.get("display") is not None:
+        print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
+    if "heaters" in result:
+        print("\n".join(heater_lines(result)))
+    for problem in result["problems"]:
+        print(f"  problem: {problem}")
 
 
 def cmd_plan(args) -> int:
@@ -209,8 +228,13 @@ def parser() -> argparse.ArgumentParser:
             v.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "verify":
             v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
+            v.add_argument("--fault", action="append", default=[], type=fault_spec, metavar="NAME[:HEATER]@SECONDS",
+                           help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
+                                "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "
+                                "(hotend, bed) defaults to the hot end, e.g. thermistor-open:bed@30")
         if name == "plan":
             v.add_argument("--tables", help="write the table stream (codegen/tables.py) to this file as it is made")
+    cli_tune.add_parser(verbs)
     return p
 
 

@@ -7,6 +7,7 @@ Each stage is a function with a typed result; this module only composes them (an
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import BinaryIO
 
 import numpy as np
@@ -14,7 +15,9 @@ import numpy as np
 from codegen.checks import Findings, MotorTrain
 from codegen.compress import Compressed
 from codegen.errors import BuildError, Diagnostic
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPins
+from codegen.firmware.avr_heaters import job_heaters
+from codegen.heaters.program import HeaterProgram, heater_diagnostics
 from codegen.homing import homes, homing_axes
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
 from codegen.kinematics import make_kinematics
@@ -45,6 +48,7 @@ class HostBuild:
     expected_final: np.ndarray
     warnings: list[Diagnostic]
     homing: tuple[HomingAxis, ...]  # the motors the firmware homes at power-up
+    heater_program: HeaterProgram  # the program's heater settings (codegen/heaters/program.py)
     # The whole program's results, when the build keeps them (None otherwise):
     segments: Segments | None = None
     plan: Plan | None = None
@@ -69,7 +73,15 @@ class HostBuild:
             dir_setup_us=self.job.machine.dir_setup_us,
             homing=self.homing,
             start_steps=tuple(int(v) for v in self.start_steps),
+            heaters=self.heaters,
         )
+
+    @cached_property
+    def heaters(self) -> tuple[HeaterFirmware, ...]:
+        """The heaters of an AVR flash image (codegen/firmware/avr_heaters.py job_heaters); none elsewhere."""
+        if self.target.target != "avr" or self.link_plan is not None:
+            return ()
+        return job_heaters(self.job, self.target.heater_pins, self.heater_program)
 
     def event_segments(self) -> np.ndarray:
         """The segment every event belongs to."""
@@ -130,8 +142,10 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     if stages.totals.events == 0 and not played:  # nothing moves: an empty program
         played = stages.play(_no_window(job, kin, program), None, True)
     stages.finish()
+    heater_notes = heater_diagnostics(job, target.heater_pins, program.heater_program, link is not None)
     host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
-                     stages.checker.findings(expected_final), start_steps, expected_final, program.warnings, homing)
+                     stages.checker.findings(expected_final), start_steps, expected_final,
+                     program.warnings + heater_notes, homing, program.heater_program)
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if keep:

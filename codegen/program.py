@@ -20,6 +20,7 @@ import numpy as np
 
 from codegen.errors import Diagnostic
 from codegen.gcode import GcodeStream
+from codegen.heaters.program import HeaterProgram
 from codegen.homing import home_position, homes
 from codegen.kinematics.base import Kinematics
 from codegen.shapes import build_toolpath as toolpath_from_shapes
@@ -30,7 +31,7 @@ MOTION = (Line, Lines, Arc, Curve)
 
 class Program:
     """`batches()` yields the items; `start`, `homes_first` and `end` are known once the first batch (for
-    `end`: the last) is out, `warnings` once every batch is."""
+    `end`: the last) is out, `warnings` and `heater_program` (its heater settings) once every batch is."""
 
     def __init__(self, job, kin: Kinematics, strict: bool = False):
         self.job, self.kin = job, kin
@@ -47,6 +48,7 @@ class Program:
         self.start: np.ndarray | None = None
         self.end: np.ndarray | None = None
         self.homes_first = False
+        self.heater_program = HeaterProgram()
         self._warnings: list[Diagnostic] | None = None  # as a child process read them (`restore`)
 
     @property
@@ -57,10 +59,10 @@ class Program:
 
     def state(self) -> tuple:
         """What the batches have found out so far, for a copy of the program in another process."""
-        return self.start, self.end, self.homes_first, list(self.warnings)
+        return self.start, self.end, self.homes_first, self.heater_program, list(self.warnings)
 
     def restore(self, state: tuple) -> None:
-        self.start, self.end, self.homes_first, self._warnings = state
+        self.start, self.end, self.homes_first, self.heater_program, self._warnings = state
 
     def batches(self) -> Iterator[list]:
         raw = self._raw()
@@ -72,18 +74,23 @@ class Program:
         start = self.gcode.start if self.gcode is not None else self._shapes_start
         settle = _SettleHomes(start)
         first = settle(first)
+        self.heater_program.feed(first)  # in the program's order: before a travel from home below
         self.homes_first, start = settle.homes_first, settle.start
         if self.always_homes:
             first, start = self._from_home(first, start)
         self.start = np.asarray(start, dtype=float)
         self.end = self.start
-        for batch in chain([first], map(settle, raw)):
+        for batch in chain([first], map(self._fed_to_heater_program, map(settle, raw))):
             for item in reversed(batch):
                 if isinstance(item, MOTION):
                     self.end = item.end
                     break
             if batch:
                 yield batch
+
+    def _fed_to_heater_program(self, batch: list) -> list:
+        self.heater_program.feed(batch)
+        return batch
 
     def _raw(self) -> Iterator[list]:
         if self.gcode is not None:

@@ -37,7 +37,15 @@ def plan_summary(host: HostBuild) -> dict:
         "pass": f.ok,
         "problems": list(f.problems),
         **(host.link_plan.summary() if host.link_plan is not None else {}),
+        **({"heaters": heaters_plan(host)} if host.heaters else {}),
     }
+
+
+def heaters_plan(host: HostBuild) -> dict:
+    """The flash image's heaters: the start sequence's target (degC), whether the table waits for it, whether it
+    goes off when the table has played, its pins, and its ADC table's flash bytes (int16 per reading)."""
+    return {h.name: {"target_c": h.start_target_dc / 10, "wait": h.wait, "end_off": h.end_off, "pwm_pin": h.pwm_pin,
+                     "sensor_pin": h.sensor_pin, "table_bytes": 2 * len(h.table)} for h in host.heaters}
 
 
 def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, str]) -> dict:
@@ -60,6 +68,7 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
             "ram_capacity": image.ram_capacity,
             "table_bytes": table,
             "flash_parts": dict(image.flash_parts),
+            "ram_parts": dict(image.ram_parts),
             "sections": sections,
         },
         "sources": sorted(sources),
@@ -147,5 +156,9 @@ def human_plan(summary: dict) -> str:
                      f"{summary['prefill_bytes']} of the {summary['ring_bytes']}-byte ring, lowest fill "
                      f"{'n/a (the stream fits the ring)' if low is None else f'{low} bytes'}, "
                      f"{summary['link_slowdown_s']:.3f} s slower for the link")
+    for name, h in summary.get("heaters", {}).items():
+        start = "off" if h["target_c"] == 0 else f"{h['target_c']:g} degC" + (", waited for" if h["wait"] else "")
+        lines.append(f"  heater {name} ({h['pwm_pin']}, thermistor {h['sensor_pin']}): {start} before the table"
+                     f"{', off at its end' if h['end_off'] else ''}; ADC table {h['table_bytes']} bytes")
     lines.extend(f"  problem: {p}" for p in summary["problems"])
     return "\n".join(lines)

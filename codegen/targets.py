@@ -64,6 +64,10 @@ class TargetInfo:
         return int(self.mcu_data.get("isr_latency_cycles", 0)) * 1e6 / self.f_cpu
 
     @property
+    def heater_pins(self) -> dict[str, tuple[str, str]]:
+        return board_heater_pins(self.board)
+
+    @property
     def max_gap_s(self) -> float:
         """Longest wait between two events the player's 24.8 fixed-point interval can express."""
         return ((1 << 24) - 1) / self.tick_hz
@@ -72,6 +76,13 @@ class TargetInfo:
 @lru_cache(maxsize=None)
 def _load(name: str) -> dict:
     return yaml.safe_load((targets_dir() / f"{name}.yaml").read_text(encoding="utf-8"))
+
+
+def board_heater_pins(board: str) -> dict[str, tuple[str, str]]:
+    """The board file's `heaters: {hotend: {pwm: PB4, sensor: PK5}, ...}`: each heater's MOSFET (PWM) pin and its
+    thermistor's analog input; {} for a board without heater outputs (the 8051 boards)."""
+    heaters = _load(board).get("heaters") or {}
+    return {str(name): (str(spec["pwm"]), str(spec["sensor"])) for name, spec in heaters.items()}
 
 
 def target_info(board: str, stream: bool = False) -> TargetInfo:

@@ -90,7 +90,7 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
     f_cpu, tick_hz = trace.f_cpu, host.target.tick_hz
     twin = host.pulses
     problems: list[str] = []
-    if trace.state != "done":
+    if trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
         problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
     order = np.argsort(trace.step_cycle, kind="stable")
     cycle, motor, direction = trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order]
@@ -147,8 +147,7 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
                      host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance)
 
     duration = float(sim_s[-1] - sim_s[0]) if len(sim_s) else 0.0
-    stepping = np.unique(twin.event)
-    planned = float(host.events.time[stepping[-1]] - host.events.time[stepping[0]]) if len(stepping) else 0.0
+    planned = planned_stepping_s(host)
     if planned > 0 and abs(duration - planned) > DURATION_AGREEMENT * planned:
         problems.append(f"simulated duration {duration:.4f} s differs from the planned {planned:.4f} s by more "
                         f"than {100 * DURATION_AGREEMENT:.0f} %")
@@ -167,6 +166,12 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
     display = None if trace.display is None else list(trace.display.lines)
     return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
                    homing_problems + problems, homing, display, not_compared)
+
+
+def planned_stepping_s(host: HostBuild) -> float:
+    """The plan's time from its first step to its last."""
+    stepping = np.unique(host.pulses.event)
+    return float(host.events.time[stepping[-1]] - host.events.time[stepping[0]]) if len(stepping) else 0.0
 
 
 def display_problems(host: HostBuild, trace, streamed: bool = False) -> list[str]:

@@ -13,14 +13,17 @@ import pytest
 
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr import build_image, render_sources
-from codegen.firmware.avr_heaters import SLICE_CYCLES, heater_firmware, start_sequence
+from codegen.firmware.avr_heaters import SLICE_CYCLES, heater_firmware
 from codegen.gcode import toolpath_from_gcode
 from codegen.heaters.control import bang_bang, pid_reference
+from codegen.heaters.program import HeaterProgram, HeaterStart
 from codegen.heaters.settings import HeaterSettings, heater_settings
 from codegen.job import load_job
 from codegen.pipeline import host_build
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
+from codegen.targets import board_heater_pins
 from codegen.verify import compare, simulated_switches
+from codegen.verify_heaters import settled_at
 from tests.helpers import gcode_job_file, make_schedule
 from tests.reference_player import play
 
@@ -42,7 +45,9 @@ def settings() -> dict[str, HeaterSettings]:
 
 
 def image(tmp_path, settings, schedule, motors, targets, wait=True, end_off=False, config=None):
-    heaters = tuple(heater_firmware(settings[name], target, wait, end_off) for name, target in targets.items())
+    pins = board_heater_pins("ramps-1.4")
+    heaters = tuple(heater_firmware(settings[name], pins[name], HeaterStart(target, wait, end_off))
+                    for name, target in targets.items())
     if config is None:
         config = FirmwareConfig("heaters", "tests/test_avr_heaters.py", "avr", "ramps-1.4",
                                 tuple(MotorPins(m, m.upper()) for m in motors))
@@ -53,13 +58,6 @@ def image(tmp_path, settings, schedule, motors, targets, wait=True, end_off=Fals
 def plants(settings, config, **start_c):
     return {h.name: HeaterPlant(settings[h.name].plant, settings[h.name].sensor, settings[h.name].pullup_ohm,
                                 start_c.get(h.name)) for h in config.heaters}
-
-
-def settled_at(heater, trace) -> float:
-    """When the firmware's wait for `heater` is over: its 30th reading in a row within 2 degC of the target."""
-    within = np.abs(np.asarray(heater.table)[trace.reading] - heater.start_target_dc) <= 20
-    runs = np.convolve(within, np.ones(30, dtype=int), "valid")
-    return float(trace.read_s[np.flatnonzero(runs == 30)[0] + 29])
 
 
 def short_table():
@@ -80,9 +78,9 @@ def test_start_sequences_of_sliced_files(tmp_path, gcode, hotend, bed):
     """The firmware's targets from a sliced file's start sequence: the last set before the first move, waited
     for, and off when the table has played (the file's last setting is 0)."""
     toolpath, _ = toolpath_from_gcode(load_job(gcode_job_file(tmp_path, gcode)))
-    assert start_sequence(toolpath.items) == {
-        "hotend": {"start_target_c": hotend, "wait": True, "end_off": True},
-        "bed": {"start_target_c": bed, "wait": True, "end_off": True}}
+    program = HeaterProgram()
+    program.feed(toolpath.items)
+    assert program.start == {"hotend": HeaterStart(hotend, True, True), "bed": HeaterStart(bed, True, True)}
 
 
 def test_heats_holds_and_runs_the_host_control_laws(tmp_path, settings):
@@ -107,7 +105,7 @@ def test_heats_holds_and_runs_the_host_control_laws(tmp_path, settings):
         assert np.array_equal(trace.period_duty[:-1], want[:-1]), h.name  # the last period may not be written yet
         assert np.all(np.abs(np.diff(trace.read_s) - 0.1) < 0.002)
     # The table started once both had been within 2 degC for 3 s, and played while they held.
-    settled = max(settled_at(h, run.heaters[h.name]) for h in config.heaters)
+    settled = max(settled_at(run, h) for h in config.heaters)
     assert settled < run.steps.timer_start_cycle / F_CPU < settled + 0.01
     assert len(run.steps.step_cycle) == 100
 
@@ -154,7 +152,7 @@ def test_start_sequence_waits_then_moves_like_the_twin(tmp_path, settings):
     run = simulate_heaters(img.hex_path, config, 30.0, plants(settings, config, hotend=207.0, bed=58.5),
                            switches=switches)
     assert run.state == "done" and run.trip is None and run.heater_pins_low
-    settled = max(settled_at(h, run.heaters[h.name]) for h in config.heaters)
+    settled = max(settled_at(run, h) for h in config.heaters)
     print("settled", settled, "tick 0", run.steps.timer_start_cycle / F_CPU)
     assert settled > 3.0 and settled < run.steps.timer_start_cycle / F_CPU < settled + 0.01
     verdict = compare(host, run.steps, switches)

@@ -91,6 +91,7 @@ class Image:
     ram_capacity: int
     sections: dict[str, int] = field(default_factory=dict)  # loadable sections: name -> bytes
     flash_parts: dict[str, int] = field(default_factory=dict)  # every flash byte by what it holds
+    ram_parts: dict[str, int] = field(default_factory=dict)  # RAM by what holds it (codegen/firmware/avr.py)
 
 
 def run_tool(cmd: list[str], cwd: Path, what: str, install: str) -> subprocess.CompletedProcess:

@@ -30,9 +30,9 @@ from codegen.schedule import TOOL_BIT, Schedule
 CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
 ASFLAGS = ("-Wa,--fatal-warnings",)
 STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
-# The objects whose functions _flash_parts counts as each part of flash.
+# The objects whose functions and variables _memory_parts counts as each part of flash and RAM.
 OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link": ("stream", "link_rx", "link_tx"),
-                "heaters": ("heaters", "heaters_table", "heaters_hook")}
+                "heaters": ("heaters", "heaters_hook"), "heater_tables": ("heaters_table",)}
 # Pushes, calls, Y-relative frame slots and SP accesses (0x3d/0x3e) in the naked ISR.
 _STACK_USE = re.compile(
     r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
@@ -241,34 +241,40 @@ def _check_table_contiguous(elf: Path, cwd: Path) -> None:
             raise BuildError(f"table chunks {k - 1} and {k} are not contiguous in flash ({elf.name})")
 
 
-def _flash_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> dict[str, int]:
+def _memory_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> tuple[dict[str, int], dict[str, int]]:
     """Every byte of flash by what it is: the step table, the player's own code (the functions player.o and
     player_isr.o define), the homing code (homing.o's, in an image that homes), the link's (a streaming image's
-    stream.o, link_rx.o and link_tx.o), the heaters' (heaters.o's, heaters_hook.o's and the ADC tables of
-    heaters_table.o), the initial values of RAM variables, and the rest (interrupt vectors, C start-up,
-    libgcc, alignment)."""
-    own: dict[str, set[str]] = {}
+    stream.o, link_rx.o and link_tx.o), the heaters' code (heaters.o's and heaters_hook.o's) and their ADC tables
+    (heaters_table.o's), the initial values of RAM variables, and the rest (interrupt vectors, C start-up,
+    libgcc, alignment); and every byte of RAM in use (.data and .bss) by the part whose variables it holds, the
+    rest (libc's, alignment) as `other`."""
+    flash_own: dict[str, set[str]] = {}
+    ram_own: dict[str, set[str]] = {}
     for part, objects in OBJECT_PARTS.items():
         for obj in (name for name in objects if (cwd / f"{name}.o").exists()):
-            symbols = _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd, "avr-nm").stdout.splitlines()
-            own.setdefault(part, set()).update(line.split()[-1] for line in symbols if line.split()[-2] in "TtRr")
-    sizes = dict.fromkeys(own, 0)
+            symbols = [line.split() for line in _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd,
+                                                     "avr-nm").stdout.splitlines()]
+            flash_own.setdefault(part, set()).update(s[-1] for s in symbols if s[-2] in "TtRr")
+            ram_own.setdefault(part, set()).update(s[-1] for s in symbols if s[-2] in "DdBbRr")  # .rodata: in RAM
+    flash, ram = dict.fromkeys(flash_own, 0), dict.fromkeys(ram_own, 0)
     table = 0
     for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
         parts = line.split()
-        if len(parts) != 4 or parts[2] not in "Tt":
+        if len(parts) != 4 or parts[2] not in "TtDdBb":
             continue
-        size = int(parts[1], 16)
+        size, in_flash = int(parts[1], 16), parts[2] in "Tt"
         if parts[3].startswith("table_chunk_"):
             table += size
-        for part, symbols in own.items():
+        for part, symbols in (flash_own if in_flash else ram_own).items():
             if parts[3] in symbols:
-                sizes[part] += size
+                (flash if in_flash else ram)[part] += size
                 break
     text = sections.get(".text", 0)
-    counted = {"table": table, "player": sizes.get("player", 0), "ram_initial_values": sections.get(".data", 0),
-               "vectors_startup_libgcc": text - table - sum(sizes.values())}
-    return {**counted, **{part: size for part, size in sizes.items() if part != "player"}}
+    counted = {"table": table, "player": flash.get("player", 0), "ram_initial_values": sections.get(".data", 0),
+               "vectors_startup_libgcc": text - table - sum(flash.values())}
+    used = sections.get(".data", 0) + sections.get(".bss", 0)
+    ram_parts = {part: size for part, size in ram.items() if size} | {"other": used - sum(ram.values())}
+    return {**counted, **{part: size for part, size in flash.items() if part != "player"}}, ram_parts
 
 
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:
@@ -338,7 +344,7 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
         _check_isr_stackless(elf, work)
         _check_integer_only(elf, work)
         sections = {k: v for k, v in _section_sizes(elf, work).items() if k in (".text", ".data", ".bss")}
-        flash_parts = _flash_parts(elf, work, sections)
+        flash_parts, ram_parts = _memory_parts(elf, work, sections)
         _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
         # Both files appear together, complete: the ELF first, the hex (what gets flashed) last.
         (work / "firmware.elf").replace(elf_path)
@@ -346,4 +352,4 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
     text, data, bss = (sections.get(s, 0) for s in (".text", ".data", ".bss"))
     return Image(hex_path=hex_path, elf_path=elf_path, flash_bytes=text + data, ram_bytes=data + bss,
                  table_bytes=table_bytes, flash_capacity=flash, ram_capacity=ram, sections=sections,
-                 flash_parts=flash_parts)
+                 flash_parts=flash_parts, ram_parts=ram_parts)

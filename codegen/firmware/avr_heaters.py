@@ -1,5 +1,6 @@
-"""The ATmega2560 heater runtime (templates/avr/heaters.c.j2, heaters.h.j2, heaters_hook.S.j2): what its
-templates need from FirmwareConfig.heaters.
+"""The ATmega2560 heater runtime (templates/avr/heaters.c.j2, heaters.h.j2, heaters_hook.S.j2): a job's heaters
+as FirmwareConfig.heaters (job_heaters: the board file's pins, the program's start sequence), and what the
+templates need from them.
 
 The runtime adds no interrupt: Timer3 counts the 0.1 s control period in CTC mode (its compare flag, polled),
 the ADC is started and polled, the heaters' MOSFETs are driven by hardware fast PWM (Timer2 OC2A, Timer4 OC4C at
@@ -19,8 +20,8 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, HeaterFirmware
 from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid
 from codegen.heaters.protection import REASONS
-from codegen.heaters.settings import HeaterSettings
-from codegen.toolpath import Arc, Curve, Line, Lines, Output
+from codegen.heaters.program import HeaterProgram, HeaterStart
+from codegen.heaters.settings import HeaterSettings, heater_settings
 
 PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
 SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...
@@ -46,37 +47,26 @@ TIMER_SETUP = {
     4: {"tccra": "_BV(WGM40)", "tccrb": "_BV(WGM42) | _BV(CS42) | _BV(CS40)",
         "what": "fast PWM 8-bit (mode 5), TOP 0xFF, prescaler 1024: 61 Hz"},
 }
-FAN_PIN = "PH6"  # RAMPS D9: held off until the table format carries M106
-RAMPS_PINS = {"hotend": ("PB4", "PK5"), "bed": ("PH5", "PK6")}  # MOSFET and thermistor: D10 / T0 (A13), D8 / T1 (A14)
 
 
-def start_sequence(items) -> dict[str, dict]:
-    """What a program's heater outputs (codegen.toolpath.Output: M104 / M109 hot end, M140 / M190 bed) give the
-    firmware until the table format carries them: per heater, the target before the first move (the last one set
-    there wins; homing is the firmware's, before the table, so G28 is not a move), whether any of them waits (the
-    firmware waits for that target), and whether the program's last setting after that is 0 (the firmware turns
-    it off when the table has played). Heater settings between moves are not played yet."""
-    first = next((k for k, item in enumerate(items) if isinstance(item, (Line, Lines, Arc, Curve))), len(items))
-    out: dict[str, dict] = {}
-    for k, item in enumerate(items):
-        if not isinstance(item, Output) or item.name not in RAMPS_PINS:
-            continue
-        heater = out.setdefault(item.name, {"start_target_c": 0.0, "wait": False, "end_off": False})
-        if k < first:
-            heater["start_target_c"] = item.value
-            heater["wait"] = heater["wait"] or item.wait
-        else:
-            heater["end_off"] = item.value == 0
-    return out
-
-
-def heater_firmware(settings: HeaterSettings, start_target_c: float = 0.0, wait: bool = False,
-                    end_off: bool = False, pins: dict[str, tuple[str, str]] = RAMPS_PINS) -> HeaterFirmware:
-    """A job's heater (codegen.heaters.settings) as the firmware's config, on the board's pins."""
-    pwm_pin, sensor_pin = pins[settings.name]
+def heater_firmware(settings: HeaterSettings, pins: tuple[str, str], start: HeaterStart | None = None) \
+        -> HeaterFirmware:
+    """A job's heater (codegen.heaters.settings) as the firmware's config, on the board's pins (MOSFET and
+    thermistor: codegen.targets.board_heater_pins), with the program's start sequence for it (None: off)."""
+    pwm_pin, sensor_pin = pins
+    start = start or HeaterStart()
     return HeaterFirmware(settings.name, pwm_pin, sensor_pin, tuple(int(v) for v in settings.table()),
-                          settings.fixed_control(), settings.fixed_protection(), round(start_target_c * 10), wait,
-                          end_off)
+                          settings.fixed_control(), settings.fixed_protection(), round(start.target_c * 10),
+                          start.wait, start.end_off)
+
+
+def job_heaters(job, board_pins: dict[str, tuple[str, str]], program: HeaterProgram) -> tuple[HeaterFirmware, ...]:
+    """The heaters a flash image runs: none unless the program sets one or the machine lists `heaters:`; then
+    each of the job's heaters (heater_settings: the board's defaults without `heaters:`) that the board has."""
+    if not program.start and job.machine.heaters is None:
+        return ()
+    return tuple(heater_firmware(s, board_pins[name], program.start.get(name))
+                 for name, s in heater_settings(job).items() if name in board_pins)
 
 
 def adc_channel(pin) -> int:
@@ -113,7 +103,7 @@ def _table_lines(table: tuple[int, ...]) -> list[str]:
 
 def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
     """heaters.c.j2's context (and the player's: `heaters`, the hook's SLICE_TICKS)."""
-    from codegen.firmware.avr import parse_pin  # avr.py imports this module
+    from codegen.firmware.avr import load_target, parse_pin  # avr.py imports this module
 
     if not config.heaters:
         return {"heaters": []}
@@ -133,10 +123,11 @@ def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
             "index": k, "name": h.name, "pwm": pwm, "sensor": sensor.__dict__, "adc": adc_channel(sensor),
             "table": _table_lines(h.table), "control": _control(h), "protection": p,
             "start_target_dc": h.start_target_dc, "wait": h.wait, "end_off": h.end_off})
-    fan = _pwm(parse_pin(FAN_PIN))
+    fan_pin = load_target(config.board).get("fan")  # held off until the table format carries M106
+    fan = _pwm(parse_pin(fan_pin)) if fan_pin else None
     period_ticks = round(PID_PERIOD_S * f_cpu / PERIOD_PRESCALE)
     return {"heaters": heaters, "heater_timers": sorted(timers.items()),
-            "fan": fan if fan["pin"]["name"] not in pins_used else None,
+            "fan": fan if fan and fan["pin"]["name"] not in pins_used else None,
             "period_ticks": period_ticks, "period_prescale": PERIOD_PRESCALE,
             "settle_window_dc": SETTLE_WINDOW_DC, "settle_periods": SETTLE_PERIODS,
             "pid_range_dc": PID_FUNCTIONAL_RANGE_DC, "d_filter_shift": D_FILTER_SHIFT, "reasons": REASONS,

@@ -10,7 +10,7 @@ a mirror of its first RECORD_MAX bytes (a record is read linearly across the rin
 from __future__ import annotations
 
 import binascii
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
@@ -70,11 +70,11 @@ class RingLayout:
 
 @dataclass
 class StreamImage(Image):
-    """A streaming image: Image's figures (no table), its ring, and every SRAM byte by what holds it."""
+    """A streaming image: Image's figures (no table), its ring, and every SRAM byte by what holds it (ram_parts:
+    variables, ring, mirror, stack)."""
 
     ring_address: int = 0
     ring_bytes: int = 0
-    ram_parts: dict[str, int] = field(default_factory=dict)  # variables, ring, mirror, stack
 
 
 def link_rate(f_cpu: int, baud: int) -> tuple[int, float]:
@@ -156,8 +156,8 @@ def build_stream_image(sources: dict[str, str], out_dir: Path) -> StreamImage:
     mirror = symbols["ring_mirror"]
     parts = {"variables": start - SRAM_START, "ring": end - start, "mirror": mirror,
              "stack": SRAM_START + ram - end - mirror}
-    fields = {name: getattr(image, name) for name in Image.__dataclass_fields__}
-    return StreamImage(**fields, ring_address=start, ring_bytes=end - start, ram_parts=parts)
+    fields = {name: getattr(image, name) for name in Image.__dataclass_fields__} | {"ram_parts": parts}
+    return StreamImage(**fields, ring_address=start, ring_bytes=end - start)
 
 
 def elf_symbols(elf: Path) -> dict[str, int]:

@@ -20,6 +20,7 @@ from codegen.job.schema import (
     DEFAULT_BOARDS, KINEMATICS, MOTORS, SHAPES, TARGETS, Arc, Circle, Delta, Ellipse, Function, Job, Line,
     Machine, Points, Polyline, Program, Shape, Sine, Stepper, Travel,
 )
+from codegen.targets import board_heater_pins
 
 __all__ = [
     "load_job", "board_targets", "Job", "Machine", "Stepper", "Delta", "Program", "Shape", "SHAPES",
@@ -60,6 +61,15 @@ def _check_board(data: dict, target: str, marks: Marks) -> list[Diagnostic]:
     else:
         message = f"board: unknown board '{board}' for target {target}{suggest(board, valid)}{listed}"
     return [Diagnostic(marks.value(("board",)), message)]
+
+
+def _check_heaters(job: Job, marks: Marks) -> list[Diagnostic]:
+    """Every heater of `machine.heaters` is one of the board's heater outputs (the 8051 boards have none)."""
+    outputs = board_heater_pins(job.board)
+    has = f"its heaters: {', '.join(outputs)}" if outputs else "it has no heater outputs"
+    return [Diagnostic(marks.key(("machine", "heaters", name)), f"machine.heaters: board '{job.board}' has no {name} "
+                                                                 f"heater ({has})")
+            for name in job.machine.heaters or {} if name not in outputs]
 
 
 def _inline_gcode(gcode: str, marks: Marks) -> bool:
@@ -113,10 +123,12 @@ def load_job(path: Path, target_override: str | None = None, program_required: b
     if program_required and "program" not in data:
         diagnostics.append(Diagnostic(marks.mapping(()), "missing key 'program' (only `build --stream` goes "
                                                          "without one)"))
-    if data.get("target", "avr") in TARGETS:
-        diagnostics += _check_board(data, data.get("target", "avr"), marks)
+    board_problems = _check_board(data, data.get("target", "avr"), marks) if data.get("target", "avr") in TARGETS \
+        else []
+    diagnostics += board_problems
     if job is not None:
         diagnostics += _check_gcode_file(job, path, marks)
+        diagnostics += [] if board_problems else _check_heaters(job, marks)
     if diagnostics or job is None:
         unique = {(d.where.line, d.where.col, d.message): d for d in diagnostics}
         raise JobError(sorted(unique.values(), key=lambda d: (d.where.line, d.where.col)))

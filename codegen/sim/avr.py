@@ -32,7 +32,7 @@ HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"),  #
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr", f"-I{HARNESS_SOURCE.parent}")
 HARNESS_LIBS = ("-lsimavr", "-lelf", "-lm")
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
-EXIT_STATES = {0: "done", 1: "crashed", 2: "budget"}
+EXIT_STATES = {0: "done", 1: "crashed", 2: "budget", 4: "held"}  # held: a plant run's `held=` (avr_plant.py)
 PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
 HOMING_FAILED = 0x02  # GPIOR0 bit set by homing.c's error state (GPIOR1: the motor bits, GPIOR2: the phase)
 HOMING_PHASES = {1: "fast approach", 2: "back off", 3: "slow approach"}
@@ -45,7 +45,7 @@ class SimTrace:
     The step arrays hold every pulse, homing included; `step_phase` tells them apart and `run_only()` keeps the
     step table's (what the twin predicts)."""
 
-    state: str  # done | crashed | budget
+    state: str  # done | crashed | budget | held (still running a while after the table: heaters held)
     cycles: int  # total simulated cycles
     f_cpu: int
     timer_start_cycle: int | None  # the player's tick 0: START_TICKS ticks after it started Timer1; None if never

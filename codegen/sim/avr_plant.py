@@ -25,8 +25,8 @@ from codegen.heaters.control import PID_PERIOD_S
 from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
-from codegen.sim.avr import EXIT_STATES, SimTrace, decode_edges, harness_binary, read_edges, switch_args, \
-    watched_pins
+from codegen.sim.avr import EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges, \
+    switch_args, watched_pins
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}
@@ -70,7 +70,7 @@ class HeaterTrace:
 
 @dataclass
 class HeaterRun:
-    state: str  # done (the firmware halted) | budget (still running at the end: holding)
+    state: str  # done (the firmware halted) | budget (still running at the end) | held (`held_after_s`)
     seconds: float  # simulated
     heaters: dict[str, HeaterTrace]
     trip: str | None  # the reason the firmware stopped the machine, one of REASONS
@@ -141,9 +141,11 @@ def _read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
 
 
 def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, plants: dict[str, HeaterPlant],
-                     faults: tuple[Fault, ...] = (), switches: dict[int, int | None] | None = None) -> HeaterRun:
+                     faults: tuple[Fault, ...] = (), switches: dict[int, int | None] | None = None,
+                     held_after_s: float | None = None) -> HeaterRun:
     """Run `hex_path` with a plant behind each heater for `seconds` of simulated time, or until it halts (the
-    table played and the heaters off, or a protection trip)."""
+    table played and the heaters off, a protection trip, a failed homing), or with `held_after_s` until that long
+    after the player started its timer (state "held": an image that holds its heaters after the table)."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu, tick_hz = int(mcu["f_cpu"]), int(mcu["tick_hz"])
@@ -151,8 +153,9 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
     with tempfile.TemporaryDirectory(prefix="printer-codegen-plant-") as tmp:
         edges, log, spec = Path(tmp) / "edges.bin", Path(tmp) / "trace.txt", Path(tmp) / "plant.txt"
         spec.write_text(_plant_file(config, plants, faults, f_cpu, log, _stage_address(hex_path)))
+        held = [] if held_after_s is None else [f"held={round(held_after_s * f_cpu)}"]
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges), str(round(seconds * f_cpu)),
-               f"plant={spec}", *switch_args(config, switches), *watched_pins(config)]
+               f"plant={spec}", *held, *switch_args(config, switches), *watched_pins(config)]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode not in EXIT_STATES or done.returncode == 1:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
@@ -164,7 +167,8 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
     tripped = bool(status >> HEATERS_FAULT_BIT & 1) and state == "done"
     timer_start = int(fields["timer_start"])
     tick0 = timer_start + START_TICKS * (f_cpu // tick_hz) if timer_start >= 0 else None
-    steps = decode_edges(rec, config, state, cycles, tick0, None)
+    homing = None if tripped else _homing_fault(config, status, reason, which)  # the same status bytes
+    steps = decode_edges(rec, config, state, cycles, tick0, homing)
     tccr1b, timsk1 = end["T"]
     disabled = all((end["P"][w.enable.port] >> w.enable.bit & 1) == int(pins.enable_active_low) for w in pins.motors)
     pins_low = all(end["H"][k] == 0 for k in range(len(config.heaters)))
@@ -177,10 +181,16 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
                      stage_max_cycles=end["I"][0], stages=end["I"][1], steps=steps)
 
 
-def heater_summary(run: HeaterRun, name: str, target_c: float, settle_s: float = SETTLE_S) -> dict:
+def heater_summary(run: HeaterRun, name: str, target_c: float, settle_s: float = SETTLE_S,
+                   band_from_s: float | None = None) -> dict:
     """verify's figures for one heater: target_c, time_to_target_s (first within 1 degC), overshoot_c, band_c
-    (the largest distance from the target from settle_s after reaching it), trip (None or the reason)."""
+    (the largest distance from the target from settle_s after reaching it, or with `band_from_s` from that
+    simulated time: verify's table start), trip (None or the reason)."""
     h = run.heaters[name]
     figures = heating_figures(SimpleNamespace(time_s=h.time_s, temp_c=h.temp_c), target_c, settle_s)  # reads those two
+    band = figures.band_c
+    if band_from_s is not None and figures.time_to_target_s is not None:
+        after = h.time_s >= band_from_s
+        band = float(np.abs(h.temp_c[after] - target_c).max()) if after.any() else None
     return {"target_c": target_c, "time_to_target_s": figures.time_to_target_s, "overshoot_c": figures.overshoot_c,
-            "band_c": figures.band_c, "trip": run.trip if run.trip_heater in (None, name) else None}
+            "band_c": band, "trip": run.trip if run.trip_heater in (None, name) else None}

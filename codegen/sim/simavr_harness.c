@@ -5,7 +5,8 @@
  * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [OPTION...] PIN...     (PIN like F0, L3, B5)
  *   OPTION: a SWITCH, or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
  *   then the boot's, until the firmware turns its receiver on), or plant=FILE (thermal plants behind the ADC and
- *   the heaters' PWM: simavr_plant.c)
+ *   the heaters' PWM: simavr_plant.c), or held=CYCLES (the run ends CYCLES after the player started its timer
+ *   if the firmware has not halted by then: an image that holds its heaters after the table never halts)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
  *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open, moved by one or two
  *     motors: each motor's STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT
@@ -19,7 +20,8 @@
  * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
  * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2>"; timer_start is the player's tick 0: the first write that
  * starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts off).
- * Exit status: 0 done (the firmware slept with interrupts off), 1 crashed, 2 budget exhausted, 3 bad usage.
+ * Exit status: 0 done (the firmware slept with interrupts off), 1 crashed, 2 budget exhausted, 3 bad usage,
+ * 4 held (with held=CYCLES: still running CYCLES after the player started its timer).
  */
 #include <stdint.h>
 #include <stdio.h>
@@ -71,6 +73,7 @@ static int n_endstops;
 static int reassert; /* a PORT write (the pull-up) overrode a driven switch level */
 static int moved;    /* a motor stepped: the switches follow once the instruction is over */
 static int every_start; /* link mode: timer_start is the latest start of the player's timer (each session's) */
+static unsigned long long held_after; /* held=CYCLES: the run ends this long after timer_start; 0: never */
 
 static void drive(endstop_t *s)
 {
@@ -277,9 +280,11 @@ int main(int argc, char **argv)
         avr_irq_register_notify(irq, pin_notify, (void *)(uintptr_t)(i - first_pin));
     }
     for (int i = 6; i < first_pin; i++)
-        if (strncmp(argv[i], "switch=", 7) == 0   ? parse_switch(argv[i], n_pins)
-            : strncmp(argv[i], "plant=", 6) == 0 ? plant_setup(avr, argv[i] + 6)
-                                                  : link_option(argv[i]))
+        if (strncmp(argv[i], "held=", 5) == 0)
+            held_after = strtoull(argv[i] + 5, NULL, 10);
+        else if (strncmp(argv[i], "switch=", 7) == 0   ? parse_switch(argv[i], n_pins)
+                 : strncmp(argv[i], "plant=", 6) == 0 ? plant_setup(avr, argv[i] + 6)
+                                                       : link_option(argv[i]))
             return 3;
     for (int i = 0; i < n_endstops; i++)
         drive(&endstops[i]);
@@ -289,18 +294,22 @@ int main(int argc, char **argv)
         return link_serve(budget);
     }
 
-    int state = cpu_Running;
-    while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget) {
+    int state = cpu_Running, held = 0;
+    while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget && !held) {
         state = avr_run(avr);
         follow_switches();
         plant_follow(avr);
+        held = held_after && timer_start >= 0 && avr->cycle >= (unsigned long long)timer_start + held_after;
     }
 
     plant_finish(avr);
     fclose(edges);
-    const char *name = state == cpu_Done ? "done" : state == cpu_Crashed ? "crashed" : "budget";
+    const char *name = state == cpu_Done      ? "done"
+                       : state == cpu_Crashed ? "crashed"
+                       : held                 ? "held"
+                                              : "budget";
     printf("state=%s cycles=%llu timer_start=%lld status=%u status1=%u status2=%u\n", name,
            (unsigned long long)avr->cycle, timer_start, avr->data[GPIOR0_ADDR], avr->data[GPIOR1_ADDR],
            avr->data[GPIOR2_ADDR]);
-    return state == cpu_Done ? 0 : state == cpu_Crashed ? 1 : 2;
+    return state == cpu_Done ? 0 : state == cpu_Crashed ? 1 : held ? 4 : 2;
 }

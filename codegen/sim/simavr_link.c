@@ -19,7 +19,7 @@
  * max_free u32 (UINT32_MAX: no record read), sp_min u16, rx_bytes u32, then per interrupt (USART0 RX, UDRE):
  * longest u32, total u64 cycles from its dispatch to its RETI, count u32; then n u32 and n x (cycle u64, byte u8).
  * Before the first command it runs until the firmware turns its receiver on (the host opens the port after the
- * boot).
+ * boot). With plant=FILE the thermal plants follow in link mode too (the tune firmware: codegen/sim/avr_tune.py).
  */
 
 #define MAX_CHECKS 16
@@ -206,6 +206,7 @@ static int link_run(uint64_t budget, int *state)
             return STOP_BUDGET;
         *state = avr_run(avr);
         follow_switches();
+        plant_follow(avr); /* with plant=FILE: the heaters' plants (simavr_plant.c); else nothing */
         uint16_t sp = avr->data[SP_ADDR] | avr->data[SP_ADDR + 1] << 8;
         if (sp < link.sp_min)
             link.sp_min = sp;
@@ -276,6 +277,7 @@ static int link_serve(uint64_t boot_budget)
            && avr->cycle < boot_budget) {
         state = avr_run(avr);
         follow_switches();
+        plant_follow(avr);
     }
     link_answer(state, STOP_BOOT);
     for (;;) {
