@@ -69,17 +69,18 @@ def rate_gaps(events: Events, max_rate: np.ndarray, share: float = RATE_SHARE) -
 
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
              window: TimingWindow = TimingWindow(), final_tool: bool = False, max_rate: np.ndarray | None = None,
-             origin_fx: int = 0) -> Compressed:
+             origin_fx: int = 0, block_extra_ticks: np.ndarray | None = None) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
     one that starts a block (both include reading the table; plain events inside a run are cheaper).
     Runs go on across block starts; they are fitted greedily (codegen/runfit.py). `max_rate` (steps/s per
     motor): pushed events catch up within it. `origin_fx` (1/256 tick): where
     the player's clock stands before the first event (the event before, in the window before); every tick
-    here counts from the player's tick 0."""
+    here counts from the player's tick 0. `block_extra_ticks`: per block, what its first event needs more than
+    `block_gap_ticks` (the runtime records the player reads before it: codegen/runtime.py)."""
     rate_gap = None if max_rate is None else rate_gaps(events, max_rate) * tick_hz
     base = origin_fx >> FRAC_BITS
     fit = (origin_fx - FRAC_ONE * base, base, MAX_COUNT, MAX_ADD, MAX_INTERVAL)
-    made = (events, tick_hz, run_gap_ticks, block_gap_ticks, window, rate_gap, origin_fx)
+    made = (events, tick_hz, run_gap_ticks, block_gap_ticks, window, rate_gap, origin_fx, block_extra_ticks)
     lib = library("runfit")
     if lib is None:
         needed, ideal, win, lo, hi = numpy_windows(*made)
@@ -106,13 +107,13 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
 
 
 def numpy_windows(events: Events, tick_hz: int, run_gap_ticks: int, block_gap_ticks: int, window: TimingWindow,
-                  rate_gap: np.ndarray | None, origin_fx: int):
+                  rate_gap: np.ndarray | None, origin_fx: int, block_extra: np.ndarray | None = None):
     """Every event's fewest ticks after the one before (`needed`), its ideal tick after the push, its timing
     window (ticks), and that window as positions (1/256 tick) counted from tick `origin_fx >> 8` (small
     numbers for the search): lo, hi. `rate_gap`: per block, the gap (ticks) pushed events catch up with at most.
     The reference for the C version (codegen/native/runfit.c, `timing_windows`)."""
     needed = np.full(len(events.time), run_gap_ticks, dtype=np.int64)
-    needed[events.block_first[:-1]] = block_gap_ticks
+    needed[events.block_first[:-1]] = block_gap_ticks + (0 if block_extra is None else block_extra)
     planned = events.time * tick_hz
     origin = origin_fx / FRAC_ONE
     push = 1.1 * needed + 2.0
@@ -129,7 +130,8 @@ def numpy_windows(events: Events, tick_hz: int, run_gap_ticks: int, block_gap_ti
 
 
 def _native_windows(lib, events: Events, tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
-                    window: TimingWindow, rate_gap: np.ndarray | None, origin_fx: int):
+                    window: TimingWindow, rate_gap: np.ndarray | None, origin_fx: int,
+                    block_extra: np.ndarray | None = None):
     """`numpy_windows` in C, in one pass."""
     n = len(events.time)
     needed, lo, hi = (np.empty(n, dtype=np.int64) for _ in range(3))
@@ -137,8 +139,10 @@ def _native_windows(lib, events: Events, tick_hz: int, run_gap_ticks: int, block
     block_first, = contiguous(np.int64, events.block_first)
     time, = contiguous(np.float64, events.time)
     rate_gap = None if rate_gap is None else contiguous(np.float64, rate_gap)[0]
+    block_extra = None if block_extra is None else contiguous(np.int64, block_extra)[0]
     f64, i64 = ctypes.c_double, ctypes.c_int64
-    lib.timing_windows(i64(len(block_first) - 1), *map(pointer, (block_first, time, rate_gap)), f64(tick_hz),
+    lib.timing_windows(i64(len(block_first) - 1), *map(pointer, (block_first, time, rate_gap, block_extra)),
+                       f64(tick_hz),
                        i64(run_gap_ticks), i64(block_gap_ticks), f64(origin_fx / FRAC_ONE),
                        i64(origin_fx >> FRAC_BITS), f64(window.share), f64(window.min_ticks),
                        f64(window.max_us * 1e-6 * tick_hz), *map(pointer, (needed, ideal, win, lo, hi)))

@@ -58,9 +58,11 @@ def pieces(job, kin: Kinematics, program: Program,
             break
         with watch("segments"):
             if flattener is None:
-                flattener = Flattener(program.start, job.machine.tolerance)
+                flattener = Flattener(program.start, job.machine.tolerance, program.plays_runtime)
             first = flattener.items
             segments = drop_empty(flattener(batch))
+            program.settings += flattener.settings
+            flattener.settings = []
             found = reach_problems(job, kin, batch, first, segments)
             if not found:
                 segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)

@@ -27,6 +27,10 @@ from codegen.lookahead import Lookahead, Window
 from codegen.pieces import front_end
 from codegen.planner import Plan, PlannerLimits, plan
 from codegen.program import Program
+from codegen.runtime import RuntimeRecords, played_outputs, runtime_records, with_runtime
+from codegen.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
+from codegen.tables import RUNTIME_BYTES
+from codegen.heaters.settings import heater_settings
 from codegen.segments import Flattener, Segments
 from codegen.stepgen import Events
 from codegen.stopwatch import Stopwatch
@@ -56,6 +60,7 @@ class HostBuild:
     compressed: Compressed | None = None
     pulses: Pulses | None = None
     link_plan: LinkPlan | None = None  # a streamed job's link (host_build's `link`)
+    runtime: RuntimeRecords | None = None  # the heater and fan settings the image plays (codegen/runtime.py)
 
     @property
     def schedule(self):
@@ -82,6 +87,12 @@ class HostBuild:
         if self.target.target != "avr" or self.link_plan is not None:
             return ()
         return job_heaters(self.job, self.target.heater_pins, self.heater_program)
+
+    def runtime_settings(self, heater: str) -> RuntimeRecords:
+        """The runtime records of one heater: its targets, and the waits for it."""
+        r = self.runtime or runtime_records([], ())
+        mine = (r.command == HEATER_COMMANDS[heater]) | ((r.command == RT_WAIT) & (r.value & WAIT_MASKS[heater] > 0))
+        return RuntimeRecords(r.item[mine], r.command[mine], r.value[mine])
 
     def event_segments(self) -> np.ndarray:
         """The segment every event belongs to."""
@@ -115,6 +126,9 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
             from None
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
+    played_out = runtime_outputs(job, target, link is not None)
+    program.plays_runtime = bool(played_out)
+    runtime = (lambda: runtime_records(program.settings, played_out)) if played_out else None
     limits = planner_limits(job, kin, target)
     ahead = Lookahead(kin, limits)
     stages: Stages | None = None
@@ -125,7 +139,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
             chunk = next(chunks, None)
         if stages is None:
             stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables, link)
+                            tables, link, runtime)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -148,12 +162,27 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
                      program.warnings + heater_notes, homing, program.heater_program)
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
+    if runtime is not None:
+        host.runtime = runtime()
+        stages.totals.table_bytes += RUNTIME_BYTES * len(host.runtime)
     if keep:
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)
             host.pulses = join_pulses(played)
             host.compressed = join_compressed(played, False, host.pulses)
+            if runtime is not None:
+                host.compressed.schedule = with_runtime(host.compressed.schedule, runtime(), host.segments.item)
     return host
+
+
+def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
+    """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
+    that its board has) and the board's fan (unless a heater uses its pin); none elsewhere (codegen/runtime.py)."""
+    if target.target != "avr" or streamed or not target.heater_pins:
+        return ()
+    heaters = tuple(name for name in heater_settings(job) if name in target.heater_pins)
+    fan = target.board_data.get("fan")
+    return played_outputs(heaters, bool(fan) and fan not in {pwm for pwm, _ in target.heater_pins.values()})
 
 
 def _no_window(job, kin: Kinematics, program: Program) -> Window:

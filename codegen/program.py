@@ -31,7 +31,9 @@ MOTION = (Line, Lines, Arc, Curve)
 
 class Program:
     """`batches()` yields the items; `start`, `homes_first` and `end` are known once the first batch (for
-    `end`: the last) is out, `warnings` and `heater_program` (its heater settings) once every batch is."""
+    `end`: the last) is out, `warnings` and `heater_program` (its heater settings) once every batch is.
+    `plays_runtime`: the player plays heater and fan settings at their place (codegen/pieces.py gathers them
+    into `settings` as (item index, Output) while it flattens, and a wait rests the plan)."""
 
     def __init__(self, job, kin: Kinematics, strict: bool = False):
         self.job, self.kin = job, kin
@@ -49,6 +51,8 @@ class Program:
         self.end: np.ndarray | None = None
         self.homes_first = False
         self.heater_program = HeaterProgram()
+        self.plays_runtime = False
+        self.settings: list = []  # (item index, Output), in program order
         self._warnings: list[Diagnostic] | None = None  # as a child process read them (`restore`)
 
     @property
@@ -59,10 +63,10 @@ class Program:
 
     def state(self) -> tuple:
         """What the batches have found out so far, for a copy of the program in another process."""
-        return self.start, self.end, self.homes_first, self.heater_program, list(self.warnings)
+        return self.start, self.end, self.homes_first, self.heater_program, list(self.warnings), self.settings
 
     def restore(self, state: tuple) -> None:
-        self.start, self.end, self.homes_first, self.heater_program, self._warnings = state
+        self.start, self.end, self.homes_first, self.heater_program, self._warnings, self.settings = state
 
     def batches(self) -> Iterator[list]:
         raw = self._raw()

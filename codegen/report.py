@@ -9,6 +9,7 @@ import numpy as np
 
 from codegen import __version__
 from codegen.pipeline import HostBuild
+from codegen.schedule import HEATER_COMMANDS, RT_WAIT
 
 
 def _round(value: float, digits: int = 6) -> float:
@@ -42,10 +43,16 @@ def plan_summary(host: HostBuild) -> dict:
 
 
 def heaters_plan(host: HostBuild) -> dict:
-    """The flash image's heaters: the start sequence's target (degC), whether the table waits for it, whether it
-    goes off when the table has played, its pins, and its ADC table's flash bytes (int16 per reading)."""
-    return {h.name: {"target_c": h.start_target_dc / 10, "wait": h.wait, "end_off": h.end_off, "pwm_pin": h.pwm_pin,
-                     "sensor_pin": h.sensor_pin, "table_bytes": 2 * len(h.table)} for h in host.heaters}
+    """The flash image's heaters: how many target records the tables carry for each and how many waits, its last
+    target (degC), its pins, and its ADC table's flash bytes (int16 per reading)."""
+    out = {}
+    for h in host.heaters:
+        records = host.runtime_settings(h.name)
+        targets = records.value[records.command == HEATER_COMMANDS[h.name]]
+        out[h.name] = {"settings": len(targets), "waits": int(np.count_nonzero(records.command == RT_WAIT)),
+                       "last_target_c": float(targets[-1]) / 10 if len(targets) else 0.0, "pwm_pin": h.pwm_pin,
+                       "sensor_pin": h.sensor_pin, "table_bytes": 2 * len(h.table)}
+    return out
 
 
 def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, str]) -> dict:
@@ -157,8 +164,8 @@ def human_plan(summary: dict) -> str:
                      f"{'n/a (the stream fits the ring)' if low is None else f'{low} bytes'}, "
                      f"{summary['link_slowdown_s']:.3f} s slower for the link")
     for name, h in summary.get("heaters", {}).items():
-        start = "off" if h["target_c"] == 0 else f"{h['target_c']:g} degC" + (", waited for" if h["wait"] else "")
-        lines.append(f"  heater {name} ({h['pwm_pin']}, thermistor {h['sensor_pin']}): {start} before the table"
-                     f"{', off at its end' if h['end_off'] else ''}; ADC table {h['table_bytes']} bytes")
+        lines.append(f"  heater {name} ({h['pwm_pin']}, thermistor {h['sensor_pin']}): {h['settings']} settings and "
+                     f"{h['waits']} waits in the tables, the last {h['last_target_c']:g} degC; ADC table "
+                     f"{h['table_bytes']} bytes")
     lines.extend(f"  problem: {p}" for p in summary["problems"])
     return "\n".join(lines)

@@ -20,6 +20,12 @@ Player semantics (both firmwares and the twin implement exactly this):
                 if acc[m] < 0: acc[m] += modulus; motor m steps once in its direction
             interval += add
 
+Runtime settings (heater targets, the fan, temperature waits: `runtime_*`) come before a block (or, at block
+index B, before the end): the player hands them to the runtime at the event that loads that block, and they
+change no pulse. A WAIT holds the player there: it stops its timer after that event and, once the heaters of its
+mask have settled, restarts it at tick 0 with pos at that event's fraction of a tick (pos mod 256): the events
+after a wait are timed from the wait's event as if from tick 0. The twin plays the events as if no hold came.
+
 `interval` is unsigned 24.8 fixed point ticks, `add` signed 16.8 (24 bits), `count` 1..65535. A block whose
 motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_MODULUS`, every
 `steps[m] <= modulus` and `init[m] < modulus`. After i events motor m has made
@@ -28,7 +34,7 @@ motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,6 +45,11 @@ MAX_COUNT = 65535
 MAX_INTERVAL = (1 << 32) - 1  # 24.8 fixed point: just under 2**24 ticks
 MAX_ADD = (1 << 23) - 1
 TOOL_BIT = 0x40
+# Runtime commands (codegen/tables.py's runtime record) and their values.
+RT_TARGET_HOTEND, RT_TARGET_BED, RT_FAN, RT_WAIT = 0, 1, 2, 3  # 0.1 degC; 0.1 degC; duty 0..255; heater mask
+RUNTIME_NAMES = ("target hotend", "target bed", "fan", "wait")
+HEATER_COMMANDS = {"hotend": RT_TARGET_HOTEND, "bed": RT_TARGET_BED}
+WAIT_MASKS = {"hotend": 1, "bed": 2}
 
 
 @dataclass
@@ -56,6 +67,9 @@ class Schedule:
     run_add: np.ndarray  # (R,) int64, 16.8 fixed point ticks
     run_count: np.ndarray  # (R,) int64
     final_tool: bool = False
+    runtime_block: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) 0..B, in order
+    runtime_command: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) RT_*
+    runtime_value: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) u16
 
     def events_per_block(self) -> np.ndarray:
         return self.block_events
@@ -63,6 +77,14 @@ class Schedule:
     @property
     def n_blocks(self) -> int:
         return len(self.block_modulus)
+
+    @property
+    def n_runtime(self) -> int:
+        return len(self.runtime_block)
+
+    def waits(self) -> np.ndarray:
+        """The runtime records that hold the player (RT_WAIT), as indices into runtime_*."""
+        return np.flatnonzero(self.runtime_command == RT_WAIT)
 
     @property
     def n_runs(self) -> int:
@@ -92,6 +114,10 @@ class Schedule:
             problems.append("run interval out of range")
         if np.any(np.abs(self.run_add) > MAX_ADD):
             problems.append("run add out of range")
+        block, command, value = self.runtime_block, self.runtime_command, self.runtime_value
+        if np.any(np.diff(block) < 0) or np.any(block < 0) or np.any(block > self.n_blocks) \
+                or np.any((value < 0) | (value > 0xFFFF)) or np.any((command < 0) | (command > RT_WAIT)):
+            problems.append("runtime records out of range or out of order")
         if int(self.block_events.sum()) != int(self.run_count.sum()):
             problems.append("the blocks' events and the runs' events differ")
         if problems:

@@ -12,10 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.toolpath import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Lines, Toolpath
+from codegen.toolpath import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Lines, Output, Toolpath
 
 REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 AXIS = {"x": 0, "y": 1, "z": 2, "e": 3}
+RUNTIME_OUTPUTS = ("hotend", "bed", "fan")  # the settings a player with a runtime plays at their place
+WAIT_REST_S = 0.001  # a temperature wait: the plan rests there, in a dwell this long after the hold
 
 
 @dataclass
@@ -103,13 +105,17 @@ def flatten(toolpath: Toolpath, tolerance: float) -> Segments:
 
 class Flattener:
     """`flatten` a batch of items at a time: the limits in force and the position carry over, and each piece's
-    `item` counts the items of every batch before (a Lines item counts as its moves)."""
+    `item` counts the items of every batch before (a Lines item counts as its moves). With `runtime` (a player
+    that plays heater and fan settings at their place), `settings` gathers them with their item index, and a
+    temperature wait becomes a dwell of WAIT_REST_S at its index: the plan comes to rest there."""
 
-    def __init__(self, start: np.ndarray, tolerance: float):
+    def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False):
         self.tolerance = tolerance
         self.limits = _LimitState()
         self.position = np.asarray(start, dtype=float)
         self.items = 0
+        self.runtime = runtime
+        self.settings: list[tuple[int, Output]] = []  # (item index, setting), taken by the caller
 
     def __call__(self, batch: list) -> Segments:
         limits = self.limits
@@ -125,6 +131,10 @@ class Flattener:
                 continue
             if isinstance(item, Limits):
                 limits.apply(item)
+            elif isinstance(item, Output) and self.runtime and item.name in RUNTIME_OUTPUTS:
+                self.settings.append((index, item))
+                if item.wait and item.value > 0:
+                    single.add(self._pieces(Dwell(WAIT_REST_S, item.source), fines), index, len(limits.rows) - 1)
             elif isinstance(item, (Line, Arc, Curve, Dwell)):  # not Output, Home: nothing to move along
                 single.add(self._pieces(item, fines), index, len(limits.rows) - 1)
             index += 1

@@ -13,6 +13,14 @@ form), bit 6 the tool is on, and
                   modulus 0: the end of the program; nothing follows and the tool takes bit 6 (2 bytes)
     bit 7 (LONG)  long form:  modulus u16, steps u16 x motors, init u16 x motors       (3 + 4 * motors bytes)
                   (a dwell, whose motors all stand, is always long)
+Runtime record (a setting of the heaters or the fan, at its place in the program), before the block record it
+precedes (several in a row allowed), or before the end marker: flags 0x90 (LONG, and master bits 01, which no long
+block uses), then command u8 and value u16                                          (4 bytes)
+    RT_TARGET_HOTEND, RT_TARGET_BED   the heater's target in 0.1 degC (0: off)
+    RT_FAN                            the fan's duty, 0..255
+    RT_WAIT                           hold until the heaters of the mask (bit 0 hot end, bit 1 bed) have settled
+                                      (the player stops its timer and restarts it at tick 0, codegen/schedule.py)
+The player reads them at the event that reads the block record after them, and hands each to the runtime.
 Run record, first byte `count`:
     1..255        short form: interval u24 (16.8 ticks), add i16 (8.8 ticks)           (6 bytes)
     0             long form:  count u16, interval u32 (24.8), add i24 (16.8)           (10 bytes)
@@ -24,10 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.schedule import TOOL_BIT, Schedule
+from codegen.schedule import RUNTIME_NAMES, TOOL_BIT, Schedule
 
 LONG_BIT = 0x80
 MASTER_SHIFT = 4
+RUNTIME_FLAGS = LONG_BIT | 1 << MASTER_SHIFT  # a long record with master bits 01: a runtime record
+RUNTIME_BYTES = 4
 MAX_MOTORS = 4  # direction bits 0..3 of the flags
 SHORT_RUN_BYTES = 6
 LONG_RUN_BYTES = 10
@@ -41,6 +51,7 @@ class CompactTable:
     block_offsets: np.ndarray  # (B,) byte offset of every block record
     block_long: np.ndarray  # (B,) bool
     run_long: np.ndarray  # (R,) bool
+    runtime_offsets: np.ndarray  # (T,) byte offset of every runtime record
 
     def counts(self) -> dict[str, int]:
         return {"short_blocks": int((~self.block_long).sum()), "long_blocks": int(self.block_long.sum()),
@@ -88,7 +99,8 @@ def stream_bytes(schedule: Schedule) -> int:
     long_blocks = int(_long_blocks(modulus, steps).sum())
     long_runs = int(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add).sum())
     return (long_blocks * long_block_bytes(motors) + (schedule.n_blocks - long_blocks) * short_block_bytes(motors)
-            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES + 2)
+            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES
+            + RUNTIME_BYTES * schedule.n_runtime + 2)
 
 
 def encode(schedule: Schedule) -> CompactTable:
@@ -130,26 +142,36 @@ def encode(schedule: Schedule) -> CompactTable:
     runs[run_long, 7:10] = _le(add[run_long] & 0xFFFFFF, 3)
     run_len = np.where(run_long, LONG_RUN_BYTES, SHORT_RUN_BYTES)
 
+    runtime = np.zeros((schedule.n_runtime, RUNTIME_BYTES), dtype=np.uint8)
+    runtime[:, 0] = RUNTIME_FLAGS
+    runtime[:, 1] = schedule.runtime_command
+    runtime[:, 2:4] = _le(schedule.runtime_value, 2)
+
     order, key = _record_order(schedule)
     size = max(width, LONG_RUN_BYTES)
     matrix = np.zeros((len(key), size), dtype=np.uint8)
-    matrix[:schedule.n_blocks, :width] = blocks
-    matrix[schedule.n_blocks:, :LONG_RUN_BYTES] = runs
-    length = np.concatenate([block_len, run_len])[order]
+    nt, nb = schedule.n_runtime, schedule.n_blocks
+    matrix[:nt, :RUNTIME_BYTES] = runtime
+    matrix[nt:nt + nb, :width] = blocks
+    matrix[nt + nb:, :LONG_RUN_BYTES] = runs
+    length = np.concatenate([np.full(nt, RUNTIME_BYTES), block_len, run_len])[order]
     matrix = matrix[order]
     body = matrix[np.arange(size)[None, :] < length[:, None]]
     data = body.astype(np.uint8).tobytes() + end_marker(schedule.final_tool)
     offsets = np.empty(len(key), dtype=np.int64)
     offsets[order] = np.cumsum(length) - length
-    return CompactTable(data, offsets[:schedule.n_blocks], block_long, run_long)
+    return CompactTable(data, offsets[nt:nt + nb], block_long, run_long, offsets[:nt])
 
 
 def _record_order(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
-    """Records in the order the player needs them, blocks first then runs: by the event that starts them, a
-    block before a run (order), and the sort key (2 x that event, + 1 for a run)."""
-    block_first = np.cumsum(schedule.events_per_block()) - schedule.events_per_block()
+    """Records in the order the player needs them, runtime records first, then blocks, then runs: by the event
+    that starts them (a runtime record: its block's first event, or after the last event), a runtime record
+    before a block before a run (order), and the sort key (2 x that event, + 1 for a run)."""
+    events = schedule.events_per_block()
+    block_first = np.cumsum(events) - events
     run_first = np.cumsum(schedule.run_count) - schedule.run_count
-    key = np.concatenate([2 * block_first, 2 * run_first + 1])
+    runtime_first = np.append(block_first, int(events.sum()))[schedule.runtime_block]
+    key = np.concatenate([2 * runtime_first, 2 * block_first, 2 * run_first + 1])
     return np.argsort(key, kind="stable"), key
 
 
@@ -161,7 +183,7 @@ def record_events(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
     run_len = np.where(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add), LONG_RUN_BYTES,
                        SHORT_RUN_BYTES)
     order, key = _record_order(schedule)
-    return key[order] >> 1, np.concatenate([block_len, run_len])[order]
+    return key[order] >> 1, np.concatenate([np.full(schedule.n_runtime, RUNTIME_BYTES), block_len, run_len])[order]
 
 
 def end_marker(final_tool: bool) -> bytes:
@@ -175,6 +197,8 @@ def table_lines(table: CompactTable, schedule: Schedule, line_bytes: int) -> lis
     marks = {int(o): f"block {b}: flags 0x{int(flags[b]):02X}{' (long)' if table.block_long[b] else ''}"
              for b, o in enumerate(table.block_offsets)}
     data = table.data
+    for k, o in enumerate(table.runtime_offsets):
+        marks[int(o)] = f"runtime: {RUNTIME_NAMES[int(schedule.runtime_command[k])]} {int(schedule.runtime_value[k])}"
     marks[len(data) - 2] = "end marker"
     cuts = sorted(set(marks) | {0, len(data)})
     lines = []

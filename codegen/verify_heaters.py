@@ -1,9 +1,19 @@
 """`verify` of a flash image with heaters (CLI.md): the image runs in simavr against a thermal plant per heater
-(codegen/sim/avr_plant.py: DEFAULT_PLANTS with the job's `plant:` keys) from power-up, through the start
-sequence's waits and homing, to the table's end; its pulses are compared with the twin's as for any image (the
-table starts once the waited heaters have settled: the trace's tick 0 marks it). An image that holds its heaters
-after the table never halts: its run ends HELD_AFTER_FACTOR x the table's planned duration + HELD_AFTER_S after
-the table's start.
+(codegen/sim/avr_plant.py: DEFAULT_PLANTS with the job's `plant:` keys) from power-up, through homing and the
+table with its runtime records, to its end; the player holds at each WAIT record until its heaters have settled,
+and its pulses are compared with the twin's on the twin's clock (each part after a resume from its wait's tick,
+see Holds below). An image that holds its heaters after the table never halts: its run ends HELD_AFTER_FACTOR x
+the table's planned duration + HELD_AFTER_S after the player's latest start (not while it holds).
+
+Each heater's figures are its last target's (the tables' last setting of it), from when the player read it;
+its band is measured once it has reached it and, if it was waited for, from the resume (else SETTLE_S after
+reaching it).
+
+Holds (a WAIT record stops the player's timer; it restarts at tick 0 once the heaters have settled): the
+simulated timeline has holds that the twin's has not, so the trace is cut at each resume (the harness logs every
+start of the player's timer) and each part put on the twin's clock from the tick of its wait's event (the twin
+times the events after a wait from it, as the firmware does from its restart); then the pulses compare with the
+twin's as for any image. Each hold is reported: when it began, how long it lasted, the heaters it waited for.
 
 `--fault NAME[:HEATER]@SECONDS` injects a fault into a plant at a simulated time. A protection trip fails the job
 with its reason, once verify has checked that the firmware stopped safely: every heater pin low, the steppers
@@ -15,6 +25,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,6 +34,7 @@ from codegen.firmware import HeaterFirmware
 from codegen.firmware.avr_heaters import SETTLE_PERIODS, SETTLE_WINDOW_DC
 from codegen.firmware.avr_homing import homing_ticks_bound
 from codegen.heaters.settings import heater_settings
+from codegen.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
 from codegen.pipeline import HostBuild
 from codegen.report import verify_json
 from codegen.sim.avr import SimTrace, switch_thresholds
@@ -72,8 +84,8 @@ def job_faults(specs: list[tuple[str, str | None, float]], heaters: tuple[str, .
 
 
 def verify_heaters(host: HostBuild, image, faults: tuple[Fault, ...]) -> tuple[dict, SimTrace]:
-    """verify's result (verify_json's keys with `heaters`, `table_start_s` and `faults`; a trip's own, see
-    trip_result) and the simulated trace."""
+    """verify's result (verify_json's keys with `heaters`, `table_start_s`, `holds`, `fan` and `faults`; a trip's
+    own, see trip_result) and the simulated trace (on the simulated clock: the holds in it)."""
     config = host.firmware_config()
     settings = heater_settings(host.job)
     plants = {h.name: HeaterPlant(settings[h.name].plant, settings[h.name].sensor, settings[h.name].pullup_ohm)
@@ -84,41 +96,135 @@ def verify_heaters(host: HostBuild, image, faults: tuple[Fault, ...]) -> tuple[d
     held_after_s = host.plan.total * HELD_AFTER_FACTOR + HELD_AFTER_S
     run = simulate_heaters(image.hex_path, config, HEAT_LIMIT_S + homing_s + held_after_s, plants, faults,
                            switches, held_after_s)
-    tick0 = run.steps.timer_start_cycle
-    table_start_s = None if tick0 is None else tick0 / run.steps.f_cpu
+    cycles_per_tick = run.steps.f_cpu // tick_hz
+    waits = wait_ticks(host.schedule, host.pulses.event_tick)
+    table_start_s = _table_start_s(run.steps)
+    simulated = run.steps  # the trace on the simulated clock, holds in it
+    run.steps = on_twin_clock(run.steps, waits, cycles_per_tick)
     if run.trip is not None:
         result = trip_result(host, run, image)
     else:
         result = verify_json(host, compare(host, run.steps, switches), image)
-        if tick0 is None and run.state == "budget":
+        if run.steps.timer_start_cycle is None and run.state == "budget":
             result["problems"].insert(0, f"the heaters did not settle at their targets within {HEAT_LIMIT_S:g} s")
-    result["heaters"] = {h.name: _figures(run, h, table_start_s) for h in config.heaters}
-    result["table_start_s"] = None if table_start_s is None else round(table_start_s, 6)
+        result["problems"] += hold_problems(run.steps, waits)
+        result["pass"] = result["pass"] and not result["problems"]
+    result["holds"] = holds(run.steps, host.schedule, waits, cycles_per_tick)
+    result["heaters"] = {h.name: _figures(host, run, h, waits, cycles_per_tick) for h in config.heaters}
+    result["table_start_s"] = table_start_s
+    result["fan"] = [{"at_s": round(float(t), 3), "duty": round(float(d), 4)} for t, d in run.fan[1:]]
     result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
-    return result, run.steps
+    return result, simulated
 
 
-def _figures(run: HeaterRun, heater: HeaterFirmware, table_start_s: float | None) -> dict:
-    """heater_summary's figures with the band while the table played (from its start), and `settled_s`: when the
-    firmware's wait for it was over (None: not waited for, or never); an unset heater's figures are None."""
-    name, target_c = heater.name, heater.start_target_dc / 10
-    if target_c == 0:
+def wait_ticks(schedule: Schedule, event_tick: np.ndarray) -> np.ndarray:
+    """The twin's tick of each WAIT record's event: the last event before its block (tick 0 before the first)."""
+    waits = schedule.waits()
+    block = schedule.runtime_block[waits]
+    first = np.concatenate([[0], np.cumsum(schedule.events_per_block())])[block]
+    return np.where(first > 0, event_tick[np.maximum(first - 1, 0)], 0).astype(np.int64)
+
+
+def on_twin_clock(trace, waits: np.ndarray, cycles_per_tick: int):
+    """The trace with every edge after a resume moved onto the twin's clock: the part after resume k starts at
+    tick 0 + the tick of wait k (what the twin predicts there), as if the player had not held."""
+    resumes = np.asarray(trace.resumes[:len(waits)], dtype=np.int64)
+    if not len(resumes) or trace.timer_start_cycle is None:
+        return trace
+    shift = np.concatenate([[0], trace.timer_start_cycle + waits[:len(resumes)] * cycles_per_tick - resumes])
+
+    def moved(cycles: np.ndarray) -> np.ndarray:
+        return cycles + shift[np.searchsorted(resumes, cycles, side="right")]
+
+    tool = [(int(c), v) for c, v in zip(moved(np.array([c for c, _ in trace.tool_edges], dtype=np.int64)),
+                                        (v for _, v in trace.tool_edges))]
+    order = np.argsort(moved(trace.step_cycle), kind="stable")
+    return replace(trace, step_cycle=moved(trace.step_cycle)[order], step_motor=trace.step_motor[order],
+                   step_dir=trace.step_dir[order], step_phase=trace.step_phase[order], tool_edges=tool)
+
+
+def holds(trace, schedule: Schedule, waits: np.ndarray, cycles_per_tick: int) -> list[dict]:
+    """Each hold: when the player stopped (s, simulated from power-up), how long until its timer's tick 0 again
+    (waited_s), and the heaters of its WAIT record."""
+    masks = schedule.runtime_value[schedule.waits()]
+    out, since_cycle, since_tick = [], trace.timer_start_cycle, 0
+    for resume, tick, mask in zip(trace.resumes, waits, masks):
+        stopped = since_cycle + (int(tick) - since_tick) * cycles_per_tick
+        out.append({"at_s": round(stopped / trace.f_cpu, 6), "waited_s": round((resume - stopped) / trace.f_cpu, 6),
+                    "heaters": [name for name, bit in WAIT_MASKS.items() if int(mask) & bit]})
+        since_cycle, since_tick = resume, int(tick)
+    return out
+
+
+def hold_problems(trace, waits: np.ndarray) -> list[str]:
+    """The player must have resumed once per WAIT record it reached (fewer: a run that stopped during a hold)."""
+    if trace.state in ("done", "held") and len(trace.resumes) != len(waits):
+        return [f"the player resumed {len(trace.resumes)} times, the tables hold it at {len(waits)} waits"]
+    return []
+
+
+def hold_lines(result: dict) -> list[str]:
+    """verify's text lines for the holds."""
+    return [f"  hold at {h['at_s']:.2f} s simulated for {h['waited_s']:.2f} s: waited for {', '.join(h['heaters'])}"
+            for h in result.get("holds", [])]
+
+
+def _table_start_s(trace) -> float | None:
+    """When the table's first step's tick 0 came (simulated s): the player's start, or the resume after the waits
+    before its first step."""
+    if trace.timer_start_cycle is None:
+        return None
+    starts = np.array([trace.timer_start_cycle, *trace.resumes])
+    run = trace.step_cycle[trace.step_phase == "run"]
+    first = starts[starts <= run[0]][-1] if len(run) else starts[0]
+    return round(float(first) / trace.f_cpu, 6)
+
+
+def _sim_s_of_tick(trace, waits: np.ndarray, tick: int, cycles_per_tick: int) -> float:
+    """The simulated time of the twin's tick (a record's event) on the player's parts between resumes: a record at
+    a wait's event comes at the stop before that hold."""
+    part = int(np.searchsorted(waits[:len(trace.resumes)], tick, side="left"))
+    start, since = ((trace.timer_start_cycle, 0) if part == 0
+                    else (trace.resumes[part - 1], int(waits[part - 1])))
+    return (start + (tick - since) * cycles_per_tick) / trace.f_cpu
+
+
+def _figures(host: HostBuild, run: HeaterRun, heater: HeaterFirmware, waits: np.ndarray,
+             cycles_per_tick: int) -> dict:
+    """heater_summary's figures for the heater's last target (an off at the end aside), from when the player read
+    it (an unset heater's figures are None), with `settled_s`: when the firmware's last wait for it was over
+    (None: not waited for)."""
+    name, schedule, trace = heater.name, host.schedule, run.steps
+    mine = np.flatnonzero((schedule.runtime_command == HEATER_COMMANDS[name]) & (schedule.runtime_value > 0))
+    target_c = float(schedule.runtime_value[mine[-1]]) / 10 if len(mine) else 0.0
+    if target_c == 0 or trace.timer_start_cycle is None:
         trip = run.trip if run.trip_heater == name else None
-        return {"target_c": 0.0, "time_to_target_s": None, "overshoot_c": None, "band_c": None, "trip": trip,
+        return {"target_c": target_c, "time_to_target_s": None, "overshoot_c": None, "band_c": None, "trip": trip,
                 "settled_s": None}
-    figures = heater_summary(run, name, target_c, band_from_s=table_start_s)
-    figures["settled_s"] = settled_at(run, heater) if heater.wait else None
+    block = int(schedule.runtime_block[mine[-1]])
+    first = int(np.concatenate([[0], np.cumsum(schedule.events_per_block())])[block])
+    tick = int(host.pulses.event_tick[first - 1]) if first > 0 else 0
+    since_s = _sim_s_of_tick(trace, waits, tick, cycles_per_tick)
+    waited = [k for k in schedule.waits() if schedule.runtime_block[k] >= block
+              and schedule.runtime_value[k] & WAIT_MASKS[name]]
+    resume = None
+    if waited:
+        k = int(np.searchsorted(schedule.waits(), waited[0]))
+        resume = trace.resumes[k] / trace.f_cpu if k < len(trace.resumes) else None
+    figures = heater_summary(run, name, target_c, band_from_s=resume, since_s=since_s)
+    figures["settled_s"] = settled_at(run, heater, round(target_c * 10), since_s) if waited else None
     return {key: round(v, 3) if isinstance(v, float) and key != "target_c" else v for key, v in figures.items()}
 
 
-def settled_at(run: HeaterRun, heater: HeaterFirmware) -> float | None:
-    """When the firmware's wait for `heater` was over: the reading that made SETTLE_PERIODS in a row within
-    SETTLE_WINDOW_DC of its target (the firmware's own test, on the readings it took)."""
+def settled_at(run: HeaterRun, heater: HeaterFirmware, target_dc: int, since_s: float = 0.0) -> float | None:
+    """When the firmware's wait for `heater` at `target_dc` was over: the reading (from `since_s` on) that made
+    SETTLE_PERIODS in a row within SETTLE_WINDOW_DC of its target (the firmware's own test, on its readings)."""
     trace = run.heaters[heater.name]
-    within = np.abs(np.asarray(heater.table)[trace.reading] - heater.start_target_dc) <= SETTLE_WINDOW_DC
+    after = trace.read_s >= since_s
+    within = np.abs(np.asarray(heater.table)[trace.reading[after]] - target_dc) <= SETTLE_WINDOW_DC
     runs = np.convolve(within, np.ones(SETTLE_PERIODS, dtype=int), "valid")
     done = np.flatnonzero(runs == SETTLE_PERIODS)
-    return float(trace.read_s[done[0] + SETTLE_PERIODS - 1]) if len(done) else None
+    return float(trace.read_s[after][done[0] + SETTLE_PERIODS - 1]) if len(done) else None
 
 
 def trip_result(host: HostBuild, run: HeaterRun, image) -> dict:
@@ -183,11 +289,14 @@ def heater_lines(result: dict) -> list[str]:
             band = "n/a" if h["band_c"] is None else f"{h['band_c']:.2f} degC"
             settled = "" if h["settled_s"] is None else f", settled at {h['settled_s']:.1f} s"
             text = (f"{h['target_c']:g} degC reached in {h['time_to_target_s']:.1f} s{settled}, overshoot "
-                    f"{h['overshoot_c']:.2f} degC, band {band} while the table played")
+                    f"{h['overshoot_c']:.2f} degC, band {band} while it held that target")
         lines.append(f"  heater {name}: {text}" + (f", trip: {h['trip']}" if h["trip"] else ""))
-    waited = any(h["settled_s"] is not None for h in result["heaters"].values())
-    if result["table_start_s"] is not None and waited:
-        lines.append(f"  the table started at {result['table_start_s']:.2f} s simulated, after the waits")
+    lines += hold_lines(result)
+    if result.get("fan"):
+        lines.append("  fan: " + ", ".join(f"{100 * f['duty']:.0f} % at {f['at_s']:.2f} s" for f in result["fan"]))
+    start = result["table_start_s"]
+    if start is not None and any(h["at_s"] < start for h in result["holds"]):
+        lines.append(f"  the table's first move started at {start:.2f} s simulated, after the waits before it")
     trip = result.get("trip")
     for f in result["faults"]:
         tripped = trip is not None and trip["heater"] == f["heater"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, replace
-from typing import BinaryIO
+from typing import BinaryIO, Callable
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
 from codegen.link.ring import LinkBudget, Ring, Shortfall
 from codegen.lookahead import Lookahead, Window, merge
+from codegen.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
 from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
@@ -52,6 +53,7 @@ class Played:
     timing_error_ticks: float  # the largest distance of an emitted event from its planned time
     events: Events | None  # these two only when the stages keep them
     pulses: Pulses | None  # ticks absolute, event_position counted from the program's start
+    prior_item: int = -1  # the item of the last block before the window (its runtime records come after it)
 
 
 @dataclass
@@ -90,6 +92,7 @@ class _Carried:
     position: np.ndarray  # (M,) steps after the last event, from the program's start
     before: Segments | None  # the last segment
     ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
+    block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
 
 
 class Stages:
@@ -98,17 +101,20 @@ class Stages:
 
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
                  lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
-                 link: LinkBudget | None = None):
+                 link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None):
         """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
         `tables` gets each final window's table records as it is made (a window ends at a block and a run
         start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
-        stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows)."""
+        stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
+        `runtime`: the program's runtime records so far (codegen/runtime.py), whose cost the blocks after them
+        get."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
         self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
+        self.runtime = runtime
         motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
         self.gaps = (target.run_gap_ticks(motors, pulse_us),
                      target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
@@ -152,8 +158,15 @@ class Stages:
         for p in out:
             self.totals.add(p)
             if self.tables is not None:
-                self.tables.write(encode(p.compressed.schedule).data[:-len(end_marker(False))])
+                self.tables.write(encode(self._with_runtime(p, last and p is out[-1])).data[:-len(end_marker(False))])
         return out
+
+    def _with_runtime(self, played: Played, last: bool):
+        """A final window's schedule with its runtime records, for the table stream."""
+        schedule = played.compressed.schedule
+        if self.runtime is None:
+            return schedule
+        return window_runtime(schedule, self.runtime(), played.window.segments.item, played.prior_item, last)
 
     def finish(self) -> None:
         if self.tables is not None:
@@ -167,14 +180,17 @@ class Stages:
         with watch("step times"):
             events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
                               curves=True)
+        block_item = window.segments.item[events.block_segment]
+        extra = None if self.runtime is None else block_extra_ticks(
+            self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
         with watch("rate runs"):
             compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=kin.limits.max_rate,
-                                  origin_fx=before.origin_fx)
+                                  origin_fx=before.origin_fx, block_extra_ticks=extra)
         with watch("twin"):
             pulses = predict(compressed.schedule, before.origin_fx, before.position)
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep else None)
+                        events if self.keep else None, pulses if self.keep else None, before.block_item)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
         around = concat(*parts)
@@ -190,7 +206,8 @@ class Stages:
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
         ring = None if before.ring is None else before.ring.copy()
         carried = _Carried(checker, _end_fx(played), position,
-                           window.segments.take(np.arange(n - 1, n)) if n else before.before, ring)
+                           window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
+                           int(block_item[-1]) if len(block_item) else before.block_item)
         scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
         if ring is not None:
             with watch("link"):

@@ -50,15 +50,22 @@ class _Reader:
         return value - (1 << 8 * width) if value >> (8 * width - 1) else value
 
 
-def play_stream(data: bytes, motors: int) -> tuple[list[tuple[int, int, int]], list[int], bool]:
+def play_stream(data: bytes, motors: int, runtime: list | None = None) \
+        -> tuple[list[tuple[int, int, int]], list[int], bool]:
     """(tick, motor, dir) of every pulse, the tool flag of every event and the final tool state, from the compact
     stream: a block lasts `modulus` events; a short block's master steps at every event; the runs follow one
-    another over all events; at an event that starts a block and a run, the block record comes first."""
+    another over all events; at an event that starts a block and a run, the block record comes first. Runtime
+    records (flags 0x90) go to `runtime` as (the events played before them, command, value)."""
     read = _Reader(data)
     pulses, tools = [], []
     pos = interval = add = run_left = 0
     while True:
         flags = read.u(1)
+        if flags == 0x90:
+            command, value = read.u(1), read.u(2)
+            if runtime is not None:
+                runtime.append((len(tools), command, value))
+            continue
         if flags & 0x80:
             modulus = read.u(2)
             steps = [read.u(2) for _ in range(motors)]

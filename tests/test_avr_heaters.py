@@ -16,19 +16,22 @@ from codegen.firmware.avr import build_image, render_sources
 from codegen.firmware.avr_heaters import SLICE_CYCLES, heater_firmware
 from codegen.gcode import toolpath_from_gcode
 from codegen.heaters.control import bang_bang, pid_reference
-from codegen.heaters.program import HeaterProgram, HeaterStart
+from codegen.runtime import runtime_records
+from codegen.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
+from codegen.segments import Flattener
 from codegen.heaters.settings import HeaterSettings, heater_settings
 from codegen.job import load_job
 from codegen.pipeline import host_build
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
 from codegen.targets import board_heater_pins
 from codegen.verify import compare, simulated_switches
-from codegen.verify_heaters import settled_at
+from codegen.verify_heaters import on_twin_clock, settled_at
 from tests.helpers import gcode_job_file, make_schedule
 from tests.reference_player import play
 
 ROOT = Path(__file__).resolve().parent.parent
 F_CPU = 16_000_000
+CYCLES_PER_TICK = 8  # the player's 2 MHz tick
 HOOK_CHECK_CYCLES = 31  # heaters_hook.S's longest way with interrupts off when it runs no stage (cli .. sei; ret)
 HOOK_CYCLES = 77  # heaters_hook.S around a stage: from the check's TCNT1 read to the call, and from the return to
 #                   the next check's TCNT1 read or the SEI's RET
@@ -44,10 +47,22 @@ def settings() -> dict[str, HeaterSettings]:
     return heater_settings(job)
 
 
+def with_targets(schedule, targets, wait, end_off):
+    """`schedule` behind runtime records at its start (each heater's target, then one WAIT for all of them when
+    `wait`) and, with `end_off`, every heater off before the end marker."""
+    rows = [(0, HEATER_COMMANDS[name], round(10 * t)) for name, t in targets.items()]
+    if wait:
+        rows.append((0, RT_WAIT, sum(WAIT_MASKS[name] for name in targets)))
+    if end_off:
+        rows += [(schedule.n_blocks, HEATER_COMMANDS[name], 0) for name in targets]
+    block, command, value = (np.array(c, dtype=np.int64) for c in zip(*rows))
+    return replace(schedule, runtime_block=block, runtime_command=command, runtime_value=value)
+
+
 def image(tmp_path, settings, schedule, motors, targets, wait=True, end_off=False, config=None):
     pins = board_heater_pins("ramps-1.4")
-    heaters = tuple(heater_firmware(settings[name], pins[name], HeaterStart(target, wait, end_off))
-                    for name, target in targets.items())
+    heaters = tuple(heater_firmware(settings[name], pins[name]) for name in targets)
+    schedule = with_targets(schedule, targets, wait, end_off)
     if config is None:
         config = FirmwareConfig("heaters", "tests/test_avr_heaters.py", "avr", "ramps-1.4",
                                 tuple(MotorPins(m, m.upper()) for m in motors))
@@ -70,23 +85,33 @@ def long_table():
     return make_schedule(("x",), [((1,), (1500,), 1500, (0,), False, [(80000 * 256, 0, 1500)])])
 
 
-@pytest.mark.parametrize("gcode, hotend, bed", [
-    ("slicer/puzzle-cura.gcode", 195.0, 50.0),  # M190 S50, M104 S195, M109 S195, G28 ... M104 S0, M140 S0
-    ("slicer/benchy-prusaslicer.gcode", 205.0, 60.0),  # M104 S170, M140 S60, M109 R170, M190 S60, G28, M104 S205,
-])  # M109 S205 ... M140 S50 (layer 2: not played yet) ... M104 S0, M140 S0
-def test_start_sequences_of_sliced_files(tmp_path, gcode, hotend, bed):
-    """The firmware's targets from a sliced file's start sequence: the last set before the first move, waited
-    for, and off when the table has played (the file's last setting is 0)."""
+@pytest.mark.parametrize("gcode, settings_in_order", [
+    # M190 S50, M104 S195, M109 S195 ... M104 S0, M140 S0, M104 S0
+    ("slicer/puzzle-cura.gcode", [("bed", 500), ("wait", 2), ("hotend", 1950), ("hotend", 1950), ("wait", 1),
+                                  ("hotend", 0), ("bed", 0), ("hotend", 0)]),
+    # M104 S170, M140 S60, M109 R170, M190 S60, M104 S205, M109 S205 ... M140 S50 (layer 2) ... M104 S0, M140 S0
+    ("slicer/benchy-prusaslicer.gcode", [("hotend", 1700), ("bed", 600), ("hotend", 1700), ("wait", 1),
+                                         ("bed", 600), ("wait", 2), ("hotend", 2050), ("hotend", 2050), ("wait", 1),
+                                         ("bed", 500), ("hotend", 0), ("bed", 0)]),
+])
+def test_settings_of_sliced_files_become_records(tmp_path, gcode, settings_in_order):
+    """A sliced file's heater settings as runtime records in program order (each M109 / M190 a target and a
+    WAIT), and a dwell at each wait: the plan rests there."""
     toolpath, _ = toolpath_from_gcode(load_job(gcode_job_file(tmp_path, gcode)))
-    program = HeaterProgram()
-    program.feed(toolpath.items)
-    assert program.start == {"hotend": HeaterStart(hotend, True, True), "bed": HeaterStart(bed, True, True)}
+    flattener = Flattener(toolpath.start, 0.01, runtime=True)
+    segments = flattener(toolpath.items)
+    records = runtime_records(flattener.settings, ("hotend", "bed"))
+    names = {v: k for k, v in HEATER_COMMANDS.items()} | {RT_WAIT: "wait"}
+    assert [(names[int(c)], int(v)) for c, v in zip(records.command, records.value)] == settings_in_order
+    waits = records.item[records.command == RT_WAIT]
+    assert np.all(segments.dwell[np.searchsorted(segments.item, waits)] > 0)
 
 
 def test_heats_holds_and_runs_the_host_control_laws(tmp_path, settings):
     """Hot end 25 -> 210 degC (PID), bed 25 -> 60 degC (bang-bang), both waited for, then held: the duties the
     firmware set are the host's laws' for the readings it took, period by period."""
-    img, config = image(tmp_path, settings, short_table(), "x", {"hotend": 210.0, "bed": 60.0})
+    targets = {"hotend": 210.0, "bed": 60.0}
+    img, config = image(tmp_path, settings, short_table(), "x", targets)
     run = simulate_heaters(img.hex_path, config, 170.0, plants(settings, config))
     assert run.state == "budget" and run.trip is None  # still holding
     hot, bed = heater_summary(run, "hotend", 210.0), heater_summary(run, "bed", 60.0)
@@ -100,13 +125,13 @@ def test_heats_holds_and_runs_the_host_control_laws(tmp_path, settings):
         trace = run.heaters[h.name]
         temps = np.asarray(h.table)[trace.reading]
         law = pid_reference if h.name == "hotend" else bang_bang
-        want = law(h.control, temps, h.start_target_dc)
+        want = law(h.control, temps, round(10 * targets[h.name]))
         assert len(trace.reading) >= 1690  # one reading per 0.1 s
         assert np.array_equal(trace.period_duty[:-1], want[:-1]), h.name  # the last period may not be written yet
         assert np.all(np.abs(np.diff(trace.read_s) - 0.1) < 0.002)
     # The table started once both had been within 2 degC for 3 s, and played while they held.
-    settled = max(settled_at(run, h) for h in config.heaters)
-    assert settled < run.steps.timer_start_cycle / F_CPU < settled + 0.01
+    settled = max(settled_at(run, h, round(10 * targets[h.name])) for h in config.heaters)
+    assert len(run.steps.resumes) == 1 and settled < run.steps.resumes[0] / F_CPU < settled + 0.01
     assert len(run.steps.step_cycle) == 100
 
 
@@ -152,23 +177,25 @@ def test_start_sequence_waits_then_moves_like_the_twin(tmp_path, settings):
     run = simulate_heaters(img.hex_path, config, 30.0, plants(settings, config, hotend=207.0, bed=58.5),
                            switches=switches)
     assert run.state == "done" and run.trip is None and run.heater_pins_low
-    settled = max(settled_at(run, h) for h in config.heaters)
-    print("settled", settled, "tick 0", run.steps.timer_start_cycle / F_CPU)
-    assert settled > 3.0 and settled < run.steps.timer_start_cycle / F_CPU < settled + 0.01
-    verdict = compare(host, run.steps, switches)
+    settled = max(settled_at(run, h, {"hotend": 2100, "bed": 600}[h.name]) for h in config.heaters)
+    resumed = run.steps.resumes[0] / F_CPU  # the WAIT before the first block held the player until then
+    print("settled", settled, "resumed", resumed)
+    assert len(run.steps.resumes) == 1 and settled > 3.0 and settled < resumed < settled + 0.01
+    steps = on_twin_clock(run.steps, np.array([0]), CYCLES_PER_TICK)
+    verdict = compare(host, steps, switches)
     assert verdict.ok, verdict.problems
 
     plain = build_image(render_sources(host.schedule, host.firmware_config()), tmp_path / "plain",
                         host.schedule.table_bytes())
     baseline = simulate_heaters(plain.hex_path, host.firmware_config(), 30.0, {}, switches=switches).steps
-    delayed = ((run.steps.step_cycle - run.steps.timer_start_cycle)
+    delayed = ((steps.step_cycle - steps.timer_start_cycle)
                - (baseline.step_cycle - baseline.timer_start_cycle))
     print("delayed", np.unique(delayed, return_counts=True), "stages", run.stages, "at most", run.stage_max_cycles,
           "cycles; timing", verdict.timing_error_us)
     assert -2 <= delayed.min() and delayed.max() <= HOOK_CHECK_CYCLES  # +-2: main awake or asleep at a compare
     assert run.stages > 200 and run.stage_max_cycles + HOOK_CYCLES <= SLICE_CYCLES
     # Steps at up to 32 kHz (504 cycles apart) leave room for every stage: the heaters keep their period.
-    t0, t1 = run.steps.timer_start_cycle / F_CPU, run.steps.step_cycle[-1] / F_CPU
+    t0, t1 = resumed, run.steps.step_cycle[-1] / F_CPU
     for trace in run.heaters.values():
         during = trace.read_s[(trace.read_s > t0) & (trace.read_s < t1)]
         assert len(during) >= 30 and np.all(np.abs(np.diff(during) - 0.1) < 0.002)
@@ -185,7 +212,8 @@ def test_hook_delays_a_step_by_at_most_its_check(tmp_path, settings):
     run = simulate_heaters(img.hex_path, config, 30.0, plants(settings, config, hotend=211.0, bed=61.0))
     assert run.state == "done" and run.trip is None
     ticks = np.array([t for t, _, _ in play(sched)], dtype=np.int64)
-    late = run.steps.step_cycle - run.steps.timer_start_cycle - (F_CPU // 2_000_000) * ticks
+    steps = on_twin_clock(run.steps, np.array([0]), CYCLES_PER_TICK)  # its first block waited for the heaters
+    late = steps.step_cycle - steps.timer_start_cycle - CYCLES_PER_TICK * ticks
     delayed = late - late.min()
     print("step latency", late.min(), "delayed", np.count_nonzero(delayed), "by at most", delayed.max(),
           "stages", run.stages, "at most", run.stage_max_cycles)

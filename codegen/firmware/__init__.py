@@ -41,7 +41,8 @@ class HomingAxis:
 @dataclass(frozen=True)
 class HeaterFirmware:
     """A heater the firmware controls (codegen/firmware/avr_heaters.py renders it): its pins, the sensor's ADC
-    table, the integer control law and the thermal protection (codegen.heaters), the start sequence's target.
+    table, the integer control law and the thermal protection (codegen.heaters). Its targets and waits come from
+    the table's runtime records.
     Temperatures are int16 deci-degrees (0.1 degC), times are control periods (PID_PERIOD_S = 0.1 s)."""
 
     name: str  # hotend, bed: names the heater in the sources and in the reports
@@ -50,9 +51,6 @@ class HeaterFirmware:
     table: tuple[int, ...]  # deci-degrees by 10-bit ADC reading (1024 entries), codegen.heaters.sensors
     control: object  # codegen.heaters.control.FixedPid or FixedBangBang
     protection: object  # codegen.heaters.protection.FixedProtection: limits, sensor readings, watch and runaway
-    start_target_dc: int = 0  # the start sequence's target (M104 / M140 S); 0: off
-    wait: bool = False  # M109 / M190: the table waits until this heater has settled at its target
-    end_off: bool = False  # the heater goes off when the table has played (a sliced file's M104 S0)
 
 
 @dataclass(frozen=True)

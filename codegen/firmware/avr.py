@@ -139,8 +139,10 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         table = tables.encode(schedule)
     except ValueError as exc:
         raise BuildError(f"the schedule cannot be played by the {context['mcu']} player: {exc}") from exc
+    if schedule.n_runtime and not config.heaters:
+        raise BuildError("the tables carry heater or fan settings, but the image runs no heaters")
     context.update({"table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
-                    "chunks": table_chunks(table)})
+                    "chunks": table_chunks(table), "runtime_records": schedule.n_runtime})
     names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
     names += ("heaters.h", "heaters.c", "heaters_table.c", "heaters_hook.S") if config.heaters else ()
     return {name: render(f"avr/{name}.j2", **context) for name in names}

@@ -1,6 +1,8 @@
 """The ATmega2560 heater runtime (templates/avr/heaters.c.j2, heaters.h.j2, heaters_hook.S.j2): a job's heaters
-as FirmwareConfig.heaters (job_heaters: the board file's pins, the program's start sequence), and what the
-templates need from them.
+as FirmwareConfig.heaters (job_heaters: the board file's pins), the fan, and what the templates need from them.
+The program's settings reach them as the table's runtime records (codegen/runtime.py): the step interrupt keeps
+the latest value of each, heaters.c applies them at its next period, and a WAIT holds the player until the
+heaters of its mask have settled (SETTLE_WINDOW_DC for SETTLE_PERIODS).
 
 The runtime adds no interrupt: Timer3 counts the 0.1 s control period in CTC mode (its compare flag, polled),
 the ADC is started and polled, the heaters' MOSFETs are driven by hardware fast PWM (Timer2 OC2A, Timer4 OC4C at
@@ -20,7 +22,8 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, HeaterFirmware
 from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid
 from codegen.heaters.protection import REASONS
-from codegen.heaters.program import HeaterProgram, HeaterStart
+from codegen.heaters.program import HeaterProgram
+from codegen.schedule import HEATER_COMMANDS, RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT, WAIT_MASKS
 from codegen.heaters.settings import HeaterSettings, heater_settings
 
 PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
@@ -31,6 +34,7 @@ HOOK_SAVED = ("r20", "r21", "r22", "r23", "r24", "r25", "r26", "r27", "r30", "r3
 HEATERS_FAULT_BIT = 7  # GPIOR0: the heaters stopped the machine (GPIOR1: 1 + the reason's index, GPIOR2: heater)
 HEATERS_BUSY_BIT = 6  # GPIOR0: a stage of the period is pending (the hook comes back for it)
 TABLE_LINE = 12  # table entries per line of heaters.c
+RUNTIME_COMMANDS = {"target_hotend": RT_TARGET_HOTEND, "target_bed": RT_TARGET_BED, "fan": RT_FAN, "wait": RT_WAIT}
 
 # Hardware PWM outputs of the ATmega2560 that the boards use for MOSFETs: the timer and its channel, each timer
 # in 8-bit fast PWM (TOP 0xFF, prescaler 1024: 61 Hz).
@@ -49,23 +53,21 @@ TIMER_SETUP = {
 }
 
 
-def heater_firmware(settings: HeaterSettings, pins: tuple[str, str], start: HeaterStart | None = None) \
-        -> HeaterFirmware:
+def heater_firmware(settings: HeaterSettings, pins: tuple[str, str]) -> HeaterFirmware:
     """A job's heater (codegen.heaters.settings) as the firmware's config, on the board's pins (MOSFET and
-    thermistor: codegen.targets.board_heater_pins), with the program's start sequence for it (None: off)."""
+    thermistor: codegen.targets.board_heater_pins)."""
     pwm_pin, sensor_pin = pins
-    start = start or HeaterStart()
     return HeaterFirmware(settings.name, pwm_pin, sensor_pin, tuple(int(v) for v in settings.table()),
-                          settings.fixed_control(), settings.fixed_protection(), round(start.target_c * 10),
-                          start.wait, start.end_off)
+                          settings.fixed_control(), settings.fixed_protection())
 
 
 def job_heaters(job, board_pins: dict[str, tuple[str, str]], program: HeaterProgram) -> tuple[HeaterFirmware, ...]:
-    """The heaters a flash image runs: none unless the program sets one or the machine lists `heaters:`; then
-    each of the job's heaters (heater_settings: the board's defaults without `heaters:`) that the board has."""
-    if not program.start and job.machine.heaters is None:
+    """The heaters a flash image runs: none unless the program sets a heater or the fan, or the machine lists
+    `heaters:`; then each of the job's heaters (heater_settings: the board's defaults without `heaters:`) that
+    the board has."""
+    if not program.first and not program.sets_fan and job.machine.heaters is None:
         return ()
-    return tuple(heater_firmware(s, board_pins[name], program.start.get(name))
+    return tuple(heater_firmware(s, board_pins[name])
                  for name, s in heater_settings(job).items() if name in board_pins)
 
 
@@ -116,18 +118,20 @@ def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
             pins_used.add(pin)
         timers.setdefault(pwm["timer"], TIMER_SETUP[pwm["timer"]])
         p = h.protection
-        if not (0 <= p.adc_short < p.adc_open <= 1023 and p.min_temp_dc < p.max_temp_dc
-                and 0 <= h.start_target_dc <= p.max_temp_dc):
-            raise BuildError(f"heater {h.name}: inconsistent limits or start target")
+        if not (0 <= p.adc_short < p.adc_open <= 1023 and p.min_temp_dc < p.max_temp_dc):
+            raise BuildError(f"heater {h.name}: inconsistent limits")
         heaters.append({
             "index": k, "name": h.name, "pwm": pwm, "sensor": sensor.__dict__, "adc": adc_channel(sensor),
             "table": _table_lines(h.table), "control": _control(h), "protection": p,
-            "start_target_dc": h.start_target_dc, "wait": h.wait, "end_off": h.end_off})
-    fan_pin = load_target(config.board).get("fan")  # held off until the table format carries M106
+            "command": HEATER_COMMANDS[h.name], "wait_mask": WAIT_MASKS[h.name]})
+    fan_pin = load_target(config.board).get("fan")
     fan = _pwm(parse_pin(fan_pin)) if fan_pin else None
+    fan = fan if fan and fan["pin"]["name"] not in pins_used else None
+    if fan:
+        timers.setdefault(fan["timer"], TIMER_SETUP[fan["timer"]])
     period_ticks = round(PID_PERIOD_S * f_cpu / PERIOD_PRESCALE)
     return {"heaters": heaters, "heater_timers": sorted(timers.items()),
-            "fan": fan if fan and fan["pin"]["name"] not in pins_used else None,
+            "fan": fan, "rt": RUNTIME_COMMANDS,
             "period_ticks": period_ticks, "period_prescale": PERIOD_PRESCALE,
             "settle_window_dc": SETTLE_WINDOW_DC, "settle_periods": SETTLE_PERIODS,
             "pid_range_dc": PID_FUNCTIONAL_RANGE_DC, "d_filter_shift": D_FILTER_SHIFT, "reasons": REASONS,

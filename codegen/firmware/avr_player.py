@@ -16,6 +16,7 @@ from __future__ import annotations
 import bisect
 
 from codegen.errors import BuildError
+from codegen.schedule import RUNTIME_NAMES
 from codegen.tables import CompactTable
 
 CHUNK_BYTES = 32767  # avr-gcc objects stop at 32767 bytes
@@ -99,10 +100,12 @@ def isr_context(motors: list[dict], step_ports: list[dict], dir_ports: list[dict
 
 def table_chunks(table: CompactTable) -> list[dict]:
     """table.c's chunks of at most CHUNK_BYTES as lines of at most LINE_BYTES, with a comment line where each
-    block record starts (and at the end marker)."""
+    block record and each runtime record starts (and at the end marker)."""
     data = table.data
     marks = {int(o): f"block {b}: flags 0x{data[o]:02X}{' (long)' if table.block_long[b] else ''}"
              for b, o in enumerate(table.block_offsets)}
+    for o in table.runtime_offsets:
+        marks[int(o)] = f"runtime: {RUNTIME_NAMES[data[o + 1]]} {data[o + 2] | data[o + 3] << 8}"
     marks[len(data) - 2] = "end marker"
     offsets = sorted(marks)
     chunks = []

@@ -17,19 +17,22 @@
  * floating-point results are the same bits (np.cumsum and np.maximum.accumulate are sequential too): the planned
  * ticks pushed apart (a running maximum of the planned tick less the pushes' running sum) and each event's window,
  * as a range of positions counted from tick `base`. block_first: B + 1 entries, from 0 to the number of events;
- * `rate_gap`: per block, the gap (ticks) pushed events catch up with at most, or NULL. */
+ * `rate_gap`: per block, the gap (ticks) pushed events catch up with at most, or NULL; `block_extra`: per block,
+ * the ticks its first event needs beyond block_gap (runtime records), or NULL. */
 void timing_windows(int64_t blocks, const int64_t *block_first, const double *time, const double *rate_gap,
-                    double tick_hz, int64_t run_gap, int64_t block_gap, double origin, int64_t base, double share,
+                    const int64_t *block_extra, double tick_hz, int64_t run_gap, int64_t block_gap, double origin, int64_t base, double share,
                     double min_ticks, double max_ticks, int64_t *needed, double *ideal, double *window,
                     int64_t *lo, int64_t *hi)
 {
-    const double run_push = 1.1 * (double)run_gap + 2.0, block_push = 1.1 * (double)block_gap + 2.0;
+    const double run_push = 1.1 * (double)run_gap + 2.0;
     double planned_before = origin, total = 0.0, pushed = -INFINITY, ideal_before = origin;
     for (int64_t b = 0; b < blocks; b++) {
         const int64_t first = block_first[b], end = block_first[b + 1];
+        const int64_t gap = block_gap + (block_extra != NULL ? block_extra[b] : 0);
+        const double block_push = 1.1 * (double)gap + 2.0;
         /* Two loops over the block's events (the second's arithmetic does not wait on the running sum). */
         for (int64_t k = first; k < end; k++) {
-            needed[k] = k == first ? block_gap : run_gap;
+            needed[k] = k == first ? gap : run_gap;
             const double planned = time[k] * tick_hz;
             double push = k == first ? block_push : run_push;
             if (rate_gap != NULL) {

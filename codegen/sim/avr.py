@@ -59,6 +59,7 @@ class SimTrace:
     homing_failed: bool = False  # the image stopped in homing's error state (and played no table)
     homing_fault: str | None = None  # which motors and phase, when homing_failed
     display: Any = None  # a board's status display, decoded (codegen.sim.hd44780.Display); None without one
+    resumes: tuple[int, ...] = ()  # tick 0 of each restart of the player's timer after a hold (a WAIT record)
 
     def run_only(self) -> SimTrace:
         """The same trace with the step table's pulses only (phase "run")."""
@@ -181,6 +182,12 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     tick0 = timer_start + START_TICKS * (f_cpu // tick_hz) if timer_start >= 0 else None
     status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
     return decode_edges(rec, config, state, cycles, tick0, _homing_fault(config, *status))
+
+
+def timer_ticks0(fields: dict, f_cpu: int, tick_hz: int) -> list[int]:
+    """Tick 0 of every start of the player's timer (the harness's `starts`): the first, then each resume."""
+    starts = fields.get("starts", "-")
+    return [] if starts == "-" else [int(c) + START_TICKS * (f_cpu // tick_hz) for c in starts.split(",")]
 
 
 def read_edges(path: Path) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import subprocess
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -26,7 +26,7 @@ from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
 from codegen.sim.avr import EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges, \
-    switch_args, watched_pins
+    switch_args, timer_ticks0, watched_pins
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}
@@ -81,6 +81,7 @@ class HeaterRun:
     stage_max_cycles: int  # the longest heater stage while the table played (heaters_poll's call), 0: none
     stages: int  # how many stages ran while the table played
     steps: SimTrace
+    fan: np.ndarray  # (K, 2): the fan's duty (0..1) from each simulated time (s) on; [[0, 0]] at power-up
 
 
 def _stage_address(hex_path: Path) -> int | None:
@@ -100,6 +101,11 @@ def _plant_file(config: FirmwareConfig, plants: dict[str, HeaterPlant], faults, 
     first, step, n = MV_TABLE_C
     lines = [f"log {log}", "avcc 5000", f"sample {round(PID_PERIOD_S * f_cpu)}"]
     lines += [f"stage {stage:x}"] if stage is not None else []
+    fan = load_target(config.board).get("fan")
+    if fan and fan not in {h.pwm_pin for h in config.heaters} and fan in PWM_CHANNELS:
+        pin, pwm = parse_pin(fan), PWM_CHANNELS[fan]
+        ocr, tccra, com = PWM_REGISTERS[pwm["timer"], pwm["channel"]]
+        lines.append(f"fan {ocr:x} {tccra:x} {com:x} {PORTS[pin.port]:x} {pin.bit}")
     for h in config.heaters:
         hp, pwm = plants[h.name], PWM_CHANNELS[h.pwm_pin]
         ocr, tccra, com = PWM_REGISTERS[pwm["timer"], pwm["channel"]]
@@ -117,7 +123,7 @@ def _plant_file(config: FirmwareConfig, plants: dict[str, HeaterPlant], faults, 
 
 
 def _read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
-    rows: dict[str, list] = {"A": [], "D": [], "S": []}
+    rows: dict[str, list] = {"A": [], "D": [], "S": [], "F": []}
     end: dict = {"P": {}, "H": {}}
     for line in path.read_text().splitlines():
         kind, *v = line.split()
@@ -137,6 +143,7 @@ def _read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
         duty256 = d[np.searchsorted(d[:, 0], nxt, side="left") - 1, 2]
         per[k] = HeaterTrace(s[:, 0] / f_cpu, s[:, 2], s[:, 3] / 256, a[:, 0] / f_cpu, a[:, 2].astype(np.int64),
                              np.minimum(duty256, 255).astype(np.int64))
+    end["F"] = np.array([[0.0, 0.0]] + [[c / f_cpu, d / 256] for c, d in rows["F"]]).reshape(-1, 2)
     return per, end
 
 
@@ -168,7 +175,8 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
     timer_start = int(fields["timer_start"])
     tick0 = timer_start + START_TICKS * (f_cpu // tick_hz) if timer_start >= 0 else None
     homing = None if tripped else _homing_fault(config, status, reason, which)  # the same status bytes
-    steps = decode_edges(rec, config, state, cycles, tick0, homing)
+    steps = replace(decode_edges(rec, config, state, cycles, tick0, homing),
+                    resumes=tuple(timer_ticks0(fields, f_cpu, tick_hz)[1:]))
     tccr1b, timsk1 = end["T"]
     disabled = all((end["P"][w.enable.port] >> w.enable.bit & 1) == int(pins.enable_active_low) for w in pins.motors)
     pins_low = all(end["H"][k] == 0 for k in range(len(config.heaters)))
@@ -178,19 +186,23 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
                      trip_heater=config.heaters[which].name if tripped else None,
                      trip_s=cycles / f_cpu if tripped else None, heater_pins_low=pins_low,
                      steppers_stopped=(tccr1b & 7) == 0 and timsk1 == 0 and disabled,
-                     stage_max_cycles=end["I"][0], stages=end["I"][1], steps=steps)
+                     stage_max_cycles=end["I"][0], stages=end["I"][1], steps=steps, fan=end["F"])
 
 
 def heater_summary(run: HeaterRun, name: str, target_c: float, settle_s: float = SETTLE_S,
-                   band_from_s: float | None = None) -> dict:
-    """verify's figures for one heater: target_c, time_to_target_s (first within 1 degC), overshoot_c, band_c
-    (the largest distance from the target from settle_s after reaching it, or with `band_from_s` from that
-    simulated time: verify's table start), trip (None or the reason)."""
+                   band_from_s: float | None = None, since_s: float = 0.0) -> dict:
+    """verify's figures for one heater from simulated time `since_s` (when its target was set) on: target_c,
+    time_to_target_s (first within 1 degC, from since_s), overshoot_c, band_c (the largest distance from the target
+    from settle_s after reaching it, or with `band_from_s` from that simulated time, the end of a wait for it, once
+    it has reached it),
+    trip (None or the reason)."""
     h = run.heaters[name]
-    figures = heating_figures(SimpleNamespace(time_s=h.time_s, temp_c=h.temp_c), target_c, settle_s)  # reads those two
+    after = h.time_s >= since_s
+    figures = heating_figures(SimpleNamespace(time_s=h.time_s[after] - since_s, temp_c=h.temp_c[after]), target_c,
+                              settle_s)  # reads those two
     band = figures.band_c
     if band_from_s is not None and figures.time_to_target_s is not None:
-        after = h.time_s >= band_from_s
+        after = h.time_s >= max(band_from_s, since_s + figures.time_to_target_s)  # holding it: reached, waited for
         band = float(np.abs(h.temp_c[after] - target_c).max()) if after.any() else None
     return {"target_c": target_c, "time_to_target_s": figures.time_to_target_s, "overshoot_c": figures.overshoot_c,
             "band_c": band, "trip": run.trip if run.trip_heater in (None, name) else None}

@@ -6,7 +6,8 @@
  *   OPTION: a SWITCH, or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
  *   then the boot's, until the firmware turns its receiver on), or plant=FILE (thermal plants behind the ADC and
  *   the heaters' PWM: simavr_plant.c), or held=CYCLES (the run ends CYCLES after the player started its timer
- *   if the firmware has not halted by then: an image that holds its heaters after the table never halts)
+ *   if the firmware has not halted by then: an image that holds its heaters after the table never halts; counted
+ *   from the latest start, and not while the player holds: its timer stopped before the end of the table)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
  *     an endstop on PIN that reads CLOSED (0/1) while closed and the other level while open, moved by one or two
  *     motors: each motor's STEP and DIR pins are watched pins number STEP and DIR (DIR level 1 = + unless INVERT
@@ -18,8 +19,9 @@
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
  *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8.
  * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
- * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2>"; timer_start is the player's tick 0: the first write that
- * starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts off).
+ * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2> starts=<cycle,...|->"; timer_start is the player's tick 0: the
+ * first write that starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts
+ * off); starts lists every such write (a player that holds at a temperature wait restarts its timer there).
  * Exit status: 0 done (the firmware slept with interrupts off), 1 crashed, 2 budget exhausted, 3 bad usage,
  * 4 held (with held=CYCLES: still running CYCLES after the player started its timer).
  */
@@ -46,6 +48,8 @@
 #define GPIOR0_ADDR 0x3E /* the firmware's status bytes (data-space addresses) */
 #define GPIOR1_ADDR 0x4A
 #define GPIOR2_ADDR 0x4B
+#define PLAYER_DONE_MASK 0x01 /* GPIOR0: the flash player has played its end marker */
+#define MAX_STARTS 256 /* timer starts listed (a hold's resume each) */
 
 typedef struct {
     int step, dir;      /* the motor's watched STEP and DIR pins */
@@ -68,6 +72,8 @@ static avr_t *avr;
 static FILE *edges;
 static uint8_t last_level[MAX_PINS]; /* pins start low after reset */
 static long long timer_start = -1;
+static long long starts[MAX_STARTS]; /* every start of the player's timer */
+static int n_starts;
 static endstop_t endstops[MAX_SWITCHES];
 static int n_endstops;
 static int reassert; /* a PORT write (the pull-up) overrode a driven switch level */
@@ -136,8 +142,22 @@ static void tccr1b_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value
     (void)core;
     (void)addr;
     (void)param;
-    if ((value & TIMER1_CLOCK_BITS) && avr->data[TIMSK1_ADDR] && (timer_start < 0 || every_start))
+    if (!(value & TIMER1_CLOCK_BITS) || !avr->data[TIMSK1_ADDR])
+        return;
+    if (timer_start < 0 || every_start)
         timer_start = (long long)avr->cycle;
+    if (n_starts < MAX_STARTS)
+        starts[n_starts++] = (long long)avr->cycle;
+}
+
+/* held=: the run has gone on `held_after` cycles since the latest start, and the player does not hold (its timer
+ * stopped before the end marker). */
+static int held_long_enough(void)
+{
+    if (!held_after || n_starts == 0 || avr->cycle < (unsigned long long)starts[n_starts - 1] + held_after)
+        return 0;
+    int holding = !(avr->data[TCCR1B_ADDR] & TIMER1_CLOCK_BITS) && !(avr->data[GPIOR0_ADDR] & PLAYER_DONE_MASK);
+    return !holding;
 }
 
 /* The default sleep callback usleeps to keep real time; simulated time is all we need. */
@@ -299,7 +319,7 @@ int main(int argc, char **argv)
         state = avr_run(avr);
         follow_switches();
         plant_follow(avr);
-        held = held_after && timer_start >= 0 && avr->cycle >= (unsigned long long)timer_start + held_after;
+        held = held_long_enough();
     }
 
     plant_finish(avr);
@@ -308,8 +328,11 @@ int main(int argc, char **argv)
                        : state == cpu_Crashed ? "crashed"
                        : held                 ? "held"
                                               : "budget";
-    printf("state=%s cycles=%llu timer_start=%lld status=%u status1=%u status2=%u\n", name,
+    printf("state=%s cycles=%llu timer_start=%lld status=%u status1=%u status2=%u starts=", name,
            (unsigned long long)avr->cycle, timer_start, avr->data[GPIOR0_ADDR], avr->data[GPIOR1_ADDR],
            avr->data[GPIOR2_ADDR]);
+    for (int i = 0; i < n_starts; i++)
+        printf("%s%lld", i ? "," : "", starts[i]);
+    printf("%s\n", n_starts ? "" : "-");
     return state == cpu_Done ? 0 : state == cpu_Crashed ? 1 : held ? 4 : 2;
 }

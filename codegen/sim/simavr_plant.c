@@ -19,8 +19,10 @@
  *       (data-space addresses; OCR: the low byte, the timer in 8-bit fast PWM)
  *   fault HEATER open|short|dead|loose CYCLE
  *   stage ADDR                   the byte address of the firmware's heaters_poll: its calls are measured
+ *   fan OCR TCCRA COM_MASK PORT BIT   a fan's PWM output (no plant): its duty is logged
  * Trace lines: "A cycle heater reading" at each ADC read of a heater's channel, "D cycle heater duty256" at
- * each change of a heater's duty (seen at the 1 ms steps), "S cycle heater temp_c duty256" every sample; at the
+ * each change of a heater's duty (seen at the 1 ms steps), "F cycle duty256" at each change of the fan's duty
+ * (likewise), "S cycle heater temp_c duty256" every sample; at the
  * end "P port value" for the PORT registers A..L, "H heater duty256" (the registers' duty), "T tccr1b timsk1"
  * and "I max_cycles count": the longest call of heaters_poll (one stage, from its first instruction to its
  * return) while Timer1's interrupts are on (the player plays), and how many there were.
@@ -70,6 +72,7 @@ typedef struct {
 } fault_t;
 
 static plant_t plants[MAX_HEATERS];
+static plant_t fan; /* its PWM registers only; fan.tccra 0: none */
 static int n_plants;
 static fault_t faults[MAX_FAULTS];
 static int n_faults;
@@ -181,6 +184,14 @@ int plant_setup(avr_t *avr, const char *path)
                 ;
             ok = ok && x->kind < FAULT_KINDS && x->heater >= 0 && x->heater < n_plants;
             n_faults += ok;
+        } else if (!strcmp(word, "fan")) {
+            unsigned ocr, tccra, com, port, bit;
+            ok = fscanf(f, "%x %x %x %x %u", &ocr, &tccra, &com, &port, &bit) == 5 && bit <= 7;
+            fan.ocr = (uint16_t)ocr;
+            fan.tccra = (uint16_t)tccra;
+            fan.com_mask = (uint8_t)com;
+            fan.port = (uint16_t)port;
+            fan.port_mask = (uint8_t)(1u << bit);
         } else if (!strcmp(word, "stage")) {
             unsigned long pc;
             ok = fscanf(f, "%lx", &pc) == 1;
@@ -219,6 +230,12 @@ static void step(avr_t *avr, double seconds)
         double power = p->faulty[FAULT_DEAD] ? 0.0 : p->watts * duty / 256.0;
         double steady = p->ambient + power / p->loss;
         p->temp = steady + (p->temp - steady) * exp(-seconds * p->loss / p->capacity);
+    }
+    if (fan.tccra) {
+        int duty = duty256(avr, &fan);
+        if (duty != fan.duty)
+            fprintf(trace, "F %llu %d\n", (unsigned long long)avr->cycle, duty);
+        fan.duty = duty;
     }
 }
 
