@@ -10,7 +10,9 @@ duration, the wall time of the whole verb and of the simulation, the simulator's
 (simulated s / wall s), what went over the line (bytes, frames, the line's busy share, retransmits, underruns,
 lost bytes), the ring's lowest fill (simulated and planned) and its prefill, and the time the link cost: the
 plan's slowdown for it (link_slowdown_s) and the simulated minus the planned duration (which a flashed image
-shows too, up to the run fitter's window at each end: codegen/compress.py TimingWindow).
+shows too, up to the run fitter's window at each end: codegen/compress.py TimingWindow). The Benchy's printer runs
+its heaters: the holds at its M190 / M109 and each heater's figures are printed too (the simulated duration counts
+from the first step, after the heat-up).
 """
 
 from __future__ import annotations
@@ -36,25 +38,29 @@ JOB = Path(__file__).resolve().parent.parent / "examples" / "printers" / "benchy
 
 @contextlib.contextmanager
 def simulator_figures():
-    """Collect the LinkFigures of every simulate_stream call made inside the block."""
+    """Collect the LinkFigures of every simulated stream (simulate_stream, and simulate_stream_heaters for a
+    firmware with heaters: both give them second) made inside the block."""
     collected = []
-    modules = [importlib.import_module(name) for name in SIM_MODULES.values()]
-    originals = [module.simulate_stream for module in modules]
+    patched = []
+    for module in (importlib.import_module(name) for name in SIM_MODULES.values()):
+        for name in ("simulate_stream", "simulate_stream_heaters"):
+            if hasattr(module, name):
+                patched.append((module, name, getattr(module, name)))
 
     def recording(original):
-        def simulate_stream(*args, **kwargs):
-            trace, figures = original(*args, **kwargs)
-            collected.append(figures)
-            return trace, figures
-        return simulate_stream
+        def simulate(*args, **kwargs):
+            out = original(*args, **kwargs)
+            collected.append(out[1])
+            return out
+        return simulate
 
-    for module, original in zip(modules, originals):
-        module.simulate_stream = recording(original)
+    for module, name, original in patched:
+        setattr(module, name, recording(original))
     try:
         yield collected
     finally:
-        for module, original in zip(modules, originals):
-            module.simulate_stream = original
+        for module, name, original in patched:
+            setattr(module, name, original)
 
 
 def verify_streamed(job: Path, out: Path) -> tuple[dict, float, float]:
@@ -100,6 +106,12 @@ def main() -> None:
           f"{link['lost_bytes']} lost bytes")
     print(f"  ring of {ring_bytes} bytes: prefill {link['prefill_bytes']} bytes, lowest fill "
           f"{link['min_ring_fill_bytes']} bytes simulated, {link['planned_min_ring_fill_bytes']} planned")
+    for hold in result.get("holds", []):
+        print(f"  hold at {hold['at_s']:.2f} s simulated for {hold['waited_s']:.2f} s: waited for "
+              f"{', '.join(hold['heaters'])}")
+    for name, h in result.get("heaters", {}).items():
+        print(f"  heater {name}: last target {h['target_c']:g} degC, overshoot {h['overshoot_c']} degC, band "
+              f"{h['band_c']} degC, trip {h['trip']}")
     print(f"  time lost to the link: {link['link_slowdown_s']:.6f} s planned (link_slowdown_s); simulated minus "
           f"planned {1e6 * (simulated - planned):+.0f} us (a flashed image's first and last steps may stand "
           f"{TimingWindow().max_us:g} us from the plan's too: the run fitter's window)")

@@ -113,11 +113,9 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    if args.stream and args.fault:
-        raise JobError([Diagnostic(SourceRef("--fault"), "the streaming firmware runs no heaters: --fault needs "
-                                                         "the flash image (verify without --stream)")])
     if args.stream:
-        return cli_stream.cmd_verify_stream(args)
+        host, result, trace, headline = cli_stream.verify_stream(args)
+        return _conclude_verify(args, host, result, trace, headline)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
@@ -129,14 +127,20 @@ def cmd_verify(args) -> int:
         switches = simulated_switches(host)
         trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
         result = verify_json(host, compare(host, trace, switches), image)
+    headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: {out_dir / 'firmware.hex'} in "
+                f"{SIMULATORS[host.target.target]}, {result['duration_s']:.4f} s simulated, "
+                f"{result['planned_duration_s']:.4f} s planned"]
+    return _conclude_verify(args, host, result, trace, headline)
+
+
+def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[str]) -> int:
+    """verify's output: the trace file, then the JSON, or `headline` and the verdict's lines."""
     if args.trace:
         write_trace(Path(args.trace), host, trace)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0 if result["pass"] else 1
-    state = "PASS" if result["pass"] else "FAIL"
-    print(f"{state} {job.name}: {out_dir / 'firmware.hex'} in {SIMULATORS[host.target.target]}, "
-          f"{result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s planned")
+    print("\n".join(headline))
     if "trip" in result:  # the thermal protection stopped the machine (codegen/verify_heaters.py)
         print("\n".join(trip_lines(result) + heater_lines(result)))
         for problem in result["problems"][1:]:

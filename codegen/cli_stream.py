@@ -6,7 +6,6 @@ import json
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 from codegen import __version__, tables
@@ -17,6 +16,7 @@ from codegen.pipeline import HostBuild, host_build
 from codegen.report import human_plan, plan_summary, verify_json, write_json
 from codegen.streaming import SIM_MODULES, StreamSetup, build_stream_firmware, stream_chunks, stream_setup
 from codegen.verify import compare, simulated_switches
+from codegen.verify_heaters import HEAT_LIMIT_S, heater_result, job_faults, job_plants
 
 
 def _out_dir(job, out: str | None) -> Path:
@@ -73,38 +73,67 @@ def cmd_plan_stream(args) -> int:
     return 0 if summary["pass"] else 1
 
 
-def cmd_verify_stream(args) -> int:
-    import importlib
-
+def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
+    """verify --stream: the job's streaming firmware built and the job streamed to it in the simulator; the host
+    build, verify's result (with `link`), the trace, and the text's first lines (the CLI prints the rest)."""
     job = load_job(Path(args.job), args.target)
     setup = stream_setup(job, args.baud)
+    faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
     host = streamed_host(job, setup, args.strict, keep=True)
     if not host.findings.ok:
         raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
                          + "\n  ".join(host.findings.problems))
+    result, trace = _simulate_stream(host, setup, image, faults)
+    lk = result["link"]
+    headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: streamed to {out_dir / 'firmware.hex'} at "
+                f"{lk['baud']} baud, {result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s "
+                f"planned",
+                f"  link: {lk['bytes']} bytes in {lk['frames']} frames, {lk['retransmits']} retransmitted, lowest "
+                f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
+                f"{lk['underruns']} underruns"]
+    return host, result, trace, headline
+
+
+def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tuple[dict, object]:
+    """The job streamed to its firmware in the simulator: verify's result (with `link`) and the trace (on the
+    simulated clock)."""
+    import importlib
+
     data = tables.encode(host.schedule).data
+    config = setup.config
     link = HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
                     10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
-                    stream_bytes=host.link_plan.stream_bytes)
+                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in config.heaters))
     simulator = importlib.import_module(SIM_MODULES[setup.target.target])
-    budget = int((host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate)
-                 * setup.target.f_cpu)
+    budget = (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
+              + (HEAT_LIMIT_S if config.heaters else 0.0))
     switches = simulated_switches(host)
-    trace, figures = simulator.simulate_stream(image.hex_path, setup.config, link, budget, switches=switches)
-    verdict = compare(host, trace, switches, streamed=True)
-    problems = list(verdict.problems)
-    if link.outcome != "finished":
+    if config.heaters:
+        run, figures = simulator.simulate_stream_heaters(image.hex_path, config, link, int(budget * setup.target.f_cpu),
+                                                         job_plants(host.job, config), faults, switches)
+        result, trace = heater_result(host, run, image, faults, switches, streamed=True)
+    else:
+        trace, figures = simulator.simulate_stream(image.hex_path, config, link, int(budget * setup.target.f_cpu),
+                                                   switches=switches)
+        result = verify_json(host, compare(host, trace, switches, streamed=True), image)
+    problems = result["problems"]
+    if link.outcome not in ("finished", "fault"):
         problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
     expected = tuple(int(v) for v in host.pulses.final_positions())
     if link.outcome == "finished" and link.position != expected:
         problems.append(f"the firmware reports positions {list(link.position)} at the end, the twin "
                         f"{list(expected)}")
+    if link.outcome == "fault":  # the positions it reports must be where its pulses took the motors
+        run = trace.run_only()
+        made = tuple(int(run.step_dir[run.step_motor == m].sum()) for m in range(len(host.kin.motors)))
+        if link.position != made:
+            problems.append(f"the firmware reports positions {list(link.position)} at the trip, its pulses made "
+                            f"{list(made)}")
     if figures.lost_bytes:
         problems.append(f"{figures.lost_bytes} received bytes were read too late: a real UART would have "
                         f"lost them")
-    verdict = replace(verdict, problems=problems)
-    result = verify_json(host, verdict, image)
+    result["pass"] = result["pass"] and not problems
     result["image"]["table_bytes"] = 0
     result["link"] = {"baud": figures.baud, "bytes": figures.bytes, "frames": figures.frames,
                       "retransmits": figures.retransmits, "min_ring_fill_bytes": figures.min_ring_fill_bytes,
@@ -112,22 +141,7 @@ def cmd_verify_stream(args) -> int:
                       "planned_min_ring_fill_bytes": host.link_plan.min_ring_fill_bytes,
                       "prefill_bytes": host.link_plan.prefill_bytes,
                       "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
-    if args.json:
-        print(json.dumps(result, indent=2))
-    else:
-        state = "PASS" if result["pass"] else "FAIL"
-        lk = result["link"]
-        print(f"{state} {job.name}: streamed to {out_dir / 'firmware.hex'} at {lk['baud']} baud, "
-              f"{result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s planned")
-        print(f"  link: {lk['bytes']} bytes in {lk['frames']} frames, {lk['retransmits']} retransmitted, lowest "
-              f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
-              f"{lk['underruns']} underruns")
-        for name, m in result["motors"].items():
-            print(f"  {name}: {m['steps']} steps, net {m['final']:+d}, timing within "
-                  f"{m['max_timing_error_us']} us of the twin")
-        for problem in result["problems"]:
-            print(f"  problem: {problem}")
-    return 0 if result["pass"] else 1
+    return result, trace
 
 
 def cmd_stream(args) -> int:
@@ -146,7 +160,8 @@ def cmd_stream(args) -> int:
         chunks = stream_chunks(table.read(), motors)
         link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
                         payload=setup.budget.payload, stream_bytes=plan.stream_bytes,
-                        answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S)
+                        answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S,
+                        heaters=tuple(h.name for h in setup.config.heaters))
         port = serial_port.open_port(args.port, setup.layout.baud)
         began = time.monotonic()
         try:

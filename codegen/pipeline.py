@@ -16,7 +16,7 @@ from codegen.checks import Findings, MotorTrain
 from codegen.compress import Compressed
 from codegen.errors import BuildError, Diagnostic
 from codegen.firmware import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPins
-from codegen.firmware.avr_heaters import job_heaters
+from codegen.firmware.avr_heaters import job_heaters, stream_heaters
 from codegen.heaters.program import HeaterProgram, heater_diagnostics
 from codegen.homing import homes, homing_axes
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
@@ -83,9 +83,12 @@ class HostBuild:
 
     @cached_property
     def heaters(self) -> tuple[HeaterFirmware, ...]:
-        """The heaters of an AVR flash image (codegen/firmware/avr_heaters.py job_heaters); none elsewhere."""
-        if self.target.target != "avr" or self.link_plan is not None:
+        """The heaters of an AVR flash image (codegen/firmware/avr_heaters.py job_heaters) or streaming firmware
+        (stream_heaters); none elsewhere."""
+        if self.target.target != "avr":
             return ()
+        if self.link_plan is not None:
+            return stream_heaters(self.job, self.target.heater_pins)
         return job_heaters(self.job, self.target.heater_pins, self.heater_program)
 
     def runtime_settings(self, heater: str) -> RuntimeRecords:
@@ -156,7 +159,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     if stages.totals.events == 0 and not played:  # nothing moves: an empty program
         played = stages.play(_no_window(job, kin, program), None, True)
     stages.finish()
-    heater_notes = heater_diagnostics(job, target.heater_pins, program.heater_program, link is not None)
+    heater_notes = heater_diagnostics(job, target.heater_pins, program.heater_program,
+                                      link is not None and not played_out)
     host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
                      program.warnings + heater_notes, homing, program.heater_program)
@@ -177,10 +181,16 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
 
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
-    that its board has) and the board's fan (unless a heater uses its pin); none elsewhere (codegen/runtime.py)."""
-    if target.target != "avr" or streamed or not target.heater_pins:
+    that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
+    heater uses its pin); none elsewhere (codegen/runtime.py)."""
+    if target.target != "avr" or not target.heater_pins:
         return ()
-    heaters = tuple(name for name in heater_settings(job) if name in target.heater_pins)
+    if streamed:
+        heaters = tuple(h.name for h in stream_heaters(job, target.heater_pins))
+        if not heaters:
+            return ()
+    else:
+        heaters = tuple(name for name in heater_settings(job) if name in target.heater_pins)
     fan = target.board_data.get("fan")
     return played_outputs(heaters, bool(fan) and fan not in {pwm for pwm, _ in target.heater_pins.values()})
 

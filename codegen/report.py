@@ -43,7 +43,7 @@ def plan_summary(host: HostBuild) -> dict:
 
 
 def heaters_plan(host: HostBuild) -> dict:
-    """The flash image's heaters: how many target records the tables carry for each and how many waits, its last
+    """The heaters of the image (or the streaming firmware): how many target records the tables carry for each and how many waits, its last
     target (degC), its pins, and its ADC table's flash bytes (int16 per reading)."""
     out = {}
     for h in host.heaters:

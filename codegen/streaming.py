@@ -3,7 +3,8 @@
 
 The streaming firmware belongs to the machine and board, not to a job: it is built from the job file's machine
 (a program is optional) and names itself by an identity (codegen/link/protocol.firmware_identity) that the host
-checks before it streams. It homes at every START when the machine homes (a delta, or `program.home: true`).
+checks before it streams. It homes at every START when the machine homes (a delta, or `program.home: true`), and
+runs the heaters of a printer (codegen/firmware/avr_heaters.stream_heaters).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, MotorPins
+from codegen.firmware.avr_heaters import stream_heaters
 from codegen.homing import homing_axes
 from codegen.kinematics import make_kinematics
 from codegen.link import protocol
@@ -65,7 +67,8 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
         motors=tuple(MotorPins(m, kin.socket(m), bool(steppers[m].invert_dir)) for m in kin.motors),
         step_pulse_us=job.machine.step_pulse_us, dir_setup_us=job.machine.dir_setup_us,
         homing=homing_axes(job, kin, target.tick_hz) if stream_homes(job) else (),
-        baud=int(baud or job.machine.link.baud or 0))
+        baud=int(baud or job.machine.link.baud or 0),
+        heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else ())
     module = stream_module(target.target)
     layout = module.ring_layout(config)
     budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),

@@ -83,20 +83,32 @@ def job_faults(specs: list[tuple[str, str | None, float]], heaters: tuple[str, .
     return tuple(faults)
 
 
+def job_plants(job, config) -> dict[str, HeaterPlant]:
+    """The simulated plant behind each of the firmware's heaters: the job's (or the board's default) heater."""
+    settings = heater_settings(job)
+    return {h.name: HeaterPlant(settings[h.name].plant, settings[h.name].sensor, settings[h.name].pullup_ohm)
+            for h in config.heaters}
+
+
 def verify_heaters(host: HostBuild, image, faults: tuple[Fault, ...]) -> tuple[dict, SimTrace]:
     """verify's result (verify_json's keys with `heaters`, `table_start_s`, `holds`, `fan` and `faults`; a trip's
     own, see trip_result) and the simulated trace (on the simulated clock: the holds in it)."""
     config = host.firmware_config()
-    settings = heater_settings(host.job)
-    plants = {h.name: HeaterPlant(settings[h.name].plant, settings[h.name].sensor, settings[h.name].pullup_ohm)
-              for h in config.heaters}
     switches = simulated_switches(host)
     tick_hz = host.target.tick_hz
     homing_s = homing_ticks_bound(config, switch_thresholds(config, switches), tick_hz) / tick_hz
     held_after_s = host.plan.total * HELD_AFTER_FACTOR + HELD_AFTER_S
-    run = simulate_heaters(image.hex_path, config, HEAT_LIMIT_S + homing_s + held_after_s, plants, faults,
-                           switches, held_after_s)
-    cycles_per_tick = run.steps.f_cpu // tick_hz
+    run = simulate_heaters(image.hex_path, config, HEAT_LIMIT_S + homing_s + held_after_s,
+                           job_plants(host.job, config), faults, switches, held_after_s)
+    return heater_result(host, run, image, faults, switches)
+
+
+def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, ...],
+                  switches: dict[int, int | None], streamed: bool = False) -> tuple[dict, SimTrace]:
+    """verify_heaters' result for a run with heaters (a flash image's, or with `streamed` a stream's:
+    codegen/sim/avr_link.py), and its trace on the simulated clock."""
+    config = host.firmware_config()
+    cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
     waits = wait_ticks(host.schedule, host.pulses.event_tick)
     table_start_s = _table_start_s(run.steps)
     simulated = run.steps  # the trace on the simulated clock, holds in it
@@ -104,7 +116,7 @@ def verify_heaters(host: HostBuild, image, faults: tuple[Fault, ...]) -> tuple[d
     if run.trip is not None:
         result = trip_result(host, run, image)
     else:
-        result = verify_json(host, compare(host, run.steps, switches), image)
+        result = verify_json(host, compare(host, run.steps, switches, streamed), image)
         if run.steps.timer_start_cycle is None and run.state == "budget":
             result["problems"].insert(0, f"the heaters did not settle at their targets within {HEAT_LIMIT_S:g} s")
         result["problems"] += hold_problems(run.steps, waits)
@@ -197,14 +209,17 @@ def _figures(host: HostBuild, run: HeaterRun, heater: HeaterFirmware, waits: np.
     name, schedule, trace = heater.name, host.schedule, run.steps
     mine = np.flatnonzero((schedule.runtime_command == HEATER_COMMANDS[name]) & (schedule.runtime_value > 0))
     target_c = float(schedule.runtime_value[mine[-1]]) / 10 if len(mine) else 0.0
+    none = {"target_c": target_c, "time_to_target_s": None, "overshoot_c": None, "band_c": None,
+            "trip": run.trip if run.trip_heater == name else None, "settled_s": None}
     if target_c == 0 or trace.timer_start_cycle is None:
-        trip = run.trip if run.trip_heater == name else None
-        return {"target_c": target_c, "time_to_target_s": None, "overshoot_c": None, "band_c": None, "trip": trip,
-                "settled_s": None}
+        return none
     block = int(schedule.runtime_block[mine[-1]])
     first = int(np.concatenate([[0], np.cumsum(schedule.events_per_block())])[block])
     tick = int(host.pulses.event_tick[first - 1]) if first > 0 else 0
     since_s = _sim_s_of_tick(trace, waits, tick, cycles_per_tick)
+    samples = run.heaters[name].time_s
+    if not len(samples) or since_s > samples[-1]:  # the run ended (a trip) before the player read that target
+        return none
     waited = [k for k in schedule.waits() if schedule.runtime_block[k] >= block
               and schedule.runtime_value[k] & WAIT_MASKS[name]]
     resume = None
@@ -283,6 +298,8 @@ def heater_lines(result: dict) -> list[str]:
     for name, h in result["heaters"].items():
         if h["target_c"] == 0:
             text = "off (the program sets no target)"
+        elif h["overshoot_c"] is None:
+            text = f"{h['target_c']:g} degC never set (the run ended before the player read it)"
         elif h["time_to_target_s"] is None:
             text = f"{h['target_c']:g} degC not reached, overshoot {h['overshoot_c']:.2f} degC"
         else:

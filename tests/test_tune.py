@@ -22,15 +22,19 @@ from codegen.heaters.control import fixed_gains
 from codegen.heaters.plant import heating_figures, simulate
 from codegen.heaters.tuning import Relay, RelayLoop, Switch, marlin_bias, relay_test
 from codegen.job import load_job
-from codegen.sim.avr_plant import Fault, HeaterPlant
+from codegen.pipeline import host_build
+from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
+from codegen.verify_heaters import job_plants
 from codegen.sim.avr_tune import TuneSim, simulate_tune
 from codegen.sim.pty_bridge import PtyBridge
 from codegen.link import protocol
 from codegen.tune_link import READY, STARTED, TuneHost
+from tests.test_runtime_records import JOB as JOB_WITH_HEATERS
 
 ROOT = Path(__file__).resolve().parent.parent
 JOB = ROOT / "examples" / "printers" / "benchy-mini.yaml"  # RAMPS 1.4, no `heaters:`: the board's defaults
 
+TUNED_GCODE = "M109 S210\nM190 S60\nG1 X10 F3000\nG4 S30\nG1 X0\n"
 needs_tools = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                  reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
 
@@ -67,6 +71,20 @@ def test_sim_tune_gains_match_the_python_relay_and_hold_the_hot_end(tmp_path, ca
     machine = yaml.safe_load(result["snippet"])  # ready to paste under machine:
     assert machine["heaters"]["hotend"]["control"]["pid"]["kp"] == pytest.approx(sim["kp"], rel=1e-3)
     assert machine["heaters"]["bed"]["control"] == {"bang_bang": {"hysteresis_c": 0.5}}
+    # The firmware with those gains, in simavr against the plant: 25 -> 210 degC (alone: its figures count from
+    # 25 degC) within 3 degC of overshoot, then held within 1 degC from 30 s after it first came within 1 degC
+    # (through the bed's wait and the moves); the bed to 60 degC.
+    job = tmp_path / "tuned.yaml"
+    job.write_text(JOB_WITH_HEATERS.format(name="tuned", target="avr", heaters=result["snippet"]))
+    (tmp_path / "tuned.gcode").write_text(TUNED_GCODE)
+    assert main(["build", str(job), "--out", str(tmp_path / "tuned")]) == 0
+    host = host_build(load_job(job))
+    config = host.firmware_config()
+    run = simulate_heaters(tmp_path / "tuned" / "firmware.hex", config, 250.0, job_plants(host.job, config))
+    hot, bed = heater_summary(run, "hotend", 210.0), heater_summary(run, "bed", 60.0)
+    print("tuned", sim, hot, bed)
+    assert run.trip is None and 30 < hot["time_to_target_s"] < 120 and bed["time_to_target_s"] is not None
+    assert hot["overshoot_c"] <= 3.0 and hot["band_c"] <= 1.0 and bed["band_c"] <= 1.5
 
 
 @needs_tools

@@ -197,9 +197,7 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     context.update(isr_context(motors, step_ports, dir_ports + [context["tool_port"]], invert_mask, f_cpu,
                                tick_hz, pulse_cycles))
     context.update(homing_context(config, pins, motors, mcu))
-    if stream and config.heaters:
-        raise BuildError("the streaming firmware does not run heaters yet")
-    context.update(heaters_context(config, f_cpu, tick_hz))
+    context.update(heaters_context(config, f_cpu, tick_hz, stream))
     return context
 
 

@@ -30,6 +30,9 @@ PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
 SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...
 SETTLE_PERIODS = 30  # ... for 3 s
 SLICE_CYCLES = 400  # a stage (274 measured: tests/test_avr_heaters.py) and the hook around it (77 counted)
+# The streaming firmware runs a stage with the link's interrupts on: room for two receive interrupts and a transmit
+# one (targets/atmega2560.yaml: 121 cycles at the most each) that may come during it.
+STREAM_SLICE_CYCLES = SLICE_CYCLES + 3 * 121
 HOOK_SAVED = ("r20", "r21", "r22", "r23", "r24", "r25", "r26", "r27", "r30", "r31")  # call-used, the player's state
 HEATERS_FAULT_BIT = 7  # GPIOR0: the heaters stopped the machine (GPIOR1: 1 + the reason's index, GPIOR2: heater)
 HEATERS_BUSY_BIT = 6  # GPIOR0: a stage of the period is pending (the hook comes back for it)
@@ -71,6 +74,16 @@ def job_heaters(job, board_pins: dict[str, tuple[str, str]], program: HeaterProg
                  for name, s in heater_settings(job).items() if name in board_pins)
 
 
+def stream_heaters(job, board_pins: dict[str, tuple[str, str]]) -> tuple[HeaterFirmware, ...]:
+    """The heaters a machine's streaming firmware runs (it plays any job of the machine, so the program does not
+    decide): none unless the machine lists `heaters:` or drives an extruder (motor e); then each of its heaters
+    that the board has, as job_heaters gives them."""
+    if job.machine.heaters is None and "e" not in job.machine.steppers:
+        return ()
+    return tuple(heater_firmware(s, board_pins[name])
+                 for name, s in heater_settings(job).items() if name in board_pins)
+
+
 def adc_channel(pin) -> int:
     """The ADC input of an analog pin: PF0..PF7 are ADC0..7, PK0..PK7 ADC8..15 (MUX5 in ADCSRB)."""
     if pin.port not in "FK":
@@ -103,8 +116,9 @@ def _table_lines(table: tuple[int, ...]) -> list[str]:
     return [", ".join(f"{int(v):6d}" for v in table[i:i + TABLE_LINE]) for i in range(0, 1024, TABLE_LINE)]
 
 
-def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
-    """heaters.c.j2's context (and the player's: `heaters`, the hook's SLICE_TICKS)."""
+def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int, stream: bool = False) -> dict:
+    """heaters.c.j2's context (and the player's: `heaters`, the hook's SLICE_TICKS; `stream`: the streaming
+    firmware's)."""
     from codegen.firmware.avr import load_target, parse_pin  # avr.py imports this module
 
     if not config.heaters:
@@ -130,11 +144,12 @@ def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int) -> dict:
     if fan:
         timers.setdefault(fan["timer"], TIMER_SETUP[fan["timer"]])
     period_ticks = round(PID_PERIOD_S * f_cpu / PERIOD_PRESCALE)
+    slice_cycles = STREAM_SLICE_CYCLES if stream else SLICE_CYCLES
     return {"heaters": heaters, "heater_timers": sorted(timers.items()),
             "fan": fan, "rt": RUNTIME_COMMANDS,
             "period_ticks": period_ticks, "period_prescale": PERIOD_PRESCALE,
             "settle_window_dc": SETTLE_WINDOW_DC, "settle_periods": SETTLE_PERIODS,
             "pid_range_dc": PID_FUNCTIONAL_RANGE_DC, "d_filter_shift": D_FILTER_SHIFT, "reasons": REASONS,
-            "slice_ticks": math.ceil(SLICE_CYCLES * tick_hz / f_cpu),
-            "slice_cycles": SLICE_CYCLES, "hook_saved": HOOK_SAVED, "fault_bit": HEATERS_FAULT_BIT,
+            "slice_ticks": math.ceil(slice_cycles * tick_hz / f_cpu),
+            "slice_cycles": slice_cycles, "hook_saved": HOOK_SAVED, "fault_bit": HEATERS_FAULT_BIT,
             "busy_bit": HEATERS_BUSY_BIT}

@@ -31,6 +31,7 @@ MIN_STACK_BYTES = 160  # main's deepest calls, an interrupt's pushes, player_run
 CALLEE_SAVED = ("r2", "r3", "r4", "r5", "r6", "r7", "r8", "r9", "r10", "r11", "r12", "r13", "r14", "r15", "r16",
                 "r17", "r28", "r29")
 STREAM_NAMES = ("config.h", "link.h", "stream.c", "player_isr.S", "link_rx.S", "link_tx.S")
+HEATER_NAMES = ("heaters.h", "heaters.c", "heaters_table.c", "heaters_hook.S")
 MAX_HOMING_AXES = 4  # the HOMING_FAILED status holds the axis bits in its low nibble
 IDENT_PAYLOAD = 8  # version u8, identity u32, ring bytes u16, motors u8
 FRAME_HEAD = 3  # LEN SEQ TYPE, kept with a frame's payload
@@ -38,10 +39,14 @@ FRAME_HEAD = 3  # LEN SEQ TYPE, kept with a frame's payload
 # per image, per motor and per STEP port (stream.c and homing.c declare none).
 LINK_VARIABLES = 39
 PLAYER_VARIABLES, PER_MOTOR, PER_PORT = 8, 8, 2
+# heaters.c's (RAM_PER_HEATER: its constants, state, reading and STATUS report; HEATER_VARIABLES: the runtime
+# records' slots and flags, the period's stage, the fault's reason and heater, heaters_hook's copy of TIMSK1).
+HEATER_VARIABLES, RAM_PER_HEATER = 14, 79  # 79: CONFIG 41 (.rodata is in RAM), state 32, reading 2, report 4
+HEATER_CONFIG_BYTES = 41  # in .data, which the linker pads to an even length
 CRC_LINE_BYTES = 16
 STATE_NAMES = {"idle": "STATE_IDLE", "homing": "STATE_HOMING", "playing": "STATE_PLAYING",
                "finished": "STATE_FINISHED", "underrun": "STATE_UNDERRUN", "aborted": "STATE_ABORTED",
-               "homing failed": "STATE_HOMING_FAILED"}
+               "homing failed": "STATE_HOMING_FAILED", "fault": "STATE_FAULT"}
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,9 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
     context = player_context(config, stream=True)
     variables = (LINK_VARIABLES + 2 * FRAME_HEAD + IDENT_PAYLOAD + protocol.MAX_ANSWER + PLAYER_VARIABLES
                  + PER_MOTOR * len(context["motors"]) + PER_PORT * len(context["step_ports"]))
+    if config.heaters:
+        n = len(config.heaters)
+        variables += HEATER_VARIABLES + RAM_PER_HEATER * n + (HEATER_CONFIG_BYTES * n) % 2  # .data ends even
     record_max = protocol.max_record_bytes(len(config.motors))
     start = SRAM_START + variables
     stack = SRAM_START + int(mcu["ram"]) - RING_END - record_max
@@ -118,13 +126,13 @@ def crc_table_lines() -> tuple[list[str], list[str]]:
 
 def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     """The streaming image's sources (file name -> text): config.h, link.h, stream.c, player_isr.S, link_rx.S,
-    link_tx.S, and homing.c when the config homes motors."""
+    link_tx.S, homing.c when the config homes motors, and the heaters' (as the flash image's) when it has them."""
     if len(config.homing) > MAX_HOMING_AXES:
         raise BuildError(f"a streaming image homes at most {MAX_HOMING_AXES} axes, not {len(config.homing)}")
     layout = ring_layout(config)
     context = player_context(config, stream=True)
     kinds = ("DATA", "HELLO", "START", "STATUS", "ABORT", "ACK", "IDENT", "STARTED", "FINISHED", "UNDERRUN",
-             "STATUS_REPLY", "ABORTED", "HOMING_FAILED")
+             "STATUS_REPLY", "ABORTED", "HOMING_FAILED", "FAULT")
     crc_hi, crc_lo = crc_table_lines()
     context.update({
         "layout": layout, "actual_baud": f"{layout.actual_baud:.0f}", "rate_error": f"{layout.baud_error_pct:+.2f}",
@@ -134,10 +142,11 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
                   "kinds": [(name, getattr(protocol, name)) for name in kinds]},
         "states": [(STATE_NAMES[name], value) for value, name in sorted(protocol.STATES.items())],
         "ring_end": RING_END, "position_bias": POSITION_BIAS, "message_max": protocol.MAX_ANSWER,
-        "ident_payload": IDENT_PAYLOAD, "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
+        "ident_payload": IDENT_PAYLOAD,
+        "status_payload": 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]), "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
         "callee_saved": CALLEE_SAVED, "crc_hi": crc_hi, "crc_lo": crc_lo,
     })
-    names = STREAM_NAMES + (("homing.c",) if config.homing else ())
+    names = STREAM_NAMES + (("homing.c",) if config.homing else ()) + (HEATER_NAMES if config.heaters else ())
     return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 

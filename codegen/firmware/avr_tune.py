@@ -81,7 +81,7 @@ def render_tune_sources(image: TuneImage) -> dict[str, str]:
         "h": context["heaters"][0], "p": context["heaters"][0]["protection"],
         "heater_index": HEATER_NAMES.index(name), "frame_types": sorted(FRAME_TYPES.items(), key=lambda kv: kv[1]),
         "dwell_periods": round(RELAY_MIN_DWELL_S / PID_PERIOD_S), "temp_every": TEMP_EVERY_PERIODS,
-        "baud": image.baud, "ubrr": ubrr, "off_pins": _off_pins(config, name),
+        "baud": image.baud, "ubrr": ubrr, "off_pins": _off_pins(config, name), "stream": False,
     })
     return {"tune.c": render("avr/tune.c.j2", **context), "heaters.h": render("avr/heaters.h.j2", **context),
             "heaters_table.c": render("avr/heaters_table.c.j2", **context)}

@@ -3,7 +3,7 @@ M107 fan), collected as its batches go by, and what a build says about them.
 
 An AVR flash image plays every setting at its place in the tables (codegen/runtime.py); this module only knows
 which outputs the program sets, for the heaters an image runs and for the build's notes and warnings (a board
-without heater outputs, the streaming firmware, a heater the machine does not have).
+without heater outputs, a streaming firmware without heaters, a heater the machine does not have).
 
     collector = HeaterProgram()
     for batch in batches: collector.feed(batch)          # codegen/program.py does this, in the front end's process
@@ -53,7 +53,8 @@ def _defaults() -> str:
 def heater_diagnostics(job, board_heaters: dict, program: HeaterProgram, streamed: bool) -> list[Diagnostic]:
     """What a build says about the program's heaters, once each, at the G-code that sets them: the board's
     defaults in use (a machine without `heaters:`), settings the image does not play (a board without heater
-    outputs, such as the 8051 boards; a heater the machine does not list; the streaming firmware)."""
+    outputs, such as the 8051 boards; a heater the machine does not list; `streamed`: a streaming firmware that
+    runs no heaters)."""
     if not program.first:
         return []
     first = next(iter(program.first.values()))
@@ -62,8 +63,9 @@ def heater_diagnostics(job, board_heaters: dict, program: HeaterProgram, streame
         return [Diagnostic(where, f"'{named}' ignored (board {job.board} has no heater outputs: every heater "
                                   "setting of the program is ignored)", "warning")]
     if streamed:
-        return [Diagnostic(where, f"'{named}' ignored (the streaming firmware does not run heaters yet: every "
-                                  "heater setting of the program is ignored)", "warning")]
+        return [Diagnostic(where, f"'{named}' ignored (the machine's streaming firmware runs heaters only for a "
+                                  "machine with an extruder e or a `heaters:` section: every heater setting of the "
+                                  "program is ignored)", "warning")]
     out = []
     if job.machine.heaters is None:
         out.append(Diagnostic(where, f"the machine has no `heaters:` section: board {job.board}'s defaults are "

@@ -5,7 +5,9 @@ Sources: Marlin 2.0's Marlin/Configuration_adv.h (THERMAL_PROTECTION_PERIOD 40 s
 THERMAL_PROTECTION_BED_HYSTERESIS 2 degC, WATCH_BED_TEMP_PERIOD 60 s, WATCH_BED_TEMP_INCREASE 2 degC) and
 Marlin's temperature.cpp (a watch starts only when the reading is more than WATCH_TEMP_INCREASE +
 TEMP_HYSTERESIS (3) + 1 degC below the new target, and restarts after every passed watch while still that far;
-runaway watching starts once the target is first reached).
+runaway watching starts once the target is first reached). Beyond Marlin: while heating towards a target it has
+not reached, a reading that falls that far below it starts a watch too (Marlin watches only from the setting, so a
+thermistor that falls out just before the target is reached leaves the heater on at full power, unwatched).
 
 The state machine, once per control period, in integer units (deci-degrees; periods of PID_PERIOD_S), with the
 reading `adc`, its temperature `t` from the table and the target `s` (0 = off). It runs before the control law;
@@ -21,6 +23,7 @@ the first reason it returns turns every heater off, stops the steppers and latch
         if watch == 0:
             if t < watch_goal:      "heating_failed"    (watch_periods after the watch began)
             start_watch
+    elif not holding:               start_watch         (fell far below before reaching the target)
     if not holding and t >= s:      holding = true
     if holding:
         below = below + 1 if t < s - runaway_hysteresis_dc else 0
@@ -134,6 +137,8 @@ class Protection:
                 if t < self.watch_goal:
                     return "heating_failed"
                 self._start_watch(t, s)
+        elif not self.holding:
+            self._start_watch(t, s)
         self.holding = self.holding or t >= s
         if self.holding:
             self.below = self.below + 1 if t < s - f.runaway_hysteresis_dc else 0

@@ -13,7 +13,7 @@ firmware's credit (the free ring space of its last ACK, less what has been sent 
 than `window_s` of the line's bytes unacknowledged (what is on the line cannot be taken back: a frame resent
 after a bad byte, or an ABORT, waits behind it); START once
 `prefill_bytes` of the stream have gone out (or all of it); then the rest, and the end: FINISHED, UNDERRUN,
-ABORTED or HOMING_FAILED. Every frame stays in flight until an ACK counts past it: an ACK that says REJECTED, or
+ABORTED, HOMING_FAILED or FAULT (the heaters' protection tripped: `fault` says why). Every frame stays in flight until an ACK counts past it: an ACK that says REJECTED, or
 no ACK within `ack_timeout_s` of a frame's last byte, sends every frame in flight again from the first the
 firmware lacks (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame)
 every `ping_s`, and never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow
@@ -82,13 +82,16 @@ class HostLink:
     window_s: float = 0.02  # seconds of line bytes that may be unacknowledged: more than a round trip
     latency_s: float = 0.0  # the line's answer delay beyond its byte times (a USB serial adapter: milliseconds)
     stream_bytes: int | None = None  # the stream's length, when known (for `in_tail`)
+    heaters: tuple[str, ...] = ()  # the firmware's heaters by index (FAULT and STATUS frames name them so)
     stats: LinkStats = field(default_factory=LinkStats)
-    outcome: str | None = None  # finished | underrun | aborted | homing failed | refused | no answer
+    outcome: str | None = None  # finished | underrun | aborted | homing failed | fault | refused | no answer
     message: str = ""
     ident: p.Ident | None = None
     started_at: float | None = None
     position: tuple[int, ...] | None = None  # the firmware's report at the end
     status: p.Status | None = None  # the last STATUS answer
+    fault: p.Fault | None = None  # a FAULT frame's report
+    fault_at: float | None = None  # when it arrived
 
     def __post_init__(self):
         self._source: Iterator[bytes] = iter(self.chunks)
@@ -109,6 +112,9 @@ class HostLink:
         self._ping_due: float | None = None
         self._abort = False
         self._status_wanted = False
+
+    def heater_name(self, index: int) -> str:
+        return self.heaters[index] if 0 <= index < len(self.heaters) else f"#{index}"
 
     # -- what the caller drives --
     @property
@@ -233,6 +239,11 @@ class HostLink:
             self._end(outcome, "")
         elif f.kind == p.HOMING_FAILED:
             self._end("homing failed", f"homing failed (status 0x{f.payload[0]:02X})")
+        elif f.kind == p.FAULT:
+            self.fault, self.fault_at = p.Fault.parse(f.payload, self.motors), now
+            self.position = self.fault.position
+            self._end("fault", f"heater {self.heater_name(self.fault.heater)} tripped: {self.fault.reason}; every "
+                               f"heater off, the machine stopped at positions {list(self.position)}")
 
     def _acknowledge(self, f: p.Frame, now: float) -> None:
         expected = self._acked + ((f.seq - self._acked) & 0xFF)

@@ -28,10 +28,14 @@ Firmware to host; SEQ is the host sequence number the firmware expects next (eve
     UNDERRUN  0x85  position i32 per motor: the ring ran dry while moving; the firmware plays nothing more until
                     reset
     STATUS    0x86  state u8 (STATES), played u32 (stream bytes consumed), fill u16 (ring bytes held), position
-                    i32 per motor (while playing: where the current block ends; stopped: exact)
+                    i32 per motor (while playing: where the current block ends; stopped: exact), then per heater
+                    of a firmware that runs them: temperature i16 and target i16 (0.1 degC; target 0: off)
     ABORTED   0x87  position i32 per motor: stopped by ABORT; nothing more plays until reset
     HOMING_FAILED 0x88  status u8: the failed axes' bits (low nibble) and the homing phase << 4; nothing more plays
                     until reset
+    FAULT     0x89  reason u8 (1 + its index in codegen.heaters.protection.REASONS), heater u8 (its index in the
+                    firmware's heaters), position i32 per motor: the thermal protection stopped the machine (every
+                    heater off, the steppers stopped and disabled); nothing more plays until reset
 
 The player never reads a record unless the ring holds at least `max_record_bytes(motors)` bytes (the longest
 record): fewer while a job plays is an underrun. So the host sends `tail_padding(motors)` zero bytes after the
@@ -54,15 +58,16 @@ HEADER_BYTES = 4  # SYNC, LEN, SEQ, TYPE
 CRC_BYTES = 2
 OVERHEAD_BYTES = HEADER_BYTES + CRC_BYTES
 MAX_PAYLOAD = 250  # what a receiver takes at most; the host's DATA frames are smaller (host.py)
-MAX_ANSWER = 32  # the firmware's longest frame payload (STATUS with 4 motors: 23)
+MAX_ANSWER = 32  # the firmware's longest frame payload (STATUS with 4 motors and 2 heaters: 31)
 
 DATA, HELLO, START, STATUS, ABORT = 0x01, 0x02, 0x03, 0x04, 0x05
-ACK, IDENT, STARTED, FINISHED, UNDERRUN, STATUS_REPLY, ABORTED, HOMING_FAILED = range(0x81, 0x89)
+ACK, IDENT, STARTED, FINISHED, UNDERRUN, STATUS_REPLY, ABORTED, HOMING_FAILED, FAULT = range(0x81, 0x8A)
 REJECTED = 0x01  # ACK flags
-STATES = {0: "idle", 1: "homing", 2: "playing", 3: "finished", 4: "underrun", 5: "aborted", 6: "homing failed"}
+STATES = {0: "idle", 1: "homing", 2: "playing", 3: "finished", 4: "underrun", 5: "aborted", 6: "homing failed",
+          7: "fault"}
 NAMES = {DATA: "DATA", HELLO: "HELLO", START: "START", STATUS: "STATUS", ABORT: "ABORT", ACK: "ACK",
          IDENT: "IDENT", STARTED: "STARTED", FINISHED: "FINISHED", UNDERRUN: "UNDERRUN", STATUS_REPLY: "STATUS",
-         ABORTED: "ABORTED", HOMING_FAILED: "HOMING_FAILED"}
+         ABORTED: "ABORTED", HOMING_FAILED: "HOMING_FAILED", FAULT: "FAULT"}
 
 
 def crc16(data: bytes, crc: int = 0xFFFF) -> int:
@@ -146,6 +151,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
         "step_pulse_us": config.step_pulse_us, "dir_setup_us": config.dir_setup_us,
         "homing": [repr(h) for h in config.homing], "f_cpu": f_cpu, "tick_hz": tick_hz,
     }
+    if config.heaters:  # a firmware without heaters keeps the identity it had before them
+        canonical["heaters"] = [repr(h) for h in config.heaters]
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).digest()
     return int.from_bytes(digest[:4], "little")
 
@@ -175,8 +182,29 @@ class Status:
     played: int
     fill: int
     position: tuple[int, ...]
+    heaters: tuple[tuple[float, float], ...] = ()  # per heater: temperature and target, degC
 
     @staticmethod
     def parse(payload: bytes, motors: int) -> "Status":
         state, played, fill = struct.unpack_from("<BIH", payload)
-        return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7))
+        after = 7 + 4 * motors
+        pairs = struct.unpack_from(f"<{(len(payload) - after) // 2}h", payload, after)
+        heaters = tuple((pairs[i] / 10, pairs[i + 1] / 10) for i in range(0, len(pairs) - 1, 2))
+        return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7), heaters)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A FAULT frame: why the thermal protection stopped the machine, which heater, and where the motors are."""
+
+    reason: str  # one of codegen.heaters.protection.REASONS
+    heater: int  # its index in the firmware's heaters
+    position: tuple[int, ...]
+
+    @staticmethod
+    def parse(payload: bytes, motors: int) -> "Fault":
+        from codegen.heaters.protection import REASONS
+
+        reason, heater = payload[0], payload[1]
+        name = REASONS[reason - 1] if 1 <= reason <= len(REASONS) else f"reason {reason}"
+        return Fault(name, heater, positions(payload, motors, 2))

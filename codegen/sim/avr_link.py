@@ -7,7 +7,10 @@ The harness's link mode (simavr_link.c) puts the bytes host.transmit(now) gives 
 host.wake_at(); then host.receive(bytes, now) and host.transmit(now) again, with now = cycle / F_CPU. One round
 trip per frame, not per byte. The pins are logged as in codegen/sim/avr.py, so the session's SimTrace goes to
 codegen.verify.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
-are the phase "home".
+are the phase "home", and `resumes` tick 0 of each restart of its timer after a hold (a WAIT record).
+
+A firmware with heaters runs against a thermal plant per heater (`plants`, `faults`: codegen/sim/avr_plant.py's
+plant file in link mode): simulate_stream_heaters gives the session as a HeaterRun, the plant's trace in it.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import struct
 import subprocess
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +35,7 @@ from codegen.link import protocol
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
                              switch_args, switch_thresholds, watched_pins)
+from codegen.sim.avr_plant import Fault, HeaterPlant, HeaterRun, _plant_file, read_trace, stopped_safely
 
 COMMAND = struct.Struct("<QQBI")  # wake, budget, reset the figures, bytes for the line
 ANSWER = struct.Struct("<QBBqIIHIIQIIQII")  # see simavr_link.c
@@ -66,9 +70,11 @@ class StreamSim:
     between them. Use as a context manager (the harness is a process).
 
     `switches` as for codegen.sim.avr.simulate: where each homing axis's switch closes, from the machine's start;
-    the firmware's ELF must be beside `hex_path` (firmware.elf: the ring's symbols)."""
+    the firmware's ELF must be beside `hex_path` (firmware.elf: the ring's symbols). `plants`: the thermal plant
+    behind each of config.heaters (with `faults` injected); plant_trace() reads their trace after the sessions."""
 
-    def __init__(self, hex_path: Path, config: FirmwareConfig, switches: dict[int, int | None] | None = None):
+    def __init__(self, hex_path: Path, config: FirmwareConfig, switches: dict[int, int | None] | None = None,
+                 plants: dict[str, HeaterPlant] | None = None, faults: tuple[Fault, ...] = ()):
         pins = board_pins(config)
         mcu = load_target(pins.mcu)
         self.config = config
@@ -87,9 +93,15 @@ class StreamSim:
         self._tmp = tempfile.TemporaryDirectory(prefix="printer-codegen-link-")
         self._edges = Path(self._tmp.name) / "edges.bin"
         self._stderr = open(Path(self._tmp.name) / "stderr.txt", "w+b")
+        self._plant_log = Path(self._tmp.name) / "plant.txt"
+        plant = []
+        if plants:
+            spec = Path(self._tmp.name) / "plant-spec.txt"
+            spec.write_text(_plant_file(config, plants, faults, self.f_cpu, self._plant_log, None))
+            plant = [f"plant={spec}"]
         cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self._edges), str(BOOT_CYCLES),
                *switch_args(config, self.switches), f"link={self.layout.byte_cycles}",
-               f"free={symbols[FREE_SYMBOL]}", *checks, *watched_pins(config)]
+               f"free={symbols[FREE_SYMBOL]}", *checks, *plant, *watched_pins(config)]
         self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr)
         self.last = self._read()
         if self.last.state != "running":
@@ -102,11 +114,20 @@ class StreamSim:
         self.close()
 
     def close(self) -> None:
+        self._stop()
+        self._stderr.close()
+        self._tmp.cleanup()
+
+    def _stop(self) -> None:
         if self._proc.poll() is None:
             self._proc.stdin.close()
             self._proc.wait()
-        self._stderr.close()
-        self._tmp.cleanup()
+
+    def plant_trace(self) -> tuple[dict, dict]:
+        """The plants' trace (avr_plant.read_trace): the simulation ends here (the plants' end state is written
+        as its input closes)."""
+        self._stop()
+        return read_trace(self._plant_log, len(self.config.heaters), self.f_cpu)
 
     def exchange(self, data: bytes, wake: int | None, budget: int, reset: bool = False) -> Answer:
         """Give the line `data`, run until an answer (see the module docstring); wake and budget are cycles."""
@@ -141,6 +162,7 @@ class StreamSim:
         answer, now = self.last, start / self.f_cpu
         link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
         counted = None  # the latest answer before the stream's last ring went out (the plan's lowest fill too)
+        starts: list[int] = []  # every start of the player's timer: START's, then a resume after each hold
         reset = True
         while not host.done:
             data = host.transmit(now)
@@ -148,6 +170,8 @@ class StreamSim:
             answer = self.exchange(data, self._wake_cycle(wake, now, answer.cycle), end, reset)
             reset = False
             now = answer.cycle / self.f_cpu
+            if answer.timer_start >= start and (not starts or answer.timer_start != starts[-1]):
+                starts.append(answer.timer_start)
             if not getattr(link, "in_tail", False):  # hosts that do not know the stream count to the end
                 counted = answer
             if answer.data:
@@ -161,8 +185,10 @@ class StreamSim:
             if answer.cycle >= end and not host.done:
                 raise BuildError(f"the streaming session did not end within {cycle_budget} cycles "
                                  f"({cycle_budget / self.f_cpu:.3f} s simulated)")
-        tick0 = answer.timer_start + START_TICKS * (self.f_cpu // self.tick_hz) if answer.timer_start >= start else None
-        trace = decode_edges(read_edges(self._edges), self.config, "done", answer.cycle, tick0, fault, since=start)
+        ticks0 = [s + START_TICKS * (self.f_cpu // self.tick_hz) for s in starts]
+        trace = decode_edges(read_edges(self._edges), self.config, "done", answer.cycle, ticks0[0] if ticks0 else None,
+                             fault, since=start)
+        trace = replace(trace, resumes=tuple(ticks0[1:]))
         stats = link.stats
         counted = answer if counted is None or link.outcome != "finished" else counted
         figures = LinkFigures(baud=self.layout.baud, bytes=stats.bytes, frames=stats.frames,
@@ -183,6 +209,26 @@ class StreamSim:
     def min_fill(self, answer: Answer) -> int | None:
         """The fewest ring bytes the player held when it went for a record (since the figures' reset)."""
         return None if answer.max_free is None else self.ring_bytes - answer.max_free
+
+
+def simulate_stream_heaters(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,
+                            plants: dict[str, HeaterPlant], faults: tuple[Fault, ...] = (),
+                            switches: dict[int, int | None] | None = None) -> tuple[HeaterRun, LinkFigures]:
+    """One session of `host` with a freshly reset streaming firmware that runs heaters, a plant behind each: the
+    run as codegen.sim.avr_plant.simulate_heaters gives a flash image's (a trip: the FAULT frame's), and the link's
+    figures."""
+    with StreamSim(hex_path, config, switches, plants, faults) as sim:
+        trace, figures = sim.session(host, cycle_budget)
+        per, end = sim.plant_trace()
+        seconds = sim.last.cycle / sim.f_cpu
+    link = getattr(host, "link", host)
+    fault = link.fault
+    pins_low, stopped = stopped_safely(end, config)
+    run = HeaterRun(state="done", seconds=seconds, heaters={h.name: per[k] for k, h in enumerate(config.heaters)},
+                    trip=fault.reason if fault else None, trip_heater=link.heater_name(fault.heater) if fault else None,
+                    trip_s=link.fault_at if fault else None, heater_pins_low=pins_low, steppers_stopped=stopped,
+                    stage_max_cycles=end["I"][0], stages=end["I"][1], steps=trace, fan=end["F"])
+    return run, figures
 
 
 def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,

@@ -122,7 +122,7 @@ def _plant_file(config: FirmwareConfig, plants: dict[str, HeaterPlant], faults, 
     return "\n".join(lines) + "\n"
 
 
-def _read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
+def read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
     rows: dict[str, list] = {"A": [], "D": [], "S": [], "F": []}
     end: dict = {"P": {}, "H": {}}
     for line in path.read_text().splitlines():
@@ -167,7 +167,7 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
         if done.returncode not in EXIT_STATES or done.returncode == 1:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
         rec = read_edges(edges)
-        per, end = _read_trace(log, len(config.heaters), f_cpu)
+        per, end = read_trace(log, len(config.heaters), f_cpu)
     fields = dict(kv.split("=", 1) for kv in done.stdout.strip().splitlines()[-1].split())
     state, cycles = EXIT_STATES[done.returncode], int(fields["cycles"])
     status, reason, which = (int(fields[k]) for k in ("status", "status1", "status2"))
@@ -177,16 +177,23 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
     homing = None if tripped else _homing_fault(config, status, reason, which)  # the same status bytes
     steps = replace(decode_edges(rec, config, state, cycles, tick0, homing),
                     resumes=tuple(timer_ticks0(fields, f_cpu, tick_hz)[1:]))
-    tccr1b, timsk1 = end["T"]
-    disabled = all((end["P"][w.enable.port] >> w.enable.bit & 1) == int(pins.enable_active_low) for w in pins.motors)
-    pins_low = all(end["H"][k] == 0 for k in range(len(config.heaters)))
+    pins_low, stopped = stopped_safely(end, config)
     return HeaterRun(state=state, seconds=cycles / f_cpu,
                      heaters={h.name: per[k] for k, h in enumerate(config.heaters)},
                      trip=REASONS[reason - 1] if tripped else None,
                      trip_heater=config.heaters[which].name if tripped else None,
                      trip_s=cycles / f_cpu if tripped else None, heater_pins_low=pins_low,
-                     steppers_stopped=(tccr1b & 7) == 0 and timsk1 == 0 and disabled,
+                     steppers_stopped=stopped,
                      stage_max_cycles=end["I"][0], stages=end["I"][1], steps=steps, fan=end["F"])
+
+
+def stopped_safely(end: dict, config: FirmwareConfig) -> tuple[bool, bool]:
+    """From the plant trace's end state (read_trace): every heater's PWM disconnected and its pin low; Timer1 off
+    and every stepper driver disabled."""
+    pins = board_pins(config)
+    tccr1b, timsk1 = end["T"]
+    disabled = all((end["P"][w.enable.port] >> w.enable.bit & 1) == int(pins.enable_active_low) for w in pins.motors)
+    return all(end["H"][k] == 0 for k in range(len(config.heaters))), (tccr1b & 7) == 0 and timsk1 == 0 and disabled
 
 
 def heater_summary(run: HeaterRun, name: str, target_c: float, settle_s: float = SETTLE_S,

@@ -30,6 +30,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <avr_extint.h>
 #include <avr_ioport.h>
 #include <avr_uart.h>
 #include <sim_avr.h>
@@ -49,6 +50,7 @@
 #define GPIOR1_ADDR 0x4A
 #define GPIOR2_ADDR 0x4B
 #define PLAYER_DONE_MASK 0x01 /* GPIOR0: the flash player has played its end marker */
+#define MAX_EXTINT 8 /* INT0..INT7 on the ATmega2560 */
 #define MAX_STARTS 256 /* timer starts listed (a hold's resume each) */
 
 typedef struct {
@@ -72,6 +74,7 @@ static avr_t *avr;
 static FILE *edges;
 static uint8_t last_level[MAX_PINS]; /* pins start low after reset */
 static long long timer_start = -1;
+static unsigned long long timer_starts; /* how many times the player's timer has started */
 static long long starts[MAX_STARTS]; /* every start of the player's timer */
 static int n_starts;
 static endstop_t endstops[MAX_SWITCHES];
@@ -146,6 +149,7 @@ static void tccr1b_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value
         return;
     if (timer_start < 0 || every_start)
         timer_start = (long long)avr->cycle;
+    timer_starts++;
     if (n_starts < MAX_STARTS)
         starts[n_starts++] = (long long)avr->cycle;
 }
@@ -288,6 +292,11 @@ int main(int argc, char **argv)
     avr_load_firmware(avr, &fw);
     avr->sleep = no_sleep;
     avr->log = 0;
+    /* simavr polls a low INTn pin every cycle (strict level triggering) whatever EIMSK says: an endstop on INT2..5
+     * that stays closed after homing made a sleeping firmware 20x slower to simulate. No firmware here enables
+     * INTn, so the edge-only model gives the same run. */
+    for (uint8_t n = 0; n < MAX_EXTINT; n++)
+        avr_extint_set_strict_lvl_trig(avr, n, 0);
     edges = fopen(argv[4], "wb");
     if (!edges) {
         perror(argv[4]);

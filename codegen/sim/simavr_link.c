@@ -14,7 +14,8 @@
  *
  * Stdin, little-endian: a command is wake u64 (a cycle; UINT64_MAX: none), budget u64 (a cycle), flags u8 (1:
  * reset the figures), n u32, then n bytes for the line. The harness runs until a frame from the firmware has
- * fully arrived, the line has gone idle, the wake cycle, the budget, or the firmware stops; then it answers on
+ * fully arrived, the line has gone idle, the wake cycle, the budget, a start of the player's timer (so that the
+ * host sees every resume after a hold in timer_start), or the firmware stops; then it answers on
  * stdout: cycle u64, state u8 (0 running, 1 done, 2 crashed), why u8 (STOP_*), timer_start i64, lost u32,
  * max_free u32 (UINT32_MAX: no record read), sp_min u16, rx_bytes u32, then per interrupt (USART0 RX, UDRE):
  * longest u32, total u64 cycles from its dispatch to its RETI, count u32; then n u32 and n x (cycle u64, byte u8).
@@ -27,7 +28,7 @@
 #define UBRR0L_ADDR 0xC4
 #define LINK_VECTORS 2
 static const uint8_t link_vector[LINK_VECTORS] = {25, 26}; /* USART0_RX, USART0_UDRE on the ATmega2560 */
-enum { STOP_FRAME, STOP_IDLE, STOP_WAKE, STOP_BUDGET, STOP_END, STOP_BOOT };
+enum { STOP_FRAME, STOP_IDLE, STOP_WAKE, STOP_BUDGET, STOP_END, STOP_BOOT, STOP_TIMER };
 
 typedef struct {
     uint64_t cycle; /* when it has arrived at the host */
@@ -189,7 +190,10 @@ static avr_cycle_count_t wake_up(struct avr_t *core, avr_cycle_count_t when, voi
 
 static int link_run(uint64_t budget, int *state)
 {
+    const unsigned long long starts_before = timer_starts;
     for (;;) {
+        if (timer_starts != starts_before)
+            return STOP_TIMER; /* the player's timer has started (a resume after a hold): the host sees each */
         if (*state == cpu_Done || *state == cpu_Crashed)
             return STOP_END;
         if (link.frame_done) {
@@ -285,8 +289,10 @@ static int link_serve(uint64_t boot_budget)
         uint8_t reset;
         uint32_t n;
         if (fread(&link.wake, 8, 1, stdin) != 1 || fread(&budget, 8, 1, stdin) != 1
-            || fread(&reset, 1, 1, stdin) != 1 || fread(&n, 4, 1, stdin) != 1)
+            || fread(&reset, 1, 1, stdin) != 1 || fread(&n, 4, 1, stdin) != 1) {
+            plant_finish(avr); /* the plants' end state (heater duties, PORTs, Timer1) in their trace */
             return 0;
+        }
         link.line = grow(link.line, &link.line_cap, link.queued + n, 1);
         if (n && fread(link.line + link.queued, n, 1, stdin) != 1)
             return 3;
