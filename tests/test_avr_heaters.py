@@ -32,7 +32,7 @@ from tests.reference_player import play
 ROOT = Path(__file__).resolve().parent.parent
 F_CPU = 16_000_000
 CYCLES_PER_TICK = 8  # the player's 2 MHz tick
-HOOK_CHECK_CYCLES = 31  # heaters_hook.S's longest way with interrupts off when it runs no stage (cli .. sei; ret)
+HOOK_CHECK_CYCLES = 33  # heaters_hook.S's longest way with interrupts off when it runs no stage (cli .. sei; ret)
 HOOK_CYCLES = 77  # heaters_hook.S around a stage: from the check's TCNT1 read to the call, and from the return to
 #                   the next check's TCNT1 read or the SEI's RET
 

@@ -11,7 +11,7 @@ control law in two halves). Before the table, main's loop runs them (and waits f
 M190 heaters). While the table plays, every register belongs to the step interrupt, so main's idle loop
 (player_isr.S) calls heaters_hook.S when a period is due or a stage pending; with interrupts off, the hook saves
 the registers C may change and runs stages one after another only while Timer1's next compare is at least
-SLICE_CYCLES away: no stage delays a step; the hook's check alone can (31 cycles at most).
+SLICE_CYCLES away: no stage delays a step; the hook's check alone can (33 cycles at most).
 """
 
 from __future__ import annotations

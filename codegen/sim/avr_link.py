@@ -35,7 +35,8 @@ from codegen.link import protocol
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
                              switch_args, switch_thresholds, watched_pins)
-from codegen.sim.avr_plant import Fault, HeaterPlant, HeaterRun, _plant_file, read_trace, stopped_safely
+from codegen.sim.avr_plant import (Fault, HeaterPlant, HeaterRun, _plant_file, _stage_address, read_trace,
+                                   stopped_safely)
 
 COMMAND = struct.Struct("<QQBI")  # wake, budget, reset the figures, bytes for the line
 ANSWER = struct.Struct("<QBBqIIHIIQIIQII")  # see simavr_link.c
@@ -97,7 +98,7 @@ class StreamSim:
         plant = []
         if plants:
             spec = Path(self._tmp.name) / "plant-spec.txt"
-            spec.write_text(_plant_file(config, plants, faults, self.f_cpu, self._plant_log, None))
+            spec.write_text(_plant_file(config, plants, faults, self.f_cpu, self._plant_log, _stage_address(hex_path)))
             plant = [f"plant={spec}"]
         cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self._edges), str(BOOT_CYCLES),
                *switch_args(config, self.switches), f"link={self.layout.byte_cycles}",

@@ -25,7 +25,7 @@
  * (likewise), "S cycle heater temp_c duty256" every sample; at the
  * end "P port value" for the PORT registers A..L, "H heater duty256" (the registers' duty), "T tccr1b timsk1"
  * and "I max_cycles count": the longest call of heaters_poll (one stage, from its first instruction to its
- * return) while Timer1's interrupts are on (the player plays), and how many there were.
+ * return) while Timer1 runs (the player plays), and how many there were.
  */
 #include <math.h>
 #include <stdio.h>
@@ -245,7 +245,7 @@ void plant_follow(avr_t *avr)
         return;
     if (stage_pc) {
         uint16_t sp = (uint16_t)(avr->data[SPL_ADDR] | avr->data[SPH_ADDR] << 8);
-        if (!in_stage && avr->pc == stage_pc && avr->data[TIMSK1_ADDR]) {
+        if (!in_stage && avr->pc == stage_pc && (avr->data[TCCR1B_ADDR] & 7)) { /* Timer1 runs: the player plays */
             in_stage = 1;
             stage_sp = sp;
             stage_since = avr->cycle;
