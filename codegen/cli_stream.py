@@ -165,7 +165,8 @@ def cmd_stream(args) -> int:
         port = serial_port.open_port(args.port, setup.layout.baud)
         began = time.monotonic()
         try:
-            interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet)
+            interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet,
+                                          motors=tuple(m.name for m in setup.config.motors))
         finally:
             port.close()
     took = time.monotonic() - began

@@ -21,6 +21,7 @@ from codegen.cli_stream import _firmware, streamed_host
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
+from codegen.link.serial_port import status_line
 from codegen.sim.avr_link import StreamSim, simulate_stream_heaters
 from codegen.sim.avr_plant import Fault
 from codegen.streaming import stream_chunks, stream_setup
@@ -180,6 +181,8 @@ def test_status_during_the_wait_reports_temperatures_and_targets(session):
         near = [readings[r] / 10 for r in run.heaters[name].reading[at - 2:at + 1]]
         assert min(near) <= temp <= max(near)
     assert 25 < bed < 60 and 25 < hot < 200
+    assert status_line(status, ("x", "y", "z", "e"), ("hotend", "bed")) == (  # as `stream` shows it
+        f"playing, ring {status.fill} B, x +0 y +0 z +0 e +0, hotend {hot:.1f}/200 degC, bed {bed:.1f}/60 degC")
 
 
 def test_abort_during_the_wait_stops_and_turns_the_heaters_off(session):

@@ -94,15 +94,16 @@ def wave_host(wave):
     return streamed_host(job, wave.setup, strict=False, keep=True)
 
 
-def stream(job_path: Path, firmware: Machine, interrupt: tuple[int, float] | None = None) -> Streamed:
-    """`printer-codegen stream job_path --port <pty> --quiet` against `firmware` in simavr, until it exits;
+def stream(job_path: Path, firmware: Machine, interrupt: tuple[int, float] | None = None,
+           quiet: bool = True) -> Streamed:
+    """`printer-codegen stream job_path --port <pty> [--quiet]` against `firmware` in simavr, until it exits;
     `interrupt` as PtyBridge's: Ctrl-C that long after a frame of the firmware."""
     config = firmware.setup.config
     f_cpu = firmware.setup.target.f_cpu
     with StreamSim(firmware.hex_path, config) as sim, \
             PtyBridge(len(config.motors), DEADLINE_S, interrupt) as bridge:
         process = subprocess.Popen([sys.executable, "-m", "codegen", "stream", str(job_path), "--port", bridge.port,
-                                    "--quiet"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    *(["--quiet"] if quiet else [])], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             bridge.attach(process)
             trace, figures = sim.session(bridge, int((DEADLINE_S + 1) * f_cpu))  # the bridge's deadline first
@@ -185,3 +186,17 @@ def test_ctrl_c_as_the_job_ends_reports_the_finished_job(wave):
     assert re.fullmatch(rf"streamed line to {re.escape(run.bridge.port)}: 187 stream bytes in \d+\.\d s, \d+ frames "
                         rf"retransmitted; positions \[7200, 4400\] as planned\n", run.out), run.out
     assert net_steps(run.trace, 2) == [7200, 4400]
+
+
+def test_the_progress_bar_shows_the_firmwares_status_as_it_plays(wave, wave_host):
+    """Without --quiet: the bar of acknowledged bytes, and beside it the firmware's STATUS, asked for twice a
+    second once the job has started: playing, the ring's fill, each motor's steps since START (x only goes
+    forward, so its count grows from one answer to the next), then the end's positions."""
+    run = stream(wave.job_path, wave, quiet=False)
+    assert run.code == 0 and run.out.startswith("streamed wave")
+    shown = re.findall(r"playing, ring (\d+) B, x ([+-]\d+) y ([+-]\d+)", run.err)
+    assert len(shown) >= 5, run.err[-600:]  # 5.6 s of motion, an answer every 0.5 s (the bar redraws them)
+    xs = [int(x) for _, x, _ in shown]
+    assert xs == sorted(xs) and xs[-1] > xs[0] >= 0
+    final = int(wave_host.expected_final[0] - wave_host.start_steps[0])
+    assert all(0 < int(fill) <= wave.setup.layout.ring_bytes for fill, _, _ in shown) and xs[-1] <= final

@@ -1,6 +1,7 @@
 """`printer-codegen stream`: a HostLink session over a real serial port (pyserial), in real time, with a progress
-bar (tqdm) of the stream bytes the firmware has acknowledged. Ctrl-C sends ABORT and waits for the firmware
-to report where it stopped (a second Ctrl-C stops waiting)."""
+bar (tqdm) of the stream bytes the firmware has acknowledged and, once the job has started, the firmware's STATUS
+beside it (asked for every STATUS_EVERY_S: state, ring fill, positions, heaters). Ctrl-C sends ABORT and waits
+for the firmware to report where it stopped (a second Ctrl-C stops waiting)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ import time
 
 from codegen.errors import BuildError
 from codegen.link.host import HostLink
+from codegen.link.protocol import Status
 
 ABORT_WAIT_S = 3.0  # after Ctrl-C: how long the firmware has to answer ABORTED
 READ_SLICE_S = 0.002  # the longest a read waits before the session looks at its timers again
 BOOT_S = 3.0  # an Arduino resets when its port opens, and its bootloader waits a second or two: HELLO that long
 LATENCY_S = 0.004  # a USB serial adapter's answer delay beyond the byte times (USB frames of 1 ms, buffering)
+STATUS_EVERY_S = 0.5  # with the progress bar: a STATUS asked for this often while the job plays
 
 
 def open_port(port: str, baud: int):
@@ -25,8 +28,17 @@ def open_port(port: str, baud: int):
         raise BuildError(f"cannot open {port} at {baud} baud: {error}") from None
 
 
-def run(link: HostLink, port, total_bytes: int, progress: bool = True) -> bool:
-    """Drive `link` over the open `port` until the session ends; True when Ctrl-C sent ABORT.
+def status_line(status: Status, motors: tuple[str, ...], heaters: tuple[str, ...]) -> str:
+    """A STATUS answer in a few words: state, ring fill, each motor's steps since START, each heater's temperature
+    and target."""
+    parts = [status.state, f"ring {status.fill} B", " ".join(f"{m} {p:+d}" for m, p in zip(motors, status.position))]
+    parts += [f"{name} {temp:.1f}/{target:g} degC" for name, (temp, target) in zip(heaters, status.heaters)]
+    return ", ".join(parts)
+
+
+def run(link: HostLink, port, total_bytes: int, progress: bool = True, motors: tuple[str, ...] = ()) -> bool:
+    """Drive `link` over the open `port` until the session ends; True when Ctrl-C sent ABORT. With `progress`, the
+    bar shows the firmware's STATUS once the job has started (`motors`: their names, in the firmware's order).
 
     Ctrl-C is caught by a signal handler and acted on between the session's steps: a KeyboardInterrupt raised
     anywhere in them could cut a frame short on the line or drop an answer the link was parsing. The first sends
@@ -37,6 +49,7 @@ def run(link: HostLink, port, total_bytes: int, progress: bool = True) -> bool:
     previous = signal.signal(signal.SIGINT, lambda signum, frame: presses.append(time.monotonic()))
     start = time.monotonic()
     aborting = False
+    status_due, shown = 0.0, None
     bar = tqdm(total=total_bytes, unit="B", unit_scale=True, desc="streaming", disable=not progress,
                dynamic_ncols=True)
     try:
@@ -47,6 +60,9 @@ def run(link: HostLink, port, total_bytes: int, progress: bool = True) -> bool:
             if len(presses) > 1 or (aborting and time.monotonic() > presses[0] + ABORT_WAIT_S):
                 break
             now = time.monotonic() - start
+            if progress and link.started_at is not None and now >= status_due:
+                link.request_status()
+                status_due = now + STATUS_EVERY_S
             out = link.transmit(now)
             if out:
                 port.write(out)
@@ -55,6 +71,9 @@ def run(link: HostLink, port, total_bytes: int, progress: bool = True) -> bool:
             data = port.read(max(1, port.in_waiting))
             if data:
                 link.receive(data, time.monotonic() - start)
+            if link.status is not shown:
+                shown = link.status
+                bar.set_postfix_str(status_line(shown, motors, link.heaters))  # redrawn: the bytes may all be out
             bar.update(link.stats.data_bytes - bar.n)
     finally:
         signal.signal(signal.SIGINT, previous)
