@@ -43,8 +43,8 @@ def plan_summary(host: HostBuild) -> dict:
 
 
 def heaters_plan(host: HostBuild) -> dict:
-    """The heaters of the image (or the streaming firmware): how many target records the tables carry for each and how many waits, its last
-    target (degC), its pins, and its ADC table's flash bytes (int16 per reading)."""
+    """The heaters of the image (or of the streaming firmware): how many target records the tables carry for each
+    and how many waits, its last target (degC), its pins, and its ADC table's flash bytes (int16 per reading)."""
     out = {}
     for h in host.heaters:
         records = host.runtime_settings(h.name)

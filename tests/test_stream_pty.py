@@ -103,7 +103,8 @@ def stream(job_path: Path, firmware: Machine, interrupt: tuple[int, float] | Non
     with StreamSim(firmware.hex_path, config) as sim, \
             PtyBridge(len(config.motors), DEADLINE_S, interrupt) as bridge:
         process = subprocess.Popen([sys.executable, "-m", "codegen", "stream", str(job_path), "--port", bridge.port,
-                                    *(["--quiet"] if quiet else [])], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    *(["--quiet"] if quiet else [])],
+                                   cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             bridge.attach(process)
             trace, figures = sim.session(bridge, int((DEADLINE_S + 1) * f_cpu))  # the bridge's deadline first

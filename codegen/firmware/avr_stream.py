@@ -143,7 +143,8 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         "states": [(STATE_NAMES[name], value) for value, name in sorted(protocol.STATES.items())],
         "ring_end": RING_END, "position_bias": POSITION_BIAS, "message_max": protocol.MAX_ANSWER,
         "ident_payload": IDENT_PAYLOAD,
-        "status_payload": 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]), "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
+        "status_payload": 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]),
+        "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
         "callee_saved": CALLEE_SAVED, "crc_hi": crc_hi, "crc_lo": crc_lo,
     })
     names = STREAM_NAMES + (("homing.c",) if config.homing else ()) + (HEATER_NAMES if config.heaters else ())

@@ -9,17 +9,17 @@ and the time, so the same code drives a real serial port (`printer-codegen strea
         link.receive(data, now)
 
 The session: HELLO until IDENT answers (a firmware of another identity is refused); DATA frames while the
-firmware's credit (the free ring space of its last ACK, less what has been sent since) holds them, and no more
-than `window_s` of the line's bytes unacknowledged (what is on the line cannot be taken back: a frame resent
-after a bad byte, or an ABORT, waits behind it); START once
-`prefill_bytes` of the stream have gone out (or all of it); then the rest, and the end: FINISHED, UNDERRUN,
-ABORTED, HOMING_FAILED or FAULT (the heaters' protection tripped: `fault` says why). Every frame stays in flight until an ACK counts past it: an ACK that says REJECTED, or
-no ACK within `ack_timeout_s` of a frame's last byte, sends every frame in flight again from the first the
-firmware lacks (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame)
-every `ping_s`, and never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow
-line), for a fresh ACK; a firmware that sends window updates (an ACK unasked once its ring has room for a DATA
-frame again, after an ACK that said it had not: the 8051's) leaves the pings a fallback. `refill_byte_times` says
-how late the host starts to refill a ring that was full, either way (the plan counts on it: codegen/link/ring.py).
+firmware's credit (the free ring space of its last ACK, less what has been sent since) holds them, and no more than
+`window_s` of the line's bytes unacknowledged (what is on the line cannot be taken back: a frame resent after a bad
+byte, or an ABORT, waits behind it); START once `prefill_bytes` of the stream have gone out (or all of it); then
+the rest, and the end: FINISHED, UNDERRUN, ABORTED, HOMING_FAILED or FAULT (the heaters' protection tripped:
+`fault` says why). Every frame stays in flight until an ACK counts past it: an ACK that says REJECTED, or no ACK
+within `ack_timeout_s` of a frame's last byte, sends every frame in flight again from the first the firmware lacks
+(go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame) every `ping_s`, and
+never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow line), for a fresh ACK;
+a firmware that sends window updates (an ACK unasked once its ring has room for a DATA frame again, after an ACK
+that said it had not: the 8051's) leaves the pings a fallback. `refill_byte_times` says how late the host starts to
+refill a ring that was full, either way (the plan counts on it: codegen/link/ring.py).
 Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
 """
 
