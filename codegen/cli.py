@@ -165,6 +165,11 @@ def _print_verdict(result: dict) -> None:
         print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
     if "heaters" in result:
         print("\n".join(heater_lines(result)))
+    if "laser" in result:
+        laser = result["laser"]
+        print(f"  laser: PWM {laser['pwm_hz']:g} Hz, power within {laser['max_power_error_pct']:.2f} % of full scale "
+              f"of the plan at every step, {laser['cuts']} cuts, energy per mm within "
+              f"{laser['max_energy_per_mm_error_pct']:.2f} %")
     for problem in result["problems"]:
         print(f"  problem: {problem}")
 

@@ -41,6 +41,9 @@ def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
 
 
 def _firmware(job, setup: StreamSetup, out: str | None):
+    if job.machine.jog is not None:
+        print(f"{job.path.name}: warning: machine.jog: the streaming firmware has no jog mode yet (its keys are not "
+              f"read); the flash image has one", file=sys.stderr)
     out_dir = _out_dir(job, out)
     image, sources = build_stream_firmware(setup, out_dir)
     write_json(out_dir / "report.json", _stream_report(setup, image, sources))
@@ -161,7 +164,8 @@ def cmd_stream(args) -> int:
         link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
                         payload=setup.budget.payload, stream_bytes=plan.stream_bytes,
                         answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S,
-                        heaters=tuple(h.name for h in setup.config.heaters))
+                        heaters=tuple(h.name for h in setup.config.heaters),
+                        laser_top=setup.config.laser.top if setup.config.laser else 0)
         port = serial_port.open_port(args.port, setup.layout.baud)
         began = time.monotonic()
         try:

@@ -58,7 +58,7 @@ class CurveBlocks:
 
 
 def curve_blocks(block_segment: np.ndarray, block_steps: np.ndarray, block_tool: np.ndarray, segments: Segments,
-                 plan: Plan, kin: Kinematics) -> CurveBlocks | None:
+                 plan: Plan, kin: Kinematics, max_rate: np.ndarray | None = None) -> CurveBlocks | None:
     """Which blocks are timed on the curve, and their cubics (None: no block is)."""
     n_blocks = len(block_segment)
     if n_blocks < 2:
@@ -89,7 +89,8 @@ def curve_blocks(block_segment: np.ndarray, block_steps: np.ndarray, block_tool:
     slope_in = np.where(has_prev, np.concatenate([[1.0], mean]), secant)
     slope_out = np.where(has_next, np.concatenate([mean, [1.0]]), secant)
     smooth = moving & (has_prev | has_next)
-    smooth &= _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan, seg, kin)
+    rate_limit = kin.limits.max_rate if max_rate is None else max_rate
+    smooth &= _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan, seg, kin, rate_limit)
     if not smooth.any():
         return None
     return CurveBlocks(smooth, has_prev, has_next, slope_in, slope_out, u0, span, sign.astype(float))
@@ -144,7 +145,8 @@ def _slope_extremes(m0, m1, secant, h):
     return least, bend
 
 
-def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, seg, kin: Kinematics):
+def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, seg, kin: Kinematics,
+                   rate_limit: np.ndarray):
     """Blocks whose curve timing keeps every motor's velocity and acceleration within its limits."""
     least, bend = _slope_extremes(slope_in, slope_out, secant, span)
     ok = least > 0
@@ -154,7 +156,7 @@ def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, 
     v = plan.v_peak[seg]
     changing = plan.s_acc[seg] + plan.s_cruise[seg] < plan.length[seg] * (1 - 1e-12)
     a = np.where((plan.s_acc[seg] > 0) | changing, plan.accel[seg], 0.0)  # a block at cruise only: none
-    max_rate = kin.limits.max_rate[None, :] * quantisation_factor(steps) * RATE_SHARE
+    max_rate = rate_limit[None, :] * quantisation_factor(steps) * RATE_SHARE
     max_accel = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE
     velocity = (v * du_ds)[:, None] * ratio
     accel = (a * du_ds + v * v * d2u)[:, None] * ratio

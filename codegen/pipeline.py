@@ -19,9 +19,11 @@ from codegen.firmware import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPi
 from codegen.firmware.avr_heaters import job_heaters, stream_heaters
 from codegen.heaters.program import HeaterProgram, heater_diagnostics
 from codegen.homing import homes, homing_axes
+from codegen.jog import jog_plan
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
+from codegen.laser import LaserPwm, laser_pwm
 from codegen.link.ring import LinkBudget, LinkPlan, link_plan
 from codegen.lookahead import Lookahead, Window
 from codegen.pieces import front_end
@@ -61,6 +63,7 @@ class HostBuild:
     pulses: Pulses | None = None
     link_plan: LinkPlan | None = None  # a streamed job's link (host_build's `link`)
     runtime: RuntimeRecords | None = None  # the heater and fan settings the image plays (codegen/runtime.py)
+    laser: LaserPwm | None = None  # a PWM laser's (codegen/laser.py)
 
     @property
     def schedule(self):
@@ -79,6 +82,8 @@ class HostBuild:
             homing=self.homing,
             start_steps=tuple(int(v) for v in self.start_steps),
             heaters=self.heaters,
+            laser=self.laser,
+            jog=jog_plan(self.job, self.kin.motors, self.target.tick_hz) if self.job.machine.jog else None,
         )
 
     @cached_property
@@ -107,10 +112,13 @@ def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray
     return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
 
 
-def planner_limits(job, kin: Kinematics, target: TargetInfo) -> PlannerLimits:
+def planner_limits(job, kin: Kinematics, target: TargetInfo, heaters: bool = False) -> PlannerLimits:
+    """`heaters`: the image runs heater stages beside the player (their check may delay a pulse). A laser's
+    machine does not stop where the tool switches (Grbl's laser mode): its power records land at their step."""
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     return PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
-                         block_overhead=target.block_overhead_s(motors, pulse_us, setup_us))
+                         block_overhead=target.block_overhead_s(motors, pulse_us, setup_us),
+                         pulse_jitter_s=target.pulse_jitter_s(heaters), tool_stops=job.machine.laser is None)
 
 
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
@@ -123,7 +131,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     the link keeps fed (host.link_plan)."""
     watch = watch or Stopwatch()
     try:
-        target = target_info(job.board, stream=link is not None)
+        target = target_info(job.board, stream=link is not None, laser=job.machine.laser is not None)
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
@@ -132,7 +140,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     played_out = runtime_outputs(job, target, link is not None)
     program.plays_runtime = bool(played_out)
     runtime = (lambda: runtime_records(program.settings, played_out)) if played_out else None
-    limits = planner_limits(job, kin, target)
+    limits = planner_limits(job, kin, target, bool(played_out))
+    laser = laser_pwm(job, target.board_data, target.f_cpu)
     ahead = Lookahead(kin, limits)
     stages: Stages | None = None
     played: list[Played] = []
@@ -142,7 +151,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
             chunk = next(chunks, None)
         if stages is None:
             stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables, link, runtime)
+                            tables, link, runtime, laser)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -163,7 +172,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
                                       link is not None and not played_out)
     host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
-                     program.warnings + heater_notes, homing, program.heater_program)
+                     program.warnings + heater_notes, homing, program.heater_program, laser=laser)
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if runtime is not None:

@@ -26,6 +26,8 @@ class PlannerLimits:
     max_event_rate: float = np.inf  # events/s the player sustains
     block_overhead: float = 0.0  # s a block start costs the player beyond an ordinary event
     margin: float = 0.02  # headroom kept below every motor limit, for step and tick quantisation
+    pulse_jitter_s: float = 0.0  # how much closer than planned the player may put 8 steps (TargetInfo)
+    tool_stops: bool = True  # the tool switching on or off is a stop (a pen); a laser's power follows at its step
     centripetal_share: float = 0.8  # largest share of a motor's acceleration a curve may use sideways
 
 
@@ -77,6 +79,12 @@ def segment_lengths(segments: Segments) -> tuple[np.ndarray, np.ndarray]:
     length = np.where(length > 0, length, np.abs(delta[:, 3]))
     direction = np.divide(delta, length[:, None], out=np.zeros_like(delta), where=length[:, None] > 0)
     return length, direction
+
+
+def jitter_rate(max_rate: np.ndarray, jitter_s: float) -> np.ndarray:
+    """The rate (steps/s) to plan for so that 8 steps still keep `max_rate` when the player puts them
+    `jitter_s` closer: their RATE_WINDOW intervals must span RATE_WINDOW / max_rate + jitter_s."""
+    return max_rate / (1.0 + jitter_s * max_rate / RATE_WINDOW)
 
 
 def quantisation_factor(steps: np.ndarray) -> np.ndarray:
@@ -144,7 +152,8 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     moving = length > 0
     motor = kin.limits
     keep = 1.0 - limits.margin
-    vmax, amax = motor.max_velocity * keep, motor.max_accel * keep
+    vmax = motor.max_velocity * keep * jitter_rate(motor.max_rate, limits.pulse_jitter_s) / motor.max_rate
+    amax = motor.max_accel * keep
     # (n, M) motor mm per path mm: the larger of the two ends (they differ where the kinematics is not linear)
     factors = np.maximum(kin.motor_factors(u, segments.start), kin.motor_factors(u, segments.end))
     factors = np.maximum(factors, bresenham_factors(factors, steps, motor.steps_per_mm))
@@ -208,11 +217,11 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     accel = np.minimum.reduce([accel, segments.accel, _axis_cap(segments.axis_accel, u)])
     accel = np.where(moving, accel, 1.0)
 
-    # Largest v^2 at each junction; 0 at the ends, around dwells and where the tool switches.
+    # Largest v^2 at each junction; 0 at the ends, around dwells and where the tool switches (unless it need not).
     w_nom = v_nominal ** 2
     w_max = np.zeros(n + 1)
     inner = np.minimum.reduce([w_nom[:-1], w_nom[1:], w_jd, w_curve_j])
-    stops = (~moving[:-1]) | (~moving[1:]) | (segments.tool[:-1] != segments.tool[1:])
+    stops = (~moving[:-1]) | (~moving[1:]) | (limits.tool_stops & (segments.tool[:-1] != segments.tool[1:]))
     w_max[1:-1] = np.where(stops, 0.0, inner)
     smooth_at = np.zeros(n + 1, dtype=bool)
     smooth_at[1:-1] = smooth

@@ -39,7 +39,16 @@ def plan_summary(host: HostBuild) -> dict:
         "problems": list(f.problems),
         **(host.link_plan.summary() if host.link_plan is not None else {}),
         **({"heaters": heaters_plan(host)} if host.heaters else {}),
+        **({"laser": laser_plan(host)} if host.laser else {}),
     }
+
+
+def laser_plan(host: HostBuild) -> dict:
+    """A laser's PWM and the tables' power records (codegen/laser.py)."""
+    laser = host.laser
+    return {"pin": laser.pin, "pwm_hz": _round(laser.actual_hz, 3), "top": laser.top,
+            "power_records": host.totals.power_records,
+            "max_power_error_pct": _round(100 * host.totals.max_power_error, 4)}
 
 
 def heaters_plan(host: HostBuild) -> dict:
@@ -123,6 +132,7 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         "start_offset_us": _round(verdict.latency_us, 3),
         "homing": verdict.homing,
         "display": verdict.display,
+        **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
                   "table_bytes": host.schedule.table_bytes()},
         "problems": verdict.problems + f.problems,
@@ -167,5 +177,10 @@ def human_plan(summary: dict) -> str:
         lines.append(f"  heater {name} ({h['pwm_pin']}, thermistor {h['sensor_pin']}): {h['settings']} settings and "
                      f"{h['waits']} waits in the tables, the last {h['last_target_c']:g} degC; ADC table "
                      f"{h['table_bytes']} bytes")
+    if "laser" in summary:
+        laser = summary["laser"]
+        lines.append(f"  laser on {laser['pin']} at {laser['pwm_hz']:g} Hz ({laser['top']} counts): "
+                     f"{laser['power_records']} power changes, within {laser['max_power_error_pct']:.2f} % of "
+                     f"full scale of the plan")
     lines.extend(f"  problem: {p}" for p in summary["problems"])
     return "\n".join(lines)

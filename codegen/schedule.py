@@ -26,6 +26,10 @@ change no pulse. A WAIT holds the player there: it stops its timer after that ev
 mask have settled, restarts it at tick 0 with pos at that event's fraction of a tick (pos mod 256): the events
 after a wait are timed from the wait's event as if from tick 0. The twin plays the events as if no hold came.
 
+Laser power (an image with a PWM laser, codegen/laser.py): a power record before a rate run (`run_power` >= 0)
+sets the PWM's counts at the run's first event: the player reads it with the run, and writes it to the PWM with
+that event's STEP edge. Power changes no pulse.
+
 `interval` is unsigned 24.8 fixed point ticks, `add` signed 16.8 (24 bits), `count` 1..65535. A block whose
 motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_MODULUS`, every
 `steps[m] <= modulus` and `init[m] < modulus`. After i events motor m has made
@@ -45,6 +49,7 @@ MAX_COUNT = 65535
 MAX_INTERVAL = (1 << 32) - 1  # 24.8 fixed point: just under 2**24 ticks
 MAX_ADD = (1 << 23) - 1
 TOOL_BIT = 0x40
+MAX_POWER = 0xFFFF  # a power record's PWM counts, u16
 # Runtime commands (codegen/tables.py's runtime record) and their values.
 RT_TARGET_HOTEND, RT_TARGET_BED, RT_FAN, RT_WAIT = 0, 1, 2, 3  # 0.1 degC; 0.1 degC; duty 0..255; heater mask
 RUNTIME_NAMES = ("target hotend", "target bed", "fan", "wait")
@@ -70,6 +75,8 @@ class Schedule:
     runtime_block: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) 0..B, in order
     runtime_command: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) RT_*
     runtime_value: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) u16
+    # (R,) a laser's PWM counts set at each run's first event, or -1 (no record); empty: no laser
+    run_power: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def events_per_block(self) -> np.ndarray:
         return self.block_events
@@ -89,6 +96,11 @@ class Schedule:
     @property
     def n_runs(self) -> int:
         return len(self.run_count)
+
+    @property
+    def n_power(self) -> int:
+        """Power records (a laser's PWM counts, before the runs whose run_power is >= 0)."""
+        return int(np.count_nonzero(self.run_power >= 0))
 
     def table_bytes(self) -> int:
         """Size of the encoded stream, end marker included."""
@@ -118,6 +130,8 @@ class Schedule:
         if np.any(np.diff(block) < 0) or np.any(block < 0) or np.any(block > self.n_blocks) \
                 or np.any((value < 0) | (value > 0xFFFF)) or np.any((command < 0) | (command > RT_WAIT)):
             problems.append("runtime records out of range or out of order")
+        if len(self.run_power) not in (0, self.n_runs) or np.any(self.run_power > MAX_POWER):
+            problems.append("power records out of range")
         if int(self.block_events.sum()) != int(self.run_count.sum()):
             problems.append("the blocks' events and the runs' events differ")
         if problems:

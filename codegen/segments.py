@@ -26,6 +26,8 @@ class Segments:
     end: np.ndarray  # (n, 4) mm
     feed: np.ndarray  # (n,) mm/s, inf = unlimited
     tool: np.ndarray  # (n,) bool
+    power: np.ndarray  # (n,) the tool's power while it is on, 0..1 (G-code S over the job's s_max)
+    dynamic: np.ndarray  # (n,) bool: M4, the power follows the actual speed over the programmed one
     dwell: np.ndarray  # (n,) s; > 0 marks a dwell (start == end)
     item: np.ndarray  # (n,) index of the toolpath item the piece comes from
     accel: np.ndarray  # (n,) mm/s^2, the program's cap on the path acceleration (inf: none)
@@ -158,14 +160,15 @@ class Flattener:
             fines.append(item.fine)
         else:  # a dwell
             pts = (self.position, self.position)
-            return pts, math.inf, False, math.inf, item.seconds, ref
+            return pts, math.inf, False, math.inf, 0.0, False, item.seconds, ref
         self.position = pts[-1]
-        return pts, item.feed, item.tool, getattr(item, "accel", math.inf), 0.0, ref
+        return (pts, item.feed, item.tool, getattr(item, "accel", math.inf), getattr(item, "power", 1.0),
+                getattr(item, "dynamic", False), 0.0, ref)
 
 
 # An item's columns (each piece of it repeats them): name, type, shape.
 COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ()), ("tool", bool, ()),
-           ("accel", float, ()), ("dwell", float, ()), ("kind", np.int64, ()), ("center", float, (2,)),
+           ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()), ("kind", np.int64, ()), ("center", float, (2,)),
            ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()))
 
 
@@ -176,10 +179,10 @@ class _Single:
         self.points, self.rows, self.fine_count = [], [], 0
 
     def add(self, pieces: tuple, index: int, state: int) -> None:
-        pts, feed, tool, accel, dwell, (kind, center, radius, plane) = pieces
+        pts, feed, tool, accel, power, dynamic, dwell, (kind, center, radius, plane) = pieces
         count = len(pts) - 1
         self.points.append(pts)
-        self.rows.append((count, index, feed, tool, accel, dwell, kind, center, radius, plane, state,
+        self.rows.append((count, index, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
                           self.fine_count if kind == REF_CURVE else -1))
         self.fine_count += count if kind == REF_CURVE else 0
 
@@ -196,7 +199,7 @@ def _lines_group(lines: Lines, index: int, state: int) -> tuple:
     """The group of a Lines item: a piece per move."""
     n = len(lines)
     return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
-            lines.feed, lines.tool, lines.accel, np.zeros(n), np.full(n, REF_LINE), np.zeros((n, 2)), np.zeros(n),
+            lines.feed, lines.tool, lines.accel, lines.power, lines.dynamic, np.zeros(n), np.full(n, REF_LINE), np.zeros((n, 2)), np.zeros(n),
             np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1))
 
 
@@ -204,15 +207,16 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     """The groups' pieces as Segments: the items' columns repeated over their pieces."""
     if not groups:
         groups = [(np.zeros((0, 4)), np.zeros((0, 4)), *(np.zeros((0, *shape), dtype=t) for _, t, shape in COLUMNS))]
-    starts, ends, counts, owners, feed, tool, accel, dwell, kind, center, radius, plane, state, fine_rows = (
-        np.concatenate(c) for c in zip(*groups))
+    (starts, ends, counts, owners, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
+     fine_rows) = (np.concatenate(c) for c in zip(*groups))
     each = lambda values: np.repeat(values, counts, axis=0)  # noqa: E731
     rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
     first_fine = each(fine_rows)
     velocity, axis_accel, jerk, jd = limits.arrays(each(state))
     jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
     return Segments(
-        start=starts, end=ends, feed=each(feed), tool=each(tool), dwell=each(dwell), item=each(owners),
+        start=starts, end=ends, feed=each(feed), tool=each(tool), power=each(power), dynamic=each(dynamic),
+        dwell=each(dwell), item=each(owners),
         accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
         jerk=jerk.reshape(-1, 4), junction_deviation=jd, ref_kind=each(kind), ref_center=each(center).reshape(-1, 2),
         ref_radius=each(radius), ref_plane=each(plane).reshape(-1, 2),

@@ -42,9 +42,10 @@ EVENT_CHUNK = 1 << 20  # events timed per pass (numpy): small temporaries are re
 
 
 def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray, max_gap: float,
-             curves: bool = False) -> Events:
+             curves: bool = False, max_rate: np.ndarray | None = None) -> Events:
     """`steps` from `segment_steps`; `max_gap` (s) is the longest interval the player can wait between events;
-    `curves`: events on curves are timed on the curve (codegen/curve_timing.py). In one pass in C
+    `curves`: events on curves are timed on the curve (codegen/curve_timing.py) where that keeps every motor
+    within `max_rate` (steps/s; default its limit). In one pass in C
     (codegen/native/eventtimes.c) where the helper could be built, else in numpy passes."""
     n_master = np.abs(steps).max(axis=1, initial=0)
     dwell = segments.dwell > 0
@@ -61,7 +62,7 @@ def generate(segments: Segments, plan: Plan, kin: Kinematics, steps: np.ndarray,
     modulus = np.where(dwell[blocks], 1, n_master[blocks])
     init = bresenham_init(exact[blocks], exact_end[blocks], master[blocks], block_steps, modulus)
     tool = segments.tool[blocks]
-    curve = curve_blocks(blocks, block_steps, tool, segments, plan, kin) if curves else None
+    curve = curve_blocks(blocks, block_steps, tool, segments, plan, kin, max_rate) if curves else None
     lib = library("eventtimes")
     if lib is not None:
         time, phase = _native_times(lib, segments, plan, crossing, blocks, count, curve)

@@ -18,6 +18,7 @@ from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr_heaters import stream_heaters
 from codegen.homing import homing_axes
 from codegen.kinematics import make_kinematics
+from codegen.laser import laser_pwm
 from codegen.link import protocol
 from codegen.link.ring import LinkBudget, link_budget
 from codegen.targets import TargetInfo, target_info
@@ -68,7 +69,8 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
         step_pulse_us=job.machine.step_pulse_us, dir_setup_us=job.machine.dir_setup_us,
         homing=homing_axes(job, kin, target.tick_hz) if stream_homes(job) else (),
         baud=int(baud or job.machine.link.baud or 0),
-        heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else ())
+        heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else (),
+        laser=laser_pwm(job, target.board_data, target.f_cpu))
     module = stream_module(target.target)
     layout = module.ring_layout(config)
     budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),

@@ -58,6 +58,15 @@ class TargetInfo:
         extra = self.block_gap_ticks(step_pulse_us, dir_setup_us) - self.run_gap_ticks(motors, step_pulse_us)
         return 1.25 * max(extra, 0) / self.tick_hz
 
+    def pulse_jitter_s(self, heaters: bool = False) -> float:
+        """How much earlier than its tick + the constant latency a pulse may come against the one before: the
+        latency's spread (a link interrupt in the way), a heater stage's check (heater_check_cycles) where
+        heaters run, and the measurements' +-2 cycles. Eight steps may be this much closer than planned."""
+        latency = int(self.mcu_data.get("isr_latency_cycles", 0))
+        spread = latency - int(self.mcu_data.get("isr_latency_min_cycles", latency))
+        hook = int(self.mcu_data.get("heater_check_cycles", 0)) if heaters else 0
+        return (spread + hook + 4) / self.f_cpu
+
     @property
     def isr_latency_us(self) -> float:
         """From the timer event to the first STEP edge: the player's constant delay."""
@@ -85,9 +94,10 @@ def board_heater_pins(board: str) -> dict[str, tuple[str, str]]:
     return {str(name): (str(spec["pwm"]), str(spec["sensor"])) for name, spec in heaters.items()}
 
 
-def target_info(board: str, stream: bool = False) -> TargetInfo:
+def target_info(board: str, stream: bool = False, laser: bool = False) -> TargetInfo:
     """`stream`: the costs of the streaming player (records from the link's ring buffer, the link's interrupts
-    beside it), where the MCU's or board's file has them (`stream_player_costs`)."""
+    beside it), where the MCU's or board's file has them (`stream_player_costs`). `laser`: a player with a PWM
+    laser, whose every event may read a power record and write the PWM (laser_record_cycles more)."""
     board_data = _load(board)
     mcu = board_data["mcu"]
     # A board may carry its own measured player costs (a display makes the interrupt save main's registers).
@@ -95,6 +105,10 @@ def target_info(board: str, stream: bool = False) -> TargetInfo:
     if stream:
         mcu_data.update(_load(mcu).get("stream_player_costs") or {})
         mcu_data.update(board_data.get("stream_player_costs") or {})
+    if laser:
+        extra = int(mcu_data.get("laser_record_cycles", 0))
+        mcu_data.update({k: v + extra for k, v in mcu_data.items()
+                         if k in ("min_event_cycles", "block_dir_write_cycles") or k.startswith(("run_event_cycles_", "block_event_cycles_"))})
     f_cpu = int(mcu_data["f_cpu"])
     tick_hz = int(mcu_data.get("tick_hz", f_cpu))
     return TargetInfo(

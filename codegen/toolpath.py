@@ -28,6 +28,7 @@ class Line:
     label: str = "line"
     accel: float = math.inf  # mm/s^2: the program's own cap on this move's acceleration (G-code M204)
     power: float = 1.0  # tool power while the tool is on, 0..1 (G-code S over its full scale)
+    dynamic: bool = False  # M4: the power scales with the actual speed over the programmed one (Grbl's laser mode)
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +42,7 @@ class Lines:
     rapid: np.ndarray  # (n,) bool: G0 (else G1, the moves' label)
     accel: np.ndarray  # (n,)
     power: np.ndarray  # (n,)
+    dynamic: np.ndarray  # (n,) bool
     file: str
     line: np.ndarray  # (n,) where each move is written
     col: np.ndarray  # (n,)
@@ -60,11 +62,12 @@ class Lines:
         return SourceRef(self.file, int(self.line[k]), int(self.col[k]))
 
     def lines(self) -> list[Line]:
-        rows, columns = list(self.points), (self.feed, self.tool, self.rapid, self.accel, self.power, self.line,
-                                            self.col)
+        rows, columns = list(self.points), (self.feed, self.tool, self.rapid, self.accel, self.power, self.dynamic,
+                                            self.line, self.col)
         return [Line(rows[k], rows[k + 1], feed, tool, SourceRef(self.file, line, col), "G0" if rapid else "G1",
-                     accel, power)
-                for k, (feed, tool, rapid, accel, power, line, col) in enumerate(zip(*(c.tolist() for c in columns)))]
+                     accel, power, dynamic)
+                for k, (feed, tool, rapid, accel, power, dynamic, line, col)
+                in enumerate(zip(*(c.tolist() for c in columns)))]
 
     def split_first(self) -> list:
         """The first move as a Line, then the others (if any)."""
@@ -74,7 +77,7 @@ class Lines:
         return replace(self, points=self.points[lo:hi + 1], **{name: getattr(self, name)[lo:hi] for name in _PER_MOVE})
 
 
-_PER_MOVE = ("feed", "tool", "rapid", "accel", "power", "line", "col")
+_PER_MOVE = ("feed", "tool", "rapid", "accel", "power", "dynamic", "line", "col")
 
 
 def expanded(items: list) -> list:
@@ -99,6 +102,7 @@ class Arc:
     label: str = "arc"
     accel: float = math.inf
     power: float = 1.0
+    dynamic: bool = False
 
     def points(self, angles: np.ndarray) -> np.ndarray:
         """Points at the given angles; the axes outside the plane move linearly with the angle."""

@@ -15,6 +15,7 @@ import numpy as np
 from codegen.checks import Findings, check
 from codegen.firmware.avr_homing import homing_steps
 from codegen.pipeline import HostBuild, trains_from
+from codegen.verify_laser import LaserVerdict, laser_verdict
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -70,6 +71,7 @@ class Verdict:
     homing: dict = field(default_factory=dict)
     display: list[str] | None = None  # the status display's text at the end (None: the board has none)
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
+    laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify_laser.py)
 
     @property
     def path_measured(self) -> bool:
@@ -163,9 +165,11 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
     problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
     problems.extend(display_problems(host, trace, streamed))
+    laser = laser_verdict(host, trace, cycle[new_event], twin_event if matched else None)
+    problems.extend(laser.problems if laser else [])
     display = None if trace.display is None else list(trace.display.lines)
     return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
-                   homing_problems + problems, homing, display, not_compared)
+                   homing_problems + problems, homing, display, not_compared, laser)
 
 
 def planned_stepping_s(host: HostBuild) -> float:

@@ -26,10 +26,12 @@ from codegen.checks import Checker, MotorTrain, corner_jumps
 from codegen.compress import Compressed, compress
 from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
+from codegen.laser import LaserPwm, event_counts, power_error_of, with_power
 from codegen.link.ring import LinkBudget, Ring, Shortfall
 from codegen.lookahead import Lookahead, Window, merge
 from codegen.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
-from codegen.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, passes, profile, segment_lengths
+from codegen.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
+                             segment_lengths)
 from codegen.segments import Segments, concat
 from codegen.stepgen import Events, generate
 from codegen.stopwatch import Stopwatch
@@ -54,6 +56,7 @@ class Played:
     events: Events | None  # these two only when the stages keep them
     pulses: Pulses | None  # ticks absolute, event_position counted from the program's start
     prior_item: int = -1  # the item of the last block before the window (its runtime records come after it)
+    power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
 
 
 @dataclass
@@ -69,6 +72,8 @@ class Totals:
     table_bytes: int = 0  # the end marker included
     max_timing_error_ticks: float = 0.0  # the largest distance of an emitted event from its planned time
     link_slowdown_s: float = 0.0  # time the link's bandwidth added to the plan (streaming)
+    max_power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal
+    power_records: int = 0
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -81,6 +86,8 @@ class Totals:
         self.events += played.events_count
         self.table_bytes += sched.table_bytes() - (end if self.table_bytes else 0)
         self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
+        self.max_power_error = max(self.max_power_error, played.power_error)
+        self.power_records += sched.n_power
 
 
 @dataclass
@@ -93,6 +100,7 @@ class _Carried:
     before: Segments | None  # the last segment
     ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
     block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
+    laser_counts: int = 0  # the laser's PWM counts after the last event
 
 
 class Stages:
@@ -101,20 +109,22 @@ class Stages:
 
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
                  lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
-                 link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None):
+                 link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None,
+                 laser: LaserPwm | None = None):
         """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
         `tables` gets each final window's table records as it is made (a window ends at a block and a run
         start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
         stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
         `runtime`: the program's runtime records so far (codegen/runtime.py), whose cost the blocks after them
-        get."""
+        get; `laser`: the laser's PWM, whose power records the runs get (codegen/laser.py)."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
+        self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
         self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
-        self.runtime = runtime
+        self.runtime, self.laser = runtime, laser
         motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
         self.gaps = (target.run_gap_ticks(motors, pulse_us),
                      target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
@@ -179,18 +189,25 @@ class Stages:
         kin, target, watch = self.kin, self.target, self.watch
         with watch("step times"):
             events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
-                              curves=True)
+                              curves=True, max_rate=self.max_rate)
         block_item = window.segments.item[events.block_segment]
         extra = None if self.runtime is None else block_extra_ticks(
             self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
         with watch("rate runs"):
-            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=kin.limits.max_rate,
+            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=self.max_rate,
                                   origin_fx=before.origin_fx, block_extra_ticks=extra)
+        laser_counts, power_error = before.laser_counts, 0.0
+        if self.laser is not None and len(events.time):
+            with watch("laser power"):
+                counts, ideal = event_counts(events, window.plan, window.segments, self.laser.top)
+                compressed.schedule = with_power(compressed.schedule, counts, before.laser_counts)
+                power_error = power_error_of(counts, ideal, self.laser.top)
+                laser_counts = int(counts[-1])
         with watch("twin"):
             pulses = predict(compressed.schedule, before.origin_fx, before.position)
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep else None, before.block_item)
+                        events if self.keep else None, pulses if self.keep else None, before.block_item, power_error)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
         around = concat(*parts)
@@ -207,7 +224,7 @@ class Stages:
         ring = None if before.ring is None else before.ring.copy()
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
-                           int(block_item[-1]) if len(block_item) else before.block_item)
+                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts)
         scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
         if ring is not None:
             with watch("link"):

@@ -50,12 +50,27 @@ class _Reader:
         return value - (1 << 8 * width) if value >> (8 * width - 1) else value
 
 
-def play_stream(data: bytes, motors: int, runtime: list | None = None) \
+def _next_run(read, power: list | None, event: int) -> tuple[int, int, int]:
+    """The next rate run (count, interval, add), the power records before it going to `power`."""
+    while True:
+        count = read.u(1)
+        if count:
+            return count, read.u(3), read.i(2)
+        count = read.u(2)
+        if count:
+            return count, read.u(4), read.i(3)
+        counts = read.u(2)  # a long run of count 0: a power record
+        if power is not None:
+            power.append((event, counts))
+
+
+def play_stream(data: bytes, motors: int, runtime: list | None = None, power: list | None = None) \
         -> tuple[list[tuple[int, int, int]], list[int], bool]:
     """(tick, motor, dir) of every pulse, the tool flag of every event and the final tool state, from the compact
     stream: a block lasts `modulus` events; a short block's master steps at every event; the runs follow one
     another over all events; at an event that starts a block and a run, the block record comes first. Runtime
-    records (flags 0x90) go to `runtime` as (the events played before them, command, value)."""
+    records (flags 0x90) go to `runtime` as (the events played before them, command, value); power records (a long
+    run of count 0, then counts u16) to `power` as (the event that takes them, counts)."""
     read = _Reader(data)
     pulses, tools = [], []
     pos = interval = add = run_left = 0
@@ -84,11 +99,7 @@ def play_stream(data: bytes, motors: int, runtime: list | None = None) \
         dirs = [1 if flags >> m & 1 else -1 for m in range(motors)]
         for _ in range(modulus):
             if run_left == 0:
-                count = read.u(1)
-                if count:
-                    run_left, interval, add = count, read.u(3), read.i(2)
-                else:
-                    run_left, interval, add = read.u(2), read.u(4), read.i(3)
+                run_left, interval, add = _next_run(read, power, len(tools))
             else:
                 interval += add
             run_left -= 1

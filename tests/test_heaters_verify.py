@@ -157,7 +157,8 @@ def test_a_dead_heater_trips_heating_failed_before_any_move(cura, cura_verified,
     print("\n".join(lines))
     bed_hold = cura_verified["result"]["holds"][0]
     assert code == 1 and lines[:7] + lines[8:] == [
-        f"FAIL cura-start: {cura.parent / 'out' / 'firmware.hex'} in simavr, 0.0000 s simulated, 3.9170 s planned",
+        f"FAIL cura-start: {cura.parent / 'out' / 'firmware.hex'} in simavr, 0.0000 s simulated, "
+        f"{cura_verified['result']['planned_duration_s']:.4f} s planned",
         "  heater hotend tripped: heating_failed at 91.90 s simulated; every heater pin low, steppers stopped",
         "  x: 0 of 4688 steps before the trip",
         "  y: 0 of 5645 steps before the trip",

@@ -176,7 +176,7 @@ def test_staircase_error_in_c_is_the_numpy_version(kind, motors):
     points[:, :len(motors)] = np.cumsum(rng.uniform(-2.0, 2.0, size=(n + 1, len(motors))), axis=0) + 100.0
     points[rng.integers(0, n, 50), :] = points[rng.integers(0, n, 50), :]  # some moves of one axis or none
     items = Lines(points, np.full(n, 50.0), np.ones(n, bool), np.zeros(n, bool), np.full(n, np.inf), np.ones(n),
-                  "test", np.arange(n), np.ones(n, dtype=np.int64))
+                  np.zeros(n, bool), "test", np.arange(n), np.ones(n, dtype=np.int64))
     kin = make_kinematics(machine(kind, motors, **{m: {"spm": 80 + 13 * k} for k, m in enumerate(motors)}))
     segments = flatten(Toolpath(points[0], [items]), 0.002)
     which = np.flatnonzero(rng.uniform(size=n) < 0.7)

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from codegen.errors import BuildError
+from codegen.jog import JogPlan
+from codegen.laser import LaserPwm
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,28 @@ class FirmwareConfig:
     start_steps: tuple[int, ...] = ()  # motor positions (steps) where the table starts, for a status display
     baud: int = 0  # the streaming firmware's link (machine.link.baud); 0: the target's default
     heaters: tuple[HeaterFirmware, ...] = ()  # heaters run beside the player (flash image, AVR)
+    laser: LaserPwm | None = None  # a PWM laser the player sets at the steps where its power changes (AVR)
+    jog: JogPlan | None = None  # jog keys at power-up, before homing and the table (codegen/jog.py)
+
+
+def board_pin_uses(board: dict, pin: re.Pattern, skip: set[str]) -> dict[str, str]:
+    """Every pin (names matching `pin`) the board file gives to something, outside its top-level keys `skip`:
+    pin name -> the key path that names it first."""
+    uses: dict[str, str] = {}
+
+    def walk(node: object, path: str) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if path or key not in skip:
+                    walk(value, f"{path}.{key}" if path else str(key))
+        elif isinstance(node, list):
+            for i, value in enumerate(node):
+                walk(value, f"{path}[{i}]")
+        elif isinstance(node, str) and pin.fullmatch(node.strip()):
+            uses.setdefault(node.strip(), path)
+
+    walk(board, "")
+    return uses
 
 
 def board_socket(board_name: str, board: dict, motor: MotorPins) -> dict:

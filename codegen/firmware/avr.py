@@ -22,6 +22,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr_heaters import heaters_context
 from codegen.firmware.avr_homing import homing_context
+from codegen.firmware.avr_laser import laser_context
 from codegen.firmware.avr_player import isr_context, table_chunks
 from codegen.paths import targets_dir
 from codegen.render import render
@@ -145,6 +146,8 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
                     "chunks": table_chunks(table), "runtime_records": schedule.n_runtime})
     names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
     names += ("heaters.h", "heaters.c", "heaters_table.c", "heaters_hook.S") if config.heaters else ()
+    names += ("laser.h",) if config.laser else ()
+    names += ("jog.c",) if config.jog else ()
     return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 
@@ -198,6 +201,10 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
                                tick_hz, pulse_cycles))
     context.update(homing_context(config, pins, motors, mcu))
     context.update(heaters_context(config, f_cpu, tick_hz, stream))
+    context.update(laser_context(config))
+    from codegen.firmware.avr_jog import jog_context  # here: that module builds on this one
+
+    context.update(jog_context(config, motors) if not stream else {"jog": None})
     return context
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image
 from codegen.firmware.avr import _run, build_image, load_target, player_context
+from codegen.firmware.avr_laser import LASER_VARIABLES
 from codegen.link import protocol
 from codegen.render import render
 
@@ -105,6 +106,7 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
     if config.heaters:
         n = len(config.heaters)
         variables += HEATER_VARIABLES + RAM_PER_HEATER * n + (HEATER_CONFIG_BYTES * n) % 2  # .data ends even
+    variables += LASER_VARIABLES if config.laser else 0
     record_max = protocol.max_record_bytes(len(config.motors))
     start = SRAM_START + variables
     stack = SRAM_START + int(mcu["ram"]) - RING_END - record_max
@@ -131,6 +133,10 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         raise BuildError(f"a streaming image homes at most {MAX_HOMING_AXES} axes, not {len(config.homing)}")
     layout = ring_layout(config)
     context = player_context(config, stream=True)
+    status_payload = 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]) + (2 if config.laser else 0)
+    if status_payload > protocol.MAX_ANSWER:
+        raise BuildError(f"a STATUS of {len(config.motors)} motors, {len(config.heaters)} heaters and a laser "
+                         f"takes {status_payload} bytes: the link's answers hold {protocol.MAX_ANSWER}")
     kinds = ("DATA", "HELLO", "START", "STATUS", "ABORT", "ACK", "IDENT", "STARTED", "FINISHED", "UNDERRUN",
              "STATUS_REPLY", "ABORTED", "HOMING_FAILED", "FAULT")
     crc_hi, crc_lo = crc_table_lines()
@@ -143,11 +149,12 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         "states": [(STATE_NAMES[name], value) for value, name in sorted(protocol.STATES.items())],
         "ring_end": RING_END, "position_bias": POSITION_BIAS, "message_max": protocol.MAX_ANSWER,
         "ident_payload": IDENT_PAYLOAD,
-        "status_payload": 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]),
+        "status_payload": status_payload,
         "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
         "callee_saved": CALLEE_SAVED, "crc_hi": crc_hi, "crc_lo": crc_lo,
     })
     names = STREAM_NAMES + (("homing.c",) if config.homing else ()) + (HEATER_NAMES if config.heaters else ())
+    names += ("laser.h",) if config.laser else ()
     return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 

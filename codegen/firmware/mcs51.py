@@ -161,6 +161,8 @@ def render_player(context: dict, lcd, config: FirmwareConfig, first: tuple[str, 
     sources["player.c"] = _tidy_asm(render("mcs51/player.c.j2", **context))
     if config.homing:
         sources["homing.c"] = render("mcs51/homing.c.j2", **context)
+    if config.jog:
+        sources["jog.c"] = render("mcs51/jog.c.j2", **context)
     return sources
 
 
@@ -239,7 +241,12 @@ def player_context(config: FirmwareConfig, stream: bool = False) -> tuple[dict, 
 
     context.update(homing_context(config, pins, motors, pulse_ticks))
 
-    lcd = board_lcd(config.board, [m.name for m in config.motors])
+    names = [m.name for m in config.motors]
+    # Jog mode shows its speed in the field after the motors' (label F) where the display has one free.
+    lcd = board_lcd(config.board, names + (["F"] if config.jog and len(names) < 4 else []))
+    from codegen.firmware.mcs51_jog import jog_context  # here: that module builds on this one
+
+    context.update(jog_context(config, motors, pulse_ticks, len(names) if lcd is not None else None))
     for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
         m["start_steps"] = int(start) % 65536  # the display shows signed 16-bit positions
     # With a display (or a link), main runs its code while the interrupt plays: the interrupt saves what it uses,

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from codegen.errors import BuildError
+from codegen.firmware import board_pin_uses
 from codegen.firmware.mcs51 import Pin, board_data, memories, parse_pin
 from codegen.render import render
 
@@ -66,20 +67,7 @@ class LcdWiring:
 def pin_uses(board: dict, xram: int) -> dict[str, str]:
     """Every pin the board gives to something other than the display (pin name -> what), the external RAM's bus
     included: P0 (address/data), the P2 lines that carry address bits above A7, P3.6/P3.7 (WR/RD)."""
-    uses: dict[str, str] = {}
-
-    def walk(node: object, path: str) -> None:
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if path or key not in _BOOKKEEPING:
-                    walk(value, f"{path}.{key}" if path else str(key))
-        elif isinstance(node, list):
-            for i, value in enumerate(node):
-                walk(value, f"{path}[{i}]")
-        elif isinstance(node, str) and _PIN.fullmatch(node.strip()):
-            uses.setdefault(node.strip(), path)
-
-    walk(board, "")
+    uses = board_pin_uses(board, _PIN, _BOOKKEEPING)
     if xram:
         uses.update({f"P0.{b}": "the external RAM bus (AD0-AD7)" for b in range(8)})
         high = (xram - 1) >> 8  # the largest DPH a MOVX @DPTR puts on P2

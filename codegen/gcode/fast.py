@@ -33,6 +33,7 @@ class NativeLines:
         self.feed, self.accel, self.power = np.empty(capacity), np.empty(capacity), np.empty(capacity)
         self.rapid, self.line, self.col = (np.empty(capacity, dtype=np.int64) for _ in range(3))
         self.tool = np.empty(capacity, dtype=bool)
+        self.dynamic = np.empty(capacity, dtype=bool)
         self.state = (ctypes.c_double * (8 + len(REALS)))()
         self.flags = (ctypes.c_int64 * len(FLAGS))()
         self.at, self.blocks = ctypes.c_int64(), ctypes.c_int64()
@@ -77,6 +78,7 @@ class NativeLines:
             self.line[lo:hi] += it.origin.line + self.first
             self.col[lo:hi] += it.origin.col
             self.tool[lo:hi] = (self.rapid[lo:hi] == 0) & it.spindle
+            self.dynamic[lo:hi] = it.dynamic  # M3 / M4 are Python's: the same for the whole run
             it.pos = state[0:4]
             start = it.add_point(it.pos)  # where Python's next move starts
             it.items.append((RUN, start, lo, hi))

@@ -66,6 +66,7 @@ class Interpreter(Moves, GrblState):
         travel = getattr(program, "travel_feed", None)
         self.rapid = math.inf if travel is None else float(travel) / 60.0
         self.spindle = False
+        self.dynamic = False  # M4 (Grbl's laser mode: power follows the speed), else M3's constant power
         self.power = 1.0
         scale = getattr(program, "s_max", None)
         self.s_full = float(scale) if scale else S_FULL_SCALE
@@ -214,7 +215,7 @@ class Interpreter(Moves, GrblState):
         self.count += 1
         self.pos = tgt
         self.items.append((LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode,
-                           accel, self.power))
+                           accel, self.power, self.dynamic))
 
     def _common(self, block: Block) -> None:
         """A G2/G3 line of plain words (most of an arc file); anything else goes to `_general`."""
@@ -401,7 +402,7 @@ class Interpreter(Moves, GrblState):
     def _code(self, block: Block, name: str, params) -> bool | None:
         """Run one non-motion code; False when it failed (the rest of the line is dropped)."""
         if name == "M3" or name == "M4":
-            self.spindle = True
+            self.spindle, self.dynamic = True, name == "M4"
         elif name == "M5":
             self.spindle = False
         elif name == "M82":

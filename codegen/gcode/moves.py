@@ -40,9 +40,9 @@ class Moves:
             if type(it) is not tuple:
                 items.append(it)
             elif it[0] == ARC:
-                _, a, b, c, plane, feed, tool, src, label, accel, power = it
+                _, a, b, c, plane, feed, tool, src, label, accel, power, dynamic = it
                 items.append(Arc(rows[a - base], rows[b - base], c.center, c.radius, c.start_angle, c.sweep, feed,
-                                 tool, src, plane, label, accel, power))
+                                 tool, src, plane, label, accel, power, dynamic))
             else:
                 _, axes, a, src = it
                 items.append(Home(axes, rows[a - base], src))
@@ -60,8 +60,8 @@ class Moves:
         parts, python = [], []  # arrays per column, in order; Python's moves waiting to become arrays
         for move in moves + [None]:
             if move is not None and move[0] == LINE:
-                _, _, b, feed, tool, src, label, accel, power = move
-                python.append((rows[b - base], feed, tool, label == "G0", accel, power, src.line, src.col))
+                _, _, b, feed, tool, src, label, accel, power, dynamic = move
+                python.append((rows[b - base], feed, tool, label == "G0", accel, power, dynamic, src.line, src.col))
                 continue
             if python:
                 parts.append([np.array(column) for column in zip(*python)])
@@ -70,11 +70,12 @@ class Moves:
                 _, _, lo, hi = move
                 native = self.native
                 parts.append([native.end[lo:hi], native.feed[lo:hi], native.tool[lo:hi], native.rapid[lo:hi] != 0,
-                              native.accel[lo:hi], native.power[lo:hi], native.line[lo:hi], native.col[lo:hi]])
-        end, feed, tool, rapid, accel, power, line, col = (np.concatenate(c) for c in zip(*parts))
+                              native.accel[lo:hi], native.power[lo:hi], native.dynamic[lo:hi], native.line[lo:hi],
+                              native.col[lo:hi]])
+        end, feed, tool, rapid, accel, power, dynamic, line, col = (np.concatenate(c) for c in zip(*parts))
         points = np.concatenate([rows[moves[0][1] - base][None, :], end])
         points.flags.writeable = False
-        return Lines(points, feed, tool, rapid, accel, power, self.origin.file, line, col)
+        return Lines(points, feed, tool, rapid, accel, power, dynamic, self.origin.file, line, col)
 
     def target(self, params: dict[str, float]) -> list[float]:
         pos, unit, off = self.pos, self.unit, self.off
@@ -139,7 +140,7 @@ class Moves:
 
     def line_item(self, block, start: int, feed: float, tool: bool, mode: str, accel: float) -> tuple:
         return (LINE, start, self.cur, feed, tool, self.origin.at(block.index, block.indent), mode, accel,
-                self.power)
+                self.power, self.dynamic)
 
     def draw_speed(self, length: float) -> float:
         """mm/s of a drawing move: its F, or in inverse time (G93) its length over the duration F says."""
@@ -187,7 +188,7 @@ class Moves:
         accel = self.accel_travel if tgt[3] == pos[3] else self.accel_print
         start_index = self.add_point(tgt)
         self.items.append((ARC, start_index, self.cur, circle, plane, feed, tool, self.source(block), mode, accel,
-                           self.power))
+                           self.power, self.dynamic))
 
     def set_position(self, block, params: dict[str, float]) -> bool | None:
         """G92: the program position of the named axes becomes the given values (the machine stays)."""

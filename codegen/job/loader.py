@@ -19,7 +19,7 @@ from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from codegen.errors import Diagnostic, JobError, SourceRef, closest, suggest
 from codegen.job.schema import (
     DEFAULT_MAX_TEMP_C, HEATERS, MOTORS, REQUIRED_MOTORS, SHAPES, BangBang, Control, CustomSensor, Delta, Heater,
-    Homing, Job, Link, Machine, PidGains, PlantOverrides, Program, Stepper,
+    Homing, Jog, Job, Link, Machine, PidGains, PlantOverrides, Program, Stepper,
 )
 
 YPath = tuple  # of str (mapping keys) and int (list indexes)
@@ -305,6 +305,37 @@ def machine_issues(m: dict) -> list[Issue]:
         issues.append((("delta",), "expected a mapping (required for delta kinematics)", ("delta",), "value"))
     elif kin != "delta" and m.get("delta") is not None:
         issues.append((("delta",), "only allowed with kinematics: delta", ("delta",), "key"))
+    if isinstance(m.get("jog"), dict) and isinstance(steppers, dict):
+        issues += _jog_issues(kin, steppers, m["jog"])
+    return issues
+
+
+def _jog_issues(kin: str, steppers: dict, jog: dict) -> list[Issue]:
+    """Jog keys move x and y (cartesian x, y; corexy a, b), every moving motor at one step rate: their
+    steps_per_mm agree, and no jog speed is above a jogged motor's max_velocity."""
+    if kin == "delta":
+        return [(("jog",), "jog keys need cartesian or corexy kinematics", ("jog",), "key")]
+    jogged = [steppers.get(name) for name in REQUIRED_MOTORS[kin]]
+    if not all(isinstance(s, dict) for s in jogged):
+        return []
+    numbers = (lambda *v: all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v))
+    spm = [s.get("steps_per_mm") for s in jogged]
+    issues: list[Issue] = []
+    if numbers(*spm) and spm[0] != spm[1]:
+        a, b = REQUIRED_MOTORS[kin]
+        issues.append((("jog",), f"jog keys step {a} and {b} at one rate: their steps_per_mm must agree "
+                       f"({spm[0]:g}, {spm[1]:g})", ("jog",), "key"))
+    amax, accel = [s.get("max_accel") for s in jogged], jog.get("accel")
+    if numbers(accel, *amax) and accel > min(amax):
+        issues.append((("jog", "accel"), f"{accel:g} mm/s^2 is above the jogged motors' max_accel ({min(amax):g})",
+                       ("jog", "accel"), "value"))
+    vmax = [s.get("max_velocity") for s in jogged]
+    speeds = jog.get("speeds")
+    if numbers(*vmax) and isinstance(speeds, list):
+        for i, speed in enumerate(speeds):
+            if numbers(speed) and speed > 60 * min(vmax):
+                issues.append((("jog", "speeds", i), f"{speed:g} mm/min is above the jogged motors' max_velocity "
+                               f"({min(vmax):g} mm/s = {60 * min(vmax):g} mm/min)", ("jog", "speeds", i), "value"))
     return issues
 
 
@@ -335,7 +366,7 @@ def known_keys(path: tuple) -> tuple[str, ...] | None:
     """The keys allowed in the mapping at a YAML path (for "did you mean"); None when not a model."""
     model = {
         (): Job, ("machine",): Machine, ("machine", "delta"): Delta, ("machine", "link"): Link,
-        ("machine", "homing"): Homing, ("program",): Program,
+        ("machine", "homing"): Homing, ("machine", "jog"): Jog, ("program",): Program,
     }.get(tuple(path))
     if model is None and len(path) == 3 and path[:2] == ("machine", "steppers"):
         model = Stepper

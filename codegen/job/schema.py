@@ -170,6 +170,35 @@ class Link(_Model):
     baud: Optional[Annotated[int, Field(gt=0, le=2_000_000)]] = None  # default: the target's (AVR 250000, 8051 9600)
 
 
+class Laser(_Model):
+    """A laser whose power input takes the board's PWM (`laser_pwm` in targets/<board>.yaml): G-code S sets its
+    power (over program.s_max), M3 constant, M4 dynamic (Grbl's laser mode)."""
+
+    pwm_hz: Annotated[float, BeforeValidator(_number), Field(ge=50, le=50_000)] = 1000.0  # Grbl's default
+
+
+JOG_KEYS = ("matrix", "direct")
+
+
+def _speeds(v: Any) -> tuple[float, ...]:
+    if not isinstance(v, (list, tuple)) or not 1 <= len(v) <= 8:
+        raise _fail("speeds", "expected a list of 1 to 8 speeds (mm/min), slowest first")
+    out = tuple(_number(s) for s in v)
+    if any(s <= 0 for s in out):
+        raise _fail("speeds", "every speed must be > 0")
+    if any(b <= a for a, b in zip(out, out[1:])):
+        raise _fail("speeds", "speeds must rise from the slowest to the fastest")
+    return out
+
+
+class Jog(_Model):
+    """Jog keys at power-up (codegen/jog.py): 8 directions in x and y, speed up and down, start."""
+
+    speeds: Annotated[tuple[float, ...], BeforeValidator(_speeds)] = (60.0, 300.0, 1200.0)  # mm/min, the levels
+    accel: Optional[Positive] = None  # mm/s^2; default: the jogged motors' smallest max_accel
+    keys: Optional[_choice(*JOG_KEYS)] = None  # type: ignore[valid-type]  # default: the kind the board has
+
+
 # ---- heaters ----
 
 HEATERS = ("hotend", "bed")
@@ -284,7 +313,9 @@ class Machine(_Model):
     homing: Homing = Homing()
     delta: Optional[Delta] = None
     link: Link = Link()
+    jog: Optional[Jog] = None  # jog keys before the job (codegen/jog.py); None: no jog mode
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
+    laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
 
     @property
     def motor_names(self) -> tuple[str, ...]:
@@ -465,6 +496,7 @@ class Program(_Model):
     start: Point = (0.0, 0.0)
     feed: Positive = 1200.0  # mm/min
     travel_feed: Optional[Positive] = None  # mm/min; None: as fast as the machine allows
+    s_max: Optional[Positive] = None  # the G-code S of full power: 255 as Marlin (default), 1000 as Grbl's $30
     home: Flag = False  # home at power-up before the program (delta machines always do)
     shapes: Optional[Annotated[list[ShapeItem], Field(min_length=1)]] = None
     gcode: Optional[Text] = None  # a path relative to the job file, or the G-code itself

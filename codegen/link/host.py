@@ -83,6 +83,7 @@ class HostLink:
     latency_s: float = 0.0  # the line's answer delay beyond its byte times (a USB serial adapter: milliseconds)
     stream_bytes: int | None = None  # the stream's length, when known (for `in_tail`)
     heaters: tuple[str, ...] = ()  # the firmware's heaters by index (FAULT and STATUS frames name them so)
+    laser_top: int = 0  # a laser firmware's PWM counts of full power (STATUS carries its power in counts)
     stats: LinkStats = field(default_factory=LinkStats)
     outcome: str | None = None  # finished | underrun | aborted | homing failed | fault | refused | no answer
     message: str = ""

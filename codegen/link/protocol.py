@@ -29,7 +29,8 @@ Firmware to host; SEQ is the host sequence number the firmware expects next (eve
                     reset
     STATUS    0x86  state u8 (STATES), played u32 (stream bytes consumed), fill u16 (ring bytes held), position
                     i32 per motor (while playing: where the current block ends; stopped: exact), then per heater
-                    of a firmware that runs them: temperature i16 and target i16 (0.1 degC; target 0: off)
+                    of a firmware that runs them: temperature i16 and target i16 (0.1 degC; target 0: off), then
+                    a laser firmware's power u16 (its PWM's counts)
     ABORTED   0x87  position i32 per motor: stopped by ABORT; nothing more plays until reset
     HOMING_FAILED 0x88  status u8: the failed axes' bits (low nibble) and the homing phase << 4; nothing more plays
                     until reset
@@ -153,6 +154,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
     }
     if config.heaters:  # a firmware without heaters keeps the identity it had before them
         canonical["heaters"] = [repr(h) for h in config.heaters]
+    if config.laser:  # and one without a laser
+        canonical["laser"] = [config.laser.pin, config.laser.prescaler, config.laser.top]
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).digest()
     return int.from_bytes(digest[:4], "little")
 
@@ -183,14 +186,18 @@ class Status:
     fill: int
     position: tuple[int, ...]
     heaters: tuple[tuple[float, float], ...] = ()  # per heater: temperature and target, degC
+    laser: int | None = None  # a laser firmware's power, in its PWM's counts
 
     @staticmethod
     def parse(payload: bytes, motors: int) -> "Status":
         state, played, fill = struct.unpack_from("<BIH", payload)
         after = 7 + 4 * motors
-        pairs = struct.unpack_from(f"<{(len(payload) - after) // 2}h", payload, after)
+        words = (len(payload) - after) // 2  # two per heater, then one for a laser
+        pairs = struct.unpack_from(f"<{words - words % 2}h", payload, after)
         heaters = tuple((pairs[i] / 10, pairs[i + 1] / 10) for i in range(0, len(pairs) - 1, 2))
-        return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7), heaters)
+        laser = struct.unpack_from("<H", payload, len(payload) - 2)[0] if words % 2 else None
+        return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7), heaters,
+                      laser)
 
 
 @dataclass(frozen=True)

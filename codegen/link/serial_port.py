@@ -28,11 +28,13 @@ def open_port(port: str, baud: int):
         raise BuildError(f"cannot open {port} at {baud} baud: {error}") from None
 
 
-def status_line(status: Status, motors: tuple[str, ...], heaters: tuple[str, ...]) -> str:
+def status_line(status: Status, motors: tuple[str, ...], heaters: tuple[str, ...], laser_top: int = 0) -> str:
     """A STATUS answer in a few words: state, ring fill, each motor's steps since START, each heater's temperature
-    and target."""
+    and target, the laser's power (in % of `laser_top`, its PWM's counts of full power)."""
     parts = [status.state, f"ring {status.fill} B", " ".join(f"{m} {p:+d}" for m, p in zip(motors, status.position))]
     parts += [f"{name} {temp:.1f}/{target:g} degC" for name, (temp, target) in zip(heaters, status.heaters)]
+    if status.laser is not None and laser_top:
+        parts.append(f"laser {100 * status.laser / laser_top:.1f} %")
     return ", ".join(parts)
 
 
@@ -73,7 +75,7 @@ def run(link: HostLink, port, total_bytes: int, progress: bool = True, motors: t
                 link.receive(data, time.monotonic() - start)
             if link.status is not shown:
                 shown = link.status
-                bar.set_postfix_str(status_line(shown, motors, link.heaters))  # redrawn: the bytes may all be out
+                bar.set_postfix_str(status_line(shown, motors, link.heaters, link.laser_top))  # redrawn: the bytes may all be out
             bar.update(link.stats.data_bytes - bar.n)
     finally:
         signal.signal(signal.SIGINT, previous)

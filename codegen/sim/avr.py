@@ -23,15 +23,19 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr import board_pins, load_target
 from codegen.firmware.avr_homing import homing_ticks_bound
+from codegen.firmware.avr_laser import laser_ocr_address
 from codegen.firmware.avr_player import START_TICKS
+from codegen.sim.keys import session
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
 PLANT_SOURCE = HARNESS_SOURCE.with_name("simavr_plant.c")  # compiled beside the harness
-HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"),  # the second #included by the first
+HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"),  # #included by the first ...
+                   HARNESS_SOURCE.with_name("simavr_keys.c"),  # ... as this one
                    PLANT_SOURCE, PLANT_SOURCE.with_suffix(".h"))
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr", f"-I{HARNESS_SOURCE.parent}")
 HARNESS_LIBS = ("-lsimavr", "-lelf", "-lm")
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
+DUTY_LOW_PIN, DUTY_HIGH_PIN = 0xFE, 0xFF  # a duty write's records (simavr_harness.c duty=)
 EXIT_STATES = {0: "done", 1: "crashed", 2: "budget", 4: "held"}  # held: a plant run's `held=` (avr_plant.py)
 PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
 HOMING_FAILED = 0x02  # GPIOR0 bit set by homing.c's error state (GPIOR1: the motor bits, GPIOR2: the phase)
@@ -60,6 +64,7 @@ class SimTrace:
     homing_fault: str | None = None  # which motors and phase, when homing_failed
     display: Any = None  # a board's status display, decoded (codegen.sim.hd44780.Display); None without one
     resumes: tuple[int, ...] = ()  # tick 0 of each restart of the player's timer after a hold (a WAIT record)
+    laser_duty: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, counts
 
     def run_only(self) -> SimTrace:
         """The same trace with the step table's pulses only (phase "run")."""
@@ -142,7 +147,7 @@ def _homing_fault(config: FirmwareConfig, status: int, axis_bits: int, phase: in
 
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
-             switches: dict[int, int | None] | None = None) -> SimTrace:
+             switches: dict[int, int | None] | None = None, keys: list | None = None) -> SimTrace:
     """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget.
 
     `switches` maps a homing axis's index (config.homing) to the position, in steps (of each of its motors) from
@@ -151,7 +156,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     entry (or with None) has a switch that never closes. Without `switches` at all, the machine starts on its switches
     (every one at position 0: where a job that homes says the machine starts), so homing backs off and comes
     back. `cycle_budget` is for the step table: an image that homes gets a bound on its homing time on top.
-    A failed homing is not an error here: see `homing_failed`."""
+    A failed homing is not an error here: see `homing_failed`. `keys`: a jog image's key script
+    (codegen/sim/keys.py; it must press start; without one, start alone; firmware.elf beside the hex), its time
+    on top of the budget; the trace then has `jog_positions` (the firmware's counts at the end)."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])
@@ -161,10 +168,17 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     if config.homing:
         bound = homing_ticks_bound(config, switch_thresholds(config, switches), tick_hz)
         cycle_budget = int(cycle_budget) + bound * (f_cpu // tick_hz)
+    keyed: tuple = ([], [], 0)
+    keys = session(config, keys)
+    if keys is not None:
+        from codegen.sim.avr_keys import key_args  # here: that module builds on the firmware's
+
+        keyed = key_args(config, keys, Path(hex_path).with_name("firmware.elf"), f_cpu)
+        cycle_budget = int(cycle_budget) + int(max(k.release_s for k in keys) * f_cpu)
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges_path), str(int(cycle_budget)),
-               *switch_args(config, switches), *watched_pins(config)]
+               *switch_args(config, switches), *keyed[0], *watched_pins(config)]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
@@ -181,7 +195,12 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     timer_start = int(fields.get("timer_start", "-1"))
     tick0 = timer_start + START_TICKS * (f_cpu // tick_hz) if timer_start >= 0 else None
     status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
-    return decode_edges(rec, config, state, cycles, tick0, _homing_fault(config, *status))
+    trace = decode_edges(rec, config, state, cycles, tick0, _homing_fault(config, *status))
+    if keys is not None:
+        from codegen.sim.avr_keys import jog_positions
+
+        trace.jog_positions = jog_positions(fields["dump"], *keyed[1:])
+    return trace
 
 
 def timer_ticks0(fields: dict, f_cpu: int, tick_hz: int) -> list[int]:
@@ -224,15 +243,21 @@ def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: in
     tool = rec[(rec["pin"] == 2 * len(pins.motors)) & (rec["cycle"] >= since)]
     tool_on = tool["level"].astype(int) ^ (0 if pins.tool_active_high else 1)
     run = cyc[order] >= tick0 if tick0 is not None else np.zeros(len(order), dtype=bool)
+    low, high = rec[rec["pin"] == DUTY_LOW_PIN], rec[rec["pin"] == DUTY_HIGH_PIN]  # a write's two, in order
+    duty = np.stack([low["cycle"].astype(np.int64),
+                     low["level"].astype(np.int64) | high["level"].astype(np.int64) << 8], axis=1)
     return SimTrace(state=state, cycles=cycles, f_cpu=f_cpu, timer_start_cycle=tick0,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
-                    homing_failed=fault is not None, homing_fault=fault)
+                    homing_failed=fault is not None, homing_fault=fault, laser_duty=duty)
 
 
 def watched_pins(config: FirmwareConfig) -> list[str]:
-    """The harness's PIN arguments: STEP and DIR of each motor, then the tool."""
+    """The harness's PIN arguments: STEP and DIR of each motor, then the tool; before them, a laser's duty=
+    option (its compare register's writes)."""
     pins = board_pins(config)
-    return [f"{p.port}{p.bit}" for w in pins.motors for p in (w.step, w.dir)] + [f"{pins.tool.port}{pins.tool.bit}"]
+    laser = [f"duty={laser_ocr_address(config.laser.pin)}"] if config.laser else []
+    return laser + [f"{p.port}{p.bit}" for w in pins.motors for p in (w.step, w.dir)] + \
+        [f"{pins.tool.port}{pins.tool.bit}"]

@@ -38,6 +38,8 @@ from codegen.firmware.mcs51 import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECT
 from codegen.firmware.mcs51_homing import decode_status, endstops
 from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
+from codegen.sim.keys import KeyPress, script_end_s, session
+from codegen.sim.mcs51_keys import POSITION_BYTES, TAG_JOG_POS, TAG_SCAN, jog_positions, key_model
 from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault, switch_thresholds
 
 TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT = 16, 17, 18, 19  # record tags beyond the port tags 0..3
@@ -50,29 +52,33 @@ SWITCH_REACH = 1 << 26  # switch positions beyond +-this many steps are as good 
 
 def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget: int, *,
             prelude: tuple[str, ...] = (), on_write: dict[int, str] | None = None,
-            fault: int | None = None) -> str:
+            fault: int | None = None, breaks: tuple = (), at_halt: tuple = ()) -> str:
     """The s51 command script: every record prints two lines, sim_ticks and tag * 256 + value.
 
     `prelude`: commands after loading the hex (none may print a line of digits alone); `on_write`: per port, an
     expression (no spaces) evaluated at every write to the port before its record; `fault`: the address of a
-    routine whose fetch ends the run with a TAG_FAULT record of DPL."""
+    routine whose fetch ends the run with a TAG_FAULT record of DPL; `breaks`: (fetch breakpoint spec, tag
+    expression) pairs that log a record and run on; `at_halt`: tag expressions logged when halt() is reached."""
     lines = [f'file "{hex_path}"', *prelude]
     effects = {port: expr + "," for port, expr in (on_write or {}).items()}
     n = 0
 
-    def brk(spec: str, tag_expr: str, resume: bool) -> None:
+    def brk(spec: str, tag_expr: str, resume: bool, more: tuple = ()) -> None:
         nonlocal n
         n += 1
         lines.append(f"break {spec}")
-        lines.append(f"commands {n} expression /u sim_ticks ; expression /u {tag_expr}" + (" ; run" if resume else ""))
+        lines.append(f"commands {n} " + " ; ".join(f"expression /u sim_ticks ; expression /u {e}"
+                                                     for e in (tag_expr, *more)) + (" ; run" if resume else ""))
 
     for port in ports:
         brk(f"sfr w {SFR[port]:#x}", f"{effects.get(port, '')}{port * 256}+P{port}", True)
     for bit in bits:
         port = (bit - 0x80) >> 4
         brk(f"bits w {bit:#x}", f"{effects.get(port, '')}{port * 256}+P{port}", True)
+    for spec, tag_expr in breaks:
+        brk(spec, tag_expr, True)
     brk(f"{sym['timer_start']:#x}", str(TAG_TIMER * 256), True)
-    brk(f"{sym['halt']:#x}", str(TAG_HALT * 256), False)
+    brk(f"{sym['halt']:#x}", str(TAG_HALT * 256), False, at_halt)
     if fault is not None:
         brk(f"{fault:#x}", f"{TAG_FAULT * 256}+DPL", False)
     if budget <= MAX_CONDITION:
@@ -141,7 +147,7 @@ def switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | N
 
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
-             switches: dict[int, int | None] | None = None) -> SimTrace:
+             switches: dict[int, int | None] | None = None, keys: list[KeyPress] | None = None) -> SimTrace:
     """Run `hex_path` until the firmware reaches halt() (or homing's fault state); BuildError on a crash or past
     the budget (CPU clocks).
 
@@ -150,7 +156,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     is there or beyond it in its homing direction, open otherwise. An axis without an entry (or with None) has a
     key that never closes. Without `switches` at all, the machine starts on its keys (every one at position 0). `cycle_budget`
     is for the step table: an image that homes gets a bound on its homing time on top. A failed homing is not an
-    error here: see SimTrace.homing_failed."""
+    error here: see SimTrace.homing_failed. `keys`: a jog image's key script (codegen/sim/keys.py; it must press
+    start; without one, start alone), its time on top of the budget; the trace then has `jog_positions` (the
+    firmware's counts at the end) and `key_scans` (the clock of every key scan)."""
     if shutil.which("s51") is None:
         raise BuildError("s51 not found: install sdcc-ucsim")
     hex_path = Path(hex_path).resolve()
@@ -173,14 +181,24 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         if fault is None:
             raise BuildError(f"{hex_path.with_name(MAP_FILE)} lacks _homing_fault: the image does not home")
         extra = {"prelude": prelude, "on_write": on_write, "fault": fault}
+    keyed: dict = {}
+    keys = session(config, keys)
+    if keys is not None:
+        keyed = key_model(config, keys, read_map(hex_path.with_name(MAP_FILE), data=True)[1], f_cpu)
+        cycle_budget = int(cycle_budget) + int(script_end_s(keys) * f_cpu)
+        on_write = dict(extra.get("on_write") or {})
+        for port, expr in keyed["on_write"].items():
+            on_write[port] = ",".join(filter(None, [on_write.get(port), expr]))
+        extra = {**extra, "prelude": (*extra.get("prelude", ()), *keyed["prelude"]), "on_write": on_write,
+                 "breaks": tuple(keyed["breaks"]), "at_halt": tuple(keyed["at_halt"])}
     watched = [p for m in pins["motors"] for p in (m["step"], m["dir"]) if p is not None] + [pins["tool"]]
     watched += [c for m in pins["motors"] for c in m["coils"] or []]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         w = lcd.wiring
         watched += [p for p in (w.rs, w.e, w.rw, *w.data) if p is not None]
-    ports = sorted({p.port for p in watched})
-    bits = sorted({SFR[p.port] + p.bit for p in watched})
+    ports = sorted({p.port for p in watched} | set(keyed.get("on_write", {})))
+    bits = sorted({SFR[p.port] + p.bit for p in watched} | set(keyed.get("bits", ())))
     with tempfile.TemporaryDirectory(prefix="printer-codegen-s51-") as tmp:
         script = Path(tmp) / "run.cmd"
         script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget), **extra), encoding="utf-8")
@@ -191,10 +209,13 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         except FileNotFoundError as exc:
             raise BuildError("timeout or s51 not found") from exc
     rec = _records(done.stdout)
-    stray = set(np.unique(rec[:, 1]).tolist()) - {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT}
+    tags = {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT}
+    if keys is not None:
+        tags |= {TAG_SCAN, *range(TAG_JOG_POS, TAG_JOG_POS + POSITION_BYTES * len(config.jog.motors))}
+    stray = set(np.unique(rec[:, 1]).tolist()) - tags
     if stray:
         raise BuildError(f"unexpected s51 output (record tags {sorted(stray)}) for {hex_path}")
-    ends = rec[rec[:, 1] >= TAG_HALT]
+    ends = rec[np.isin(rec[:, 1], (TAG_HALT, TAG_BUDGET, TAG_FAULT))]
     cycles = int(rec[-1, 0]) if len(rec) else 0
     if len(ends) == 0 and done.returncode == 124:
         raise BuildError(f"s51 did not finish within {wall:.0f} s of wall time ({hex_path})")
@@ -219,6 +240,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         trace.coil_writes = {f"P{p}": rec[rec[:, 1] == p][:, [0, 2]] for p in coil_ports}
     if lcd is not None:
         trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
+    if keys is not None:
+        trace.jog_positions = jog_positions(rec, len(config.jog.motors))
+        trace.key_scans = rec[rec[:, 1] == TAG_SCAN][:, [0, 2]]
     return trace
 
 

@@ -3,9 +3,11 @@
  * firmware's back (the host, in Python, drives it through stdin and stdout: simavr_link.c).
  *
  * usage: harness MCU F_CPU FIRMWARE.hex EDGES.bin CYCLE_BUDGET [OPTION...] PIN...     (PIN like F0, L3, B5)
- *   OPTION: a SWITCH, or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
+ *   OPTION: a SWITCH, or key=PIN,PRESS,RELEASE and dump=ADDR,LEN (jog keys pressed at given cycles, RAM reported
+ *   at the end: simavr_keys.c), or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
  *   then the boot's, until the firmware turns its receiver on), or plant=FILE (thermal plants behind the ADC and
- *   the heaters' PWM: simavr_plant.c), or held=CYCLES (the run ends CYCLES after the player started its timer
+ *   the heaters' PWM: simavr_plant.c), or duty=ADDR (a 16-bit PWM compare register at data address ADDR, its
+ *   high byte at ADDR + 1: each write of its low byte, which completes the 16-bit write, is logged), or held=CYCLES (the run ends CYCLES after the player started its timer
  *   if the firmware has not halted by then: an image that holds its heaters after the table never halts; counted
  *   from the latest start, and not while the player holds: its timer stopped before the end of the table)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
@@ -17,7 +19,9 @@
  *     at once, without bounce.
  *
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
- *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8.
+ *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8;
+ * and with duty=, two per write of the compare register: pin DUTY_LOW_PIN with the value's low byte, then
+ * DUTY_HIGH_PIN with its high byte, both at the write's cycle.
  * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
  * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2> starts=<cycle,...|->"; timer_start is the player's tick 0: the
  * first write that starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts
@@ -52,6 +56,8 @@
 #define PLAYER_DONE_MASK 0x01 /* GPIOR0: the flash player has played its end marker */
 #define MAX_EXTINT 8 /* INT0..INT7 on the ATmega2560 */
 #define MAX_STARTS 256 /* timer starts listed (a hold's resume each) */
+#define DUTY_LOW_PIN 0xFE /* EDGES.bin's pin index of a duty write's low byte (duty=) */
+#define DUTY_HIGH_PIN 0xFF
 
 typedef struct {
     int step, dir;      /* the motor's watched STEP and DIR pins */
@@ -120,6 +126,17 @@ static void step_edge(uint8_t index)
     }
 }
 
+/* One 10-byte record of EDGES.bin at the current cycle. */
+static void write_record(uint8_t pin, uint8_t level)
+{
+    uint8_t record[10];
+    for (int i = 0; i < 8; i++)
+        record[i] = (uint8_t)(avr->cycle >> (8 * i));
+    record[8] = pin;
+    record[9] = level;
+    fwrite(record, sizeof record, 1, edges);
+}
+
 /* Every PORT write re-raises all 8 pin IRQs: keep the last level and log real changes only. */
 static void pin_notify(struct avr_irq_t *irq, uint32_t value, void *param)
 {
@@ -129,14 +146,19 @@ static void pin_notify(struct avr_irq_t *irq, uint32_t value, void *param)
     if (level == last_level[index])
         return;
     last_level[index] = level;
-    uint8_t record[10];
-    for (int i = 0; i < 8; i++)
-        record[i] = (uint8_t)(avr->cycle >> (8 * i));
-    record[8] = index;
-    record[9] = level;
-    fwrite(record, sizeof record, 1, edges);
+    write_record(index, level);
     if (level)
         step_edge(index);
+}
+
+/* Shares the compare register's low byte with the timer module (simavr dispatches to both): the 16-bit value
+ * written (the high byte was stored before). */
+static void duty_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value, void *param)
+{
+    (void)core;
+    (void)param;
+    write_record(DUTY_LOW_PIN, value);
+    write_record(DUTY_HIGH_PIN, avr->data[addr + 1]);
 }
 
 /* Shares TCCR1B with the timer module (simavr dispatches to both) to note the player's tick 0. */
@@ -262,6 +284,7 @@ static void follow_switches(void)
     }
 }
 
+#include "simavr_keys.c"
 #include "simavr_link.c"
 
 int main(int argc, char **argv)
@@ -311,8 +334,11 @@ int main(int argc, char **argv)
     for (int i = 6; i < first_pin; i++)
         if (strncmp(argv[i], "held=", 5) == 0)
             held_after = strtoull(argv[i] + 5, NULL, 10);
+        else if (strncmp(argv[i], "duty=", 5) == 0)
+            avr_register_io_write(avr, (avr_io_addr_t)strtoul(argv[i] + 5, NULL, 0), duty_written, NULL);
         else if (strncmp(argv[i], "switch=", 7) == 0   ? parse_switch(argv[i], n_pins)
                  : strncmp(argv[i], "plant=", 6) == 0 ? plant_setup(avr, argv[i] + 6)
+                 : strncmp(argv[i], "key=", 4) == 0 || strncmp(argv[i], "dump=", 5) == 0 ? key_option(argv[i])
                                                        : link_option(argv[i]))
             return 3;
     for (int i = 0; i < n_endstops; i++)
@@ -327,6 +353,7 @@ int main(int argc, char **argv)
     while (state != cpu_Done && state != cpu_Crashed && avr->cycle < budget && !held) {
         state = avr_run(avr);
         follow_switches();
+        keys_follow();
         plant_follow(avr);
         held = held_long_enough();
     }
@@ -342,6 +369,8 @@ int main(int argc, char **argv)
            avr->data[GPIOR2_ADDR]);
     for (int i = 0; i < n_starts; i++)
         printf("%s%lld", i ? "," : "", starts[i]);
-    printf("%s\n", n_starts ? "" : "-");
+    printf("%s", n_starts ? "" : "-");
+    keys_report();
+    printf("\n");
     return state == cpu_Done ? 0 : state == cpu_Crashed ? 1 : held ? 4 : 2;
 }

@@ -1,0 +1,134 @@
+"""Laser power: G-code S over the job's s_max, M3 constant and M4 dynamic (Grbl's laser mode), as power records
+in the table stream (codegen/tables.py) that set the board's PWM at the step where the power changes.
+
+The host knows the planned speed at every event, so M4's power follows it at every event, not once per
+segment as in Grbl: an event's ideal power is S / s_max while the tool is on (M3), times the planned speed
+over the programmed feed (M4, never above 1); 0 while the tool is off (G0 and M5 are dark). M4's power moves in
+steps of POWER_STEP of full scale, so that the power the PWM plays is within half a step (+ half a PWM count)
+of the ideal at every event; M3's is S itself. A power record comes before the rate run that starts at the
+event where the power changes: `with_power` splits a run there (exactly: the run's interval at that event,
+the same add), which changes no event's time. The player latches the record when it loads the run and writes
+the PWM's compare register right after that event's STEP edge (templates/avr/player_isr.S.j2); the PWM takes
+the new duty at its next period (phase-correct PWM: its compare register is double-buffered).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from codegen.errors import BuildError
+from codegen.planner import Plan
+from codegen.schedule import Schedule
+from codegen.segments import Segments
+from codegen.stepgen import Events
+
+POWER_STEP = 0.01  # of full scale: M4's power steps
+S_MAX_DEFAULT = 255.0  # Marlin's scale of S (Grbl's $30 is 1000: program.s_max)
+PWM_PRESCALERS = (1, 8, 64, 256, 1024)  # Timer5's
+
+
+@dataclass(frozen=True)
+class LaserPwm:
+    """The laser's PWM on the board: its pin (targets/<board>.yaml `laser_pwm`), Timer5's prescaler and TOP
+    (phase-correct PWM: f = F_CPU / (2 x prescaler x TOP), 0 counts always low, TOP always high)."""
+
+    pin: str
+    pwm_hz: float  # what the job asked for
+    prescaler: int
+    top: int  # counts of full power
+    f_cpu: int
+
+    @property
+    def actual_hz(self) -> float:
+        return self.f_cpu / (2.0 * self.prescaler * self.top)
+
+
+def laser_pwm(job, board: dict, f_cpu: int) -> LaserPwm | None:
+    """The job's laser PWM on its board (None without machine.laser); BuildError where the board has none."""
+    laser = job.machine.laser
+    if laser is None:
+        return None
+    pin = board.get("laser_pwm")
+    if pin is None or board.get("target") != "avr":
+        raise BuildError(f"machine.laser: board {job.board} has no laser PWM output (`laser_pwm` in its file); "
+                         f"only the tool pin's on and off")
+    for prescaler in PWM_PRESCALERS:
+        top = round(f_cpu / (2.0 * prescaler * laser.pwm_hz))
+        if top <= 0xFFFF:
+            return LaserPwm(str(pin), float(laser.pwm_hz), prescaler, top, f_cpu)
+    raise BuildError(f"machine.laser.pwm_hz {laser.pwm_hz:g} is below what Timer5 makes")
+
+
+def planned_speed(plan: Plan, segment: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """The plan's path speed (mm/s) at `time` (s) in `segment`: the trapezoid's ramp, cruise and ramp."""
+    tau = np.maximum(time - plan.t_start[segment], 0.0)
+    accel, t_acc, t_cruise = plan.accel[segment], plan.t_acc[segment], plan.t_cruise[segment]
+    rising = plan.v_entry[segment] + accel * tau
+    falling = plan.v_peak[segment] - accel * (tau - t_acc - t_cruise)
+    speed = np.where(tau < t_acc, rising, np.where(tau < t_acc + t_cruise, plan.v_peak[segment], falling))
+    return np.clip(speed, 0.0, plan.v_peak[segment])
+
+
+def event_power(events: Events, plan: Plan, segments: Segments) -> np.ndarray:
+    """(E,) every event's ideal power, 0..1 of full scale."""
+    per_block = np.diff(events.block_first)
+    segment = np.repeat(events.block_segment, per_block)
+    on = np.repeat(events.block_tool, per_block).astype(bool) & (segments.dwell[segment] <= 0)
+    power = np.where(on, segments.power[segment], 0.0)
+    dynamic = on & segments.dynamic[segment]
+    if dynamic.any():
+        feed = segments.feed[segment[dynamic]]
+        speed = planned_speed(plan, segment[dynamic], events.time[dynamic])
+        ratio = np.divide(speed, feed, out=np.ones_like(speed), where=np.isfinite(feed) & (feed > 0))
+        power[dynamic] *= np.minimum(ratio, 1.0)
+    return power
+
+
+def event_counts(events: Events, plan: Plan, segments: Segments, top: int) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) the PWM counts the player sets at every event (M4's power in POWER_STEP steps, M3's as it is), and
+    (E,) every event's ideal power (0..1)."""
+    per_block = np.diff(events.block_first)
+    segment = np.repeat(events.block_segment, per_block)
+    power = event_power(events, plan, segments)
+    stepped = np.where(segments.dynamic[segment], np.round(power / POWER_STEP) * POWER_STEP, power)
+    return np.round(np.clip(stepped, 0.0, 1.0) * top).astype(np.int64), power
+
+
+def with_power(schedule: Schedule, counts: np.ndarray, before: int) -> Schedule:
+    """The schedule with a power record wherever `counts` (per event) changes, `before` being the count in force
+    before its first event: each such event starts a run (a run split there)."""
+    previous = np.concatenate([[before], counts[:-1]])
+    change = np.flatnonzero(counts != previous)
+    if not len(change):
+        return schedule
+    n, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
+    run_first = np.cumsum(n) - n
+    first = np.union1d(run_first, change)  # every run's first event, the splits' included
+    parent = np.searchsorted(run_first, first, side="right") - 1
+    offset = first - run_first[parent]
+    count = np.diff(np.append(first, int(n.sum())))
+    run = np.searchsorted(first, change)
+    power = np.full(len(first), -1, dtype=np.int64)
+    power[run] = counts[change]
+    return replace(schedule, run_interval=interval[parent] + offset * add[parent], run_add=add[parent].copy(),
+                   run_count=count, run_power=power)
+
+
+def played_counts(schedule: Schedule, before: int = 0) -> np.ndarray:
+    """(E,) the PWM counts the player has set at every event, from the schedule's power records."""
+    events = int(schedule.run_count.sum())
+    if not schedule.n_power:
+        return np.full(events, before, dtype=np.int64)
+    set_at = np.full(events, -1, dtype=np.int64)
+    run_first = np.cumsum(schedule.run_count) - schedule.run_count
+    records = schedule.run_power >= 0
+    set_at[run_first[records]] = np.flatnonzero(records)
+    last = np.maximum.accumulate(set_at)  # the latest record at or before each event
+    return np.where(last >= 0, schedule.run_power[np.maximum(last, 0)], before)
+
+
+def power_error_of(counts: np.ndarray, ideal: np.ndarray, top: int) -> float:
+    """The largest distance (of full scale) of the played power from the ideal, over the events."""
+    return float(np.max(np.abs(counts / top - ideal), initial=0.0))
