@@ -41,9 +41,6 @@ def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
 
 
 def _firmware(job, setup: StreamSetup, out: str | None):
-    if job.machine.jog is not None:
-        print(f"{job.path.name}: warning: machine.jog: the streaming firmware has no jog mode yet (its keys are not "
-              f"read); the flash image has one", file=sys.stderr)
     out_dir = _out_dir(job, out)
     image, sources = build_stream_firmware(setup, out_dir)
     write_json(out_dir / "report.json", _stream_report(setup, image, sources))

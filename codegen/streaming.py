@@ -3,8 +3,9 @@
 
 The streaming firmware belongs to the machine and board, not to a job: it is built from the job file's machine
 (a program is optional) and names itself by an identity (codegen/link/protocol.firmware_identity) that the host
-checks before it streams. It homes at every START when the machine homes (a delta, or `program.home: true`), and
-runs the heaters of a printer (codegen/firmware/avr_heaters.stream_heaters).
+checks before it streams. It homes at every START when the machine homes (a delta, or `program.home: true`), runs
+the heaters of a printer (codegen/firmware/avr_heaters.stream_heaters), and runs jog mode while it waits for a job
+on a machine with `jog:` (the AVR's: templates/avr/jog.c.j2 with `stream`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr_heaters import stream_heaters
 from codegen.homing import homing_axes
+from codegen.jog import jog_plan
 from codegen.kinematics import make_kinematics
 from codegen.laser import laser_pwm
 from codegen.link import protocol
@@ -70,7 +72,8 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
         homing=homing_axes(job, kin, target.tick_hz) if stream_homes(job) else (),
         baud=int(baud or job.machine.link.baud or 0),
         heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else (),
-        laser=laser_pwm(job, target.board_data, target.f_cpu))
+        laser=laser_pwm(job, target.board_data, target.f_cpu),
+        jog=jog_plan(job, kin.motors, target.tick_hz) if job.machine.jog else None)
     module = stream_module(target.target)
     layout = module.ring_layout(config)
     budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),

@@ -128,11 +128,9 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
     new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names), host.job.machine.step_pulse_us) * f_cpu // tick_hz // 2])
     new_event = new_event[:len(cycle)]
     group = np.cumsum(new_event) - 1
-    signed = np.zeros((len(cycle), len(names)), dtype=np.int64)
-    signed[np.arange(len(cycle)), motor] = direction
-    per_event = np.zeros((int(group[-1]) + 1 if len(group) else 0, len(names)), dtype=np.int64)
-    np.add.at(per_event, group, signed)
-    positions = np.cumsum(per_event, axis=0)
+    positions = np.zeros((int(group[-1]) + 1 if len(group) else 0, len(names)), dtype=np.int64)
+    np.add.at(positions, (group, motor), direction)  # each event's steps, then their running sum in place
+    np.cumsum(positions, axis=0, out=positions)
     if matched:
         # Each simulated event belongs to the segment of the twin event its first pulse matched.
         rank = np.empty(len(cycle), dtype=np.int64)

@@ -204,7 +204,7 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     context.update(laser_context(config))
     from codegen.firmware.avr_jog import jog_context  # here: that module builds on this one
 
-    context.update(jog_context(config, motors) if not stream else {"jog": None})
+    context.update(jog_context(config, motors))
     return context
 
 

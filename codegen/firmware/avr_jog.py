@@ -3,8 +3,9 @@ templates/avr/jog.c.j2 needs (codegen/jog.py has the host's half: the ramp table
 
 Jog mode runs in main before homing and the player, polling Timer1 (the player's timer, its interrupts not yet
 on) as homing does. Intervals are timer ticks (TICK_HZ). The AVR scans direct keys, one pin each with the
-internal pull-up (a matrix is the 8051 boards' choice: the Mega has pins to spare). The streaming firmware has
-no jog mode yet.
+internal pull-up (a matrix is the 8051 boards' choice: the Mega has pins to spare). The streaming firmware
+(templates/avr/jog.c.j2 with `stream`) runs the same loop whenever it waits for a job, its link's interrupts on:
+the host's START ends it once the motors are at rest.
 """
 
 from __future__ import annotations
@@ -26,6 +27,10 @@ START_US = 100  # a move's first step after its DIR change (the drivers' DIR set
 # (EVENT_TICKS; tests/test_avr_jog.py runs at 64) and the most a scan alone may take before a step. Ticks (0.5 us).
 SCAN_WORK_TICKS = 50
 EVENT_TICKS = 60
+# The streaming firmware answers a STATUS at a scan only this far before the next step: link_status() with its call
+# is about 130 cycles with 2 motors (avr-objdump), each motor 21 more, each heater 16, a laser 10: at most 214 cycles
+# (27 ticks) with 4 motors, 2 heaters and a laser. With margin.
+STATUS_WORK_TICKS = 40
 KEY_IDS = {"x+": "XP", "x-": "XM", "y+": "YP", "y-": "YM", "x+y+": "XP_YP", "x-y+": "XM_YP", "x-y-": "XM_YM",
            "x+y-": "XP_YM", "speed+": "SPEED_UP", "speed-": "SPEED_DOWN", "start": "START"}
 _PIN = re.compile(r"P[A-L][0-7]")
@@ -79,5 +84,5 @@ def jog_context(config: FirmwareConfig, motors: list[dict]) -> dict:
         "dir_ports": dir_ports, "levels": levels, "ramp": list(plan.ramp),
         "accel": f"{plan.max_accel / plan.steps_per_mm:g}", "still": STILL, "scan_ticks": ticks(SCAN_US),
         "scan_us": SCAN_US, "gap_ticks": SCAN_WORK_TICKS, "debounce_scans": DEBOUNCE_SCANS,
-        "start_ticks": max(ticks(START_US), ticks(config.dir_setup_us)),
+        "start_ticks": max(ticks(START_US), ticks(config.dir_setup_us)), "status_ticks": STATUS_WORK_TICKS,
     }}

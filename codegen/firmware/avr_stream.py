@@ -37,9 +37,10 @@ MAX_HOMING_AXES = 4  # the HOMING_FAILED status holds the axis bits in its low n
 IDENT_PAYLOAD = 8  # version u8, identity u32, ring bytes u16, motors u8
 FRAME_HEAD = 3  # LEN SEQ TYPE, kept with a frame's payload
 # Bytes of the variables link_rx.S and link_tx.S declare besides ident_frame and message_frame, and player_isr.S's
-# per image, per motor and per STEP port (stream.c and homing.c declare none).
+# per image, per motor and per STEP port (stream.c and homing.c declare none; jog.c its positions).
 LINK_VARIABLES = 39
 PLAYER_VARIABLES, PER_MOTOR, PER_PORT = 8, 8, 2
+JOG_PER_MOTOR = 4  # jog.c's position count (int32) per jogged motor
 # heaters.c's (RAM_PER_HEATER: its constants, state, reading and STATUS report; HEATER_VARIABLES: the runtime
 # records' slots and flags, the period's stage, the fault's reason and heater, heaters_hook's copy of TIMSK1).
 HEATER_VARIABLES, RAM_PER_HEATER = 14, 79  # 79: CONFIG 41 (.rodata is in RAM), state 32, reading 2, report 4
@@ -107,6 +108,7 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
         n = len(config.heaters)
         variables += HEATER_VARIABLES + RAM_PER_HEATER * n + (HEATER_CONFIG_BYTES * n) % 2  # .data ends even
     variables += LASER_VARIABLES if config.laser else 0
+    variables += JOG_PER_MOTOR * len(config.jog.motors) if config.jog else 0
     record_max = protocol.max_record_bytes(len(config.motors))
     start = SRAM_START + variables
     stack = SRAM_START + int(mcu["ram"]) - RING_END - record_max
@@ -128,7 +130,8 @@ def crc_table_lines() -> tuple[list[str], list[str]]:
 
 def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     """The streaming image's sources (file name -> text): config.h, link.h, stream.c, player_isr.S, link_rx.S,
-    link_tx.S, homing.c when the config homes motors, and the heaters' (as the flash image's) when it has them."""
+    link_tx.S, homing.c when the config homes motors, the heaters' (as the flash image's) when it has them, laser.h
+    for a laser, jog.c for jog keys."""
     if len(config.homing) > MAX_HOMING_AXES:
         raise BuildError(f"a streaming image homes at most {MAX_HOMING_AXES} axes, not {len(config.homing)}")
     layout = ring_layout(config)
@@ -155,6 +158,7 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     })
     names = STREAM_NAMES + (("homing.c",) if config.homing else ()) + (HEATER_NAMES if config.heaters else ())
     names += ("laser.h",) if config.laser else ()
+    names += ("jog.c",) if config.jog else ()
     return {name: render(f"avr/{name}.j2", **context) for name in names}
 
 

@@ -154,7 +154,13 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
 
 def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     """The C sources of the streaming firmware (file name -> text): config.h, link.h, link.c, player.c, and
-    homing.c when the machine homes at START, lcd.c and lcd.h when the board has a display."""
+    homing.c when the machine homes at START, lcd.c and lcd.h when the board has a display. BuildError for jog
+    keys: seed-51's matrix is on P0, the bus to the external RAM that holds the ring (the serial interrupt writes
+    it at any time, and a held key would join two of the bus's lines); on the other boards it is not built yet."""
+    if config.jog:
+        raise BuildError(f"machine.jog: the 8051 streaming firmware has no jog mode (seed-51's key matrix is on "
+                         f"P0, the bus to the external RAM that holds its ring): the flash image has one; leave "
+                         f"`jog:` out to stream to board {config.board}")
     layout = ring_layout(config)
     context, lcd = player_context(config, stream=True)
     if any(m["coil"] for m in context["motors"]):

@@ -143,7 +143,8 @@ def tail_padding(motors: int) -> bytes:
 
 def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
     """32 bits naming what a streaming firmware can play: the protocol and table format, the board, the motors
-    and their sockets, pulse timing, homing, clocks. The job's program and name do not count."""
+    and their sockets, pulse timing, homing, clocks, heaters, laser, jog keys. The job's program and name do not
+    count."""
     from codegen import tables
 
     canonical = {
@@ -156,6 +157,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
         canonical["heaters"] = [repr(h) for h in config.heaters]
     if config.laser:  # and one without a laser
         canonical["laser"] = [config.laser.pin, config.laser.prescaler, config.laser.top]
+    if config.jog:  # and one without jog keys
+        canonical["jog"] = repr(config.jog)
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).digest()
     return int.from_bytes(digest[:4], "little")
 

@@ -9,6 +9,9 @@ trip per frame, not per byte. The pins are logged as in codegen/sim/avr.py, so t
 codegen.verify.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
 are the phase "home", and `resumes` tick 0 of each restart of its timer after a hold (a WAIT record).
 
+A jog firmware's keys are pressed by a key script (`keys`: codegen/sim/keys.py, times from reset), the sessions
+coming when they will; jog_positions() reads its jog position counts at the end.
+
 A firmware with heaters runs against a thermal plant per heater (`plants`, `faults`: codegen/sim/avr_plant.py's
 plant file in link mode): simulate_stream_heaters gives the session as a HeaterRun, the plant's trace in it.
 """
@@ -33,8 +36,10 @@ from codegen.firmware.avr_player import START_TICKS
 from codegen.firmware.avr_stream import elf_symbols, ring_layout
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
+from codegen.sim.keys import KeyPress
 from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
                              switch_args, switch_thresholds, watched_pins)
+from codegen.sim.avr_keys import jog_positions, key_args
 from codegen.sim.avr_plant import (Fault, HeaterPlant, HeaterRun, _plant_file, _stage_address, read_trace,
                                    stopped_safely)
 
@@ -72,10 +77,12 @@ class StreamSim:
 
     `switches` as for codegen.sim.avr.simulate: where each homing axis's switch closes, from the machine's start;
     the firmware's ELF must be beside `hex_path` (firmware.elf: the ring's symbols). `plants`: the thermal plant
-    behind each of config.heaters (with `faults` injected); plant_trace() reads their trace after the sessions."""
+    behind each of config.heaters (with `faults` injected); plant_trace() reads their trace after the sessions.
+    `keys`: a jog firmware's key script (codegen/sim/keys.py); jog_positions() reads its counts after the sessions."""
 
     def __init__(self, hex_path: Path, config: FirmwareConfig, switches: dict[int, int | None] | None = None,
-                 plants: dict[str, HeaterPlant] | None = None, faults: tuple[Fault, ...] = ()):
+                 plants: dict[str, HeaterPlant] | None = None, faults: tuple[Fault, ...] = (),
+                 keys: list[KeyPress] | None = None):
         pins = board_pins(config)
         mcu = load_target(pins.mcu)
         self.config = config
@@ -100,9 +107,12 @@ class StreamSim:
             spec = Path(self._tmp.name) / "plant-spec.txt"
             spec.write_text(_plant_file(config, plants, faults, self.f_cpu, self._plant_log, _stage_address(hex_path)))
             plant = [f"plant={spec}"]
+        self._keyed: tuple = ([], [], 0)
+        if keys:
+            self._keyed = key_args(config, keys, elf, self.f_cpu)
         cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self._edges), str(BOOT_CYCLES),
                *switch_args(config, self.switches), f"link={self.layout.byte_cycles}",
-               f"free={symbols[FREE_SYMBOL]}", *checks, *plant, *watched_pins(config)]
+               f"free={symbols[FREE_SYMBOL]}", *checks, *plant, *self._keyed[0], *watched_pins(config)]
         self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr)
         self.last = self._read()
         if self.last.state != "running":
@@ -129,6 +139,15 @@ class StreamSim:
         as its input closes)."""
         self._stop()
         return read_trace(self._plant_log, len(self.config.heaters), self.f_cpu)
+
+    def jog_positions(self) -> list[int]:
+        """The firmware's jog position counts (steps from reset, per jogged motor) as the simulation ends here:
+        the harness reports them once its input closes. Only with `keys`."""
+        self._proc.stdin.close()
+        tail = self._proc.stdout.read().decode()
+        self._proc.wait()
+        fields = dict(kv.split("=", 1) for kv in tail.split())
+        return jog_positions(fields["dump"], *self._keyed[1:])
 
     def exchange(self, data: bytes, wake: int | None, budget: int, reset: bool = False) -> Answer:
         """Give the line `data`, run until an answer (see the module docstring); wake and budget are cycles."""

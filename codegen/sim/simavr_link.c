@@ -20,7 +20,8 @@
  * max_free u32 (UINT32_MAX: no record read), sp_min u16, rx_bytes u32, then per interrupt (USART0 RX, UDRE):
  * longest u32, total u64 cycles from its dispatch to its RETI, count u32; then n u32 and n x (cycle u64, byte u8).
  * Before the first command it runs until the firmware turns its receiver on (the host opens the port after the
- * boot). With plant=FILE the thermal plants follow in link mode too (the tune firmware: codegen/sim/avr_tune.py).
+ * boot). With plant=FILE the thermal plants follow in link mode too (the tune firmware: codegen/sim/avr_tune.py),
+ * and with key= the jog keys (simavr_keys.c; with dump=, its line " dump=<hex>" comes once stdin has closed).
  */
 
 #define MAX_CHECKS 16
@@ -210,6 +211,7 @@ static int link_run(uint64_t budget, int *state)
             return STOP_BUDGET;
         *state = avr_run(avr);
         follow_switches();
+        keys_follow(); /* with key=: the jog keys (simavr_keys.c); else nothing */
         plant_follow(avr); /* with plant=FILE: the heaters' plants (simavr_plant.c); else nothing */
         uint16_t sp = avr->data[SP_ADDR] | avr->data[SP_ADDR + 1] << 8;
         if (sp < link.sp_min)
@@ -281,6 +283,7 @@ static int link_serve(uint64_t boot_budget)
            && avr->cycle < boot_budget) {
         state = avr_run(avr);
         follow_switches();
+        keys_follow();
         plant_follow(avr);
     }
     link_answer(state, STOP_BOOT);
@@ -291,6 +294,8 @@ static int link_serve(uint64_t boot_budget)
         if (fread(&link.wake, 8, 1, stdin) != 1 || fread(&budget, 8, 1, stdin) != 1
             || fread(&reset, 1, 1, stdin) != 1 || fread(&n, 4, 1, stdin) != 1) {
             plant_finish(avr); /* the plants' end state (heater duties, PORTs, Timer1) in their trace */
+            keys_report(); /* with dump=: the jog positions, one line */
+            printf("\n");
             return 0;
         }
         link.line = grow(link.line, &link.line_cap, link.queued + n, 1);
