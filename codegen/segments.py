@@ -168,7 +168,8 @@ class Flattener:
 
 # An item's columns (each piece of it repeats them): name, type, shape.
 COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ()), ("tool", bool, ()),
-           ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()), ("kind", np.int64, ()), ("center", float, (2,)),
+           ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()),
+           ("kind", np.int64, ()), ("center", float, (2,)),
            ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()))
 
 
@@ -199,7 +200,8 @@ def _lines_group(lines: Lines, index: int, state: int) -> tuple:
     """The group of a Lines item: a piece per move."""
     n = len(lines)
     return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
-            lines.feed, lines.tool, lines.accel, lines.power, lines.dynamic, np.zeros(n), np.full(n, REF_LINE), np.zeros((n, 2)), np.zeros(n),
+            lines.feed, lines.tool, lines.accel, lines.power, lines.dynamic, np.zeros(n), np.full(n, REF_LINE),
+            np.zeros((n, 2)), np.zeros(n),
             np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1))
 
 

@@ -107,8 +107,9 @@ def target_info(board: str, stream: bool = False, laser: bool = False) -> Target
         mcu_data.update(board_data.get("stream_player_costs") or {})
     if laser:
         extra = int(mcu_data.get("laser_record_cycles", 0))
+        grows = ("min_event_cycles", "block_dir_write_cycles")
         mcu_data.update({k: v + extra for k, v in mcu_data.items()
-                         if k in ("min_event_cycles", "block_dir_write_cycles") or k.startswith(("run_event_cycles_", "block_event_cycles_"))})
+                         if k in grows or k.startswith(("run_event_cycles_", "block_event_cycles_"))})
     f_cpu = int(mcu_data["f_cpu"])
     tick_hz = int(mcu_data.get("tick_hz", f_cpu))
     return TargetInfo(

@@ -75,7 +75,8 @@ def run(link: HostLink, port, total_bytes: int, progress: bool = True, motors: t
                 link.receive(data, time.monotonic() - start)
             if link.status is not shown:
                 shown = link.status
-                bar.set_postfix_str(status_line(shown, motors, link.heaters, link.laser_top))  # redrawn: the bytes may all be out
+                # redrawn: the bytes may all be out
+                bar.set_postfix_str(status_line(shown, motors, link.heaters, link.laser_top))
             bar.update(link.stats.data_bytes - bar.n)
     finally:
         signal.signal(signal.SIGINT, previous)
