@@ -25,7 +25,6 @@ from codegen.segments import Segments
 from codegen.stepgen import Events
 
 POWER_STEP = 0.01  # of full scale: M4's power steps
-S_MAX_DEFAULT = 255.0  # Marlin's scale of S (Grbl's $30 is 1000: program.s_max)
 PWM_PRESCALERS = (1, 8, 64, 256, 1024)  # Timer5's
 
 
@@ -71,11 +70,14 @@ def planned_speed(plan: Plan, segment: np.ndarray, time: np.ndarray) -> np.ndarr
     return np.clip(speed, 0.0, plan.v_peak[segment])
 
 
-def event_power(events: Events, plan: Plan, segments: Segments) -> np.ndarray:
-    """(E,) every event's ideal power, 0..1 of full scale."""
-    per_block = np.diff(events.block_first)
-    segment = np.repeat(events.block_segment, per_block)
-    on = np.repeat(events.block_tool, per_block).astype(bool) & (segments.dwell[segment] <= 0)
+def _event_segments(events: Events) -> np.ndarray:
+    return np.repeat(events.block_segment, np.diff(events.block_first))
+
+
+def event_power(events: Events, plan: Plan, segments: Segments, segment: np.ndarray | None = None) -> np.ndarray:
+    """(E,) every event's ideal power, 0..1 of full scale (`segment`: each event's, when known)."""
+    segment = _event_segments(events) if segment is None else segment
+    on = np.repeat(events.block_tool, np.diff(events.block_first)).astype(bool) & (segments.dwell[segment] <= 0)
     power = np.where(on, segments.power[segment], 0.0)
     dynamic = on & segments.dynamic[segment]
     if dynamic.any():
@@ -89,9 +91,8 @@ def event_power(events: Events, plan: Plan, segments: Segments) -> np.ndarray:
 def event_counts(events: Events, plan: Plan, segments: Segments, top: int) -> tuple[np.ndarray, np.ndarray]:
     """(E,) the PWM counts the player sets at every event (M4's power in POWER_STEP steps, M3's as it is), and
     (E,) every event's ideal power (0..1)."""
-    per_block = np.diff(events.block_first)
-    segment = np.repeat(events.block_segment, per_block)
-    power = event_power(events, plan, segments)
+    segment = _event_segments(events)
+    power = event_power(events, plan, segments, segment)
     stepped = np.where(segments.dynamic[segment], np.round(power / POWER_STEP) * POWER_STEP, power)
     return np.round(np.clip(stepped, 0.0, 1.0) * top).astype(np.int64), power
 
