@@ -229,9 +229,12 @@ class Checker:
 
 def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
           segments: Segments, plan: Plan, kin: Kinematics, expected_final: np.ndarray,
-          start_steps: np.ndarray, tolerance: float) -> Findings:
-    """The checks of a whole train at once (the simulator's)."""
+          start_steps: np.ndarray, tolerance: float, warp=None) -> Findings:
+    """The checks of a whole train at once (the simulator's); `warp` maps the plan's times onto the train's
+    clock where a feed hold dilated it (its corners come later)."""
     checker = Checker(kin, start_steps, tolerance)
     corners_t, jumps = corner_jumps(plan, segments, kin)
+    if warp is not None:
+        corners_t = warp(corners_t)
     checker.add(trains, positions, position_segment, segments, corners_t, jumps, last=True)
     return checker.findings(expected_final)

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from codegen import __version__, cli_stream, cli_tune
+from codegen import __version__, cli_config, cli_flash, cli_stream, cli_tune
 from codegen.errors import BuildError, Diagnostic, JobError, SourceRef, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
@@ -19,6 +19,7 @@ from codegen.pipeline import HostBuild, host_build
 from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
 from codegen.verify_heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
+from codegen.verify_hold import hold_lines, hold_verify
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -113,13 +114,17 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
+    if args.stream and (args.hold is not None or args.override is not None):
+        raise BuildError("verify --hold/--override: the streaming firmware has no feed hold yet (a flash image has)")
     if args.stream:
         host, result, trace, headline = cli_stream.verify_stream(args)
         return _conclude_verify(args, host, result, trace, headline)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
-    if host.heaters:
+    if args.hold is not None or args.override is not None:
+        result, trace = hold_verify(host, image, args.hold, args.override)
+    elif host.heaters:
         result, trace = verify_heaters(host, image, faults)
     else:
         simulator = _target_module("sim", host.target.target)
@@ -165,6 +170,8 @@ def _print_verdict(result: dict) -> None:
         print(f"  display at the end: |{result['display'][0]}| / |{result['display'][1]}|")
     if "heaters" in result:
         print("\n".join(heater_lines(result)))
+    if "hold" in result:
+        print("\n".join(hold_lines(result["hold"])))
     if "laser" in result:
         laser = result["laser"]
         print(f"  laser: PWM {laser['pwm_hz']:g} Hz, power within {laser['max_power_error_pct']:.2f} % of full scale "
@@ -237,6 +244,12 @@ def parser() -> argparse.ArgumentParser:
             v.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "verify":
             v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
+            v.add_argument("--hold", type=float, metavar="SECONDS",
+                           help="press the feed hold key SECONDS into the job, resume once the machine is at "
+                                "rest (machine.feed_hold; an ATmega2560 flash image)")
+            v.add_argument("--override", type=int, metavar="PERCENT",
+                           help="step the feed override to PERCENT (10..100, by 10) with the feed keys as the "
+                                "job starts (machine.feed_hold)")
             v.add_argument("--fault", action="append", default=[], type=fault_spec, metavar="NAME[:HEATER]@SECONDS",
                            help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
                                 "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "
@@ -244,6 +257,8 @@ def parser() -> argparse.ArgumentParser:
         if name == "plan":
             v.add_argument("--tables", help="write the table stream (codegen/tables.py) to this file as it is made")
     cli_tune.add_parser(verbs)
+    cli_config.add_parser(verbs)
+    cli_flash.add_parser(verbs)
     return p
 
 

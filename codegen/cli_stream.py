@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from codegen import __version__, tables
+from codegen.cli_config import job_fingerprint
 from codegen.errors import BuildError, render_all
 from codegen.job import load_job
 from codegen.link.host import HostLink
@@ -43,7 +44,8 @@ def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
 def _firmware(job, setup: StreamSetup, out: str | None):
     out_dir = _out_dir(job, out)
     image, sources = build_stream_firmware(setup, out_dir)
-    write_json(out_dir / "report.json", _stream_report(setup, image, sources))
+    report = {**_stream_report(setup, image, sources), "job_fingerprint": job_fingerprint(job, setup.config.baud)}
+    write_json(out_dir / "report.json", report)
     return image, out_dir
 
 

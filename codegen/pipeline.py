@@ -18,6 +18,7 @@ from codegen.errors import BuildError, Diagnostic
 from codegen.firmware import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPins
 from codegen.firmware.avr_heaters import job_heaters, stream_heaters
 from codegen.heaters.program import HeaterProgram, heater_diagnostics
+from codegen.hold import HoldPlan, hold_plan
 from codegen.homing import homes, homing_axes
 from codegen.jog import jog_plan
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
@@ -84,7 +85,16 @@ class HostBuild:
             heaters=self.heaters,
             laser=self.laser,
             jog=jog_plan(self.job, self.kin.motors, self.target.tick_hz) if self.job.machine.jog else None,
+            hold=self.hold_plan,
+            hold_override=self.job.machine.feed_hold.override if self.job.machine.feed_hold else 100,
         )
+
+    @cached_property
+    def hold_plan(self) -> HoldPlan | None:
+        """The feed hold of an AVR flash image (codegen/hold.py); BuildError where the player cannot hold."""
+        if self.job.machine.feed_hold is None:
+            return None
+        return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data)
 
     @cached_property
     def heaters(self) -> tuple[HeaterFirmware, ...]:
@@ -131,10 +141,16 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     the link keeps fed (host.link_plan)."""
     watch = watch or Stopwatch()
     try:
-        target = target_info(job.board, stream=link is not None, laser=job.machine.laser is not None)
+        target = target_info(job.board, stream=link is not None, laser=job.machine.laser is not None,
+                             hold=job.machine.feed_hold is not None)
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
+    if job.machine.feed_hold is not None and (target.target != "avr" or link is not None):
+        where = "the 8051's player" if target.target != "avr" else "the streaming firmware"
+        raise BuildError(f"machine.feed_hold: {where} has no feed hold yet (the ATmega2560's flash image has)")
+    if job.machine.feed_hold is not None:
+        hold_plan(job, target.tick_hz, target.board, target.board_data)  # its errors before any planning
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
     played_out = runtime_outputs(job, target, link is not None)

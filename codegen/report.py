@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen import __version__
+from codegen.cli_config import job_fingerprint
 from codegen.pipeline import HostBuild
 from codegen.schedule import HEATER_COMMANDS, RT_WAIT
 
@@ -75,6 +76,7 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
         "board": host.target.board,
         "mcu": host.target.mcu,
         "fingerprint": fingerprint,
+        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/cli_config.py)
         "image": {
             "hex": image.hex_path.name,
             "elf": image.elf_path.name if image.elf_path else None,

@@ -94,10 +94,11 @@ def board_heater_pins(board: str) -> dict[str, tuple[str, str]]:
     return {str(name): (str(spec["pwm"]), str(spec["sensor"])) for name, spec in heaters.items()}
 
 
-def target_info(board: str, stream: bool = False, laser: bool = False) -> TargetInfo:
+def target_info(board: str, stream: bool = False, laser: bool = False, hold: bool = False) -> TargetInfo:
     """`stream`: the costs of the streaming player (records from the link's ring buffer, the link's interrupts
     beside it), where the MCU's or board's file has them (`stream_player_costs`). `laser`: a player with a PWM
-    laser, whose every event may read a power record and write the PWM (laser_record_cycles more)."""
+    laser, whose every event may read a power record and write the PWM (laser_record_cycles more). `hold`: a
+    player with feed hold, whose every event may take the dilated path and main's key poll (hold_cycles more)."""
     board_data = _load(board)
     mcu = board_data["mcu"]
     # A board may carry its own measured player costs (a display makes the interrupt save main's registers).
@@ -105,8 +106,8 @@ def target_info(board: str, stream: bool = False, laser: bool = False) -> Target
     if stream:
         mcu_data.update(_load(mcu).get("stream_player_costs") or {})
         mcu_data.update(board_data.get("stream_player_costs") or {})
-    if laser:
-        extra = int(mcu_data.get("laser_record_cycles", 0))
+    extra = int(mcu_data.get("laser_record_cycles", 0)) * laser + int(mcu_data.get("hold_cycles", 0)) * hold
+    if extra:
         grows = ("min_event_cycles", "block_dir_write_cycles")
         mcu_data.update({k: v + extra for k, v in mcu_data.items()
                          if k in grows or k.startswith(("run_event_cycles_", "block_event_cycles_"))})

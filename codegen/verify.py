@@ -15,6 +15,7 @@ import numpy as np
 from codegen.checks import Findings, check
 from codegen.firmware.avr_homing import homing_steps
 from codegen.pipeline import HostBuild, trains_from
+from codegen.twin import Pulses
 from codegen.verify_laser import LaserVerdict, laser_verdict
 
 MAX_TIMING_ERROR_US = 5.0
@@ -83,14 +84,17 @@ class Verdict:
         return not self.problems and self.findings.ok
 
 
-def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False) -> Verdict:
+def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
+            dilated: Pulses | None = None, warp=None) -> Verdict:
     """The simulated run (the table's steps, after any homing) against the twin; homing on its own. A streaming
-    firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the machine."""
+    firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the machine.
+    A held or overridden run (codegen/verify_hold.py) is compared with the `dilated` twin; `warp` maps the
+    plan's times onto its clock (seconds to seconds)."""
     homing, homing_problems = homing_report(host, full_trace, switches)
     trace = full_trace.run_only()
     names = host.kin.motors
     f_cpu, tick_hz = trace.f_cpu, host.target.tick_hz
-    twin = host.pulses
+    twin = dilated or host.pulses
     problems: list[str] = []
     if trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
         problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
@@ -144,10 +148,10 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
                             "placed on the path's segments")
     trains = trains_from(sim_s, motor, direction, len(names))
     findings = check(trains, positions if matched else positions[:0], segment, host.segments, host.plan,
-                     host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance)
+                     host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance, warp)
 
     duration = float(sim_s[-1] - sim_s[0]) if len(sim_s) else 0.0
-    planned = planned_stepping_s(host)
+    planned = planned_stepping_s(host, warp)
     if planned > 0 and abs(duration - planned) > DURATION_AGREEMENT * planned:
         problems.append(f"simulated duration {duration:.4f} s differs from the planned {planned:.4f} s by more "
                         f"than {100 * DURATION_AGREEMENT:.0f} %")
@@ -170,10 +174,13 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
                    homing_problems + problems, homing, display, not_compared, laser)
 
 
-def planned_stepping_s(host: HostBuild) -> float:
-    """The plan's time from its first step to its last."""
+def planned_stepping_s(host: HostBuild, warp=None) -> float:
+    """The plan's time from its first step to its last (on a held run's clock with `warp`)."""
     stepping = np.unique(host.pulses.event)
-    return float(host.events.time[stepping[-1]] - host.events.time[stepping[0]]) if len(stepping) else 0.0
+    if not len(stepping):
+        return 0.0
+    first, last = host.events.time[stepping[[0, -1]]]
+    return float(warp(last) - warp(first)) if warp else float(last - first)
 
 
 def display_problems(host: HostBuild, trace, streamed: bool = False) -> list[str]:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from codegen.errors import BuildError
+from codegen.hold import HoldPlan
 from codegen.jog import JogPlan
 from codegen.laser import LaserPwm
 
@@ -71,6 +72,8 @@ class FirmwareConfig:
     heaters: tuple[HeaterFirmware, ...] = ()  # heaters run beside the player (flash image, AVR)
     laser: LaserPwm | None = None  # a PWM laser the player sets at the steps where its power changes (AVR)
     jog: JogPlan | None = None  # jog keys at power-up, before homing and the table (codegen/jog.py)
+    hold: HoldPlan | None = None  # feed hold, resume and override keys (codegen/hold.py; AVR flash image)
+    hold_override: int = 100  # %: the override the image starts with
 
 
 def board_pin_uses(board: dict, pin: re.Pattern, skip: set[str]) -> dict[str, str]:

@@ -22,6 +22,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr_heaters import heaters_context
 from codegen.firmware.avr_homing import homing_context
+from codegen.firmware.avr_hold import hold_context
 from codegen.firmware.avr_laser import laser_context
 from codegen.firmware.avr_player import isr_context, table_chunks
 from codegen.paths import targets_dir
@@ -205,6 +206,7 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     from codegen.firmware.avr_jog import jog_context  # here: that module builds on this one
 
     context.update(jog_context(config, motors))
+    context.update(hold_context(config, motors) if not stream else {"hold": None})
     return context
 
 

@@ -199,6 +199,20 @@ class Jog(_Model):
     keys: Optional[_choice(*JOG_KEYS)] = None  # type: ignore[valid-type]  # default: the kind the board has
 
 
+def _override(v: Any) -> int:
+    n = _number(v)
+    if n != int(n) or not 10 <= n <= 100 or int(n) % 10:
+        raise _fail("override", "expected a percentage from 10 to 100 in steps of 10 (the feed keys' steps)")
+    return int(n)
+
+
+class FeedHold(_Model):
+    """Feed hold, resume and feed override keys (codegen/hold.py): the player's clock slows down, stops and
+    comes back within the motors' limits (the board's `hold_keys`)."""
+
+    override: Annotated[int, BeforeValidator(_override)] = 100  # % the job starts with; feed- and feed+ step by 10
+
+
 # ---- heaters ----
 
 HEATERS = ("hotend", "bed")
@@ -316,6 +330,7 @@ class Machine(_Model):
     jog: Optional[Jog] = None  # jog keys before the job (codegen/jog.py); None: no jog mode
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
+    feed_hold: Optional[FeedHold] = None  # hold, resume and override keys (AVR flash images); None: none
 
     @property
     def motor_names(self) -> tuple[str, ...]:

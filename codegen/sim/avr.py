@@ -147,7 +147,8 @@ def _homing_fault(config: FirmwareConfig, status: int, axis_bits: int, phase: in
 
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
-             switches: dict[int, int | None] | None = None, keys: list | None = None) -> SimTrace:
+             switches: dict[int, int | None] | None = None, keys: list | None = None,
+             presses: list[tuple[str, int, int]] = ()) -> SimTrace:
     """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget.
 
     `switches` maps a homing axis's index (config.homing) to the position, in steps (of each of its motors) from
@@ -158,7 +159,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     back. `cycle_budget` is for the step table: an image that homes gets a bound on its homing time on top.
     A failed homing is not an error here: see `homing_failed`. `keys`: a jog image's key script
     (codegen/sim/keys.py; it must press start; without one, start alone; firmware.elf beside the hex), its time
-    on top of the budget; the trace then has `jog_positions` (the firmware's counts at the end)."""
+    on top of the budget; the trace then has `jog_positions` (the firmware's counts at the end). `presses`: keys
+    to ground held down, (pin such as PL2, from cycle, to cycle): the feed hold keys (codegen/verify_hold.py)."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])
@@ -178,7 +180,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
         edges_path = Path(tmp) / "edges.bin"
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges_path), str(int(cycle_budget)),
-               *switch_args(config, switches), *keyed[0], *watched_pins(config)]
+               *switch_args(config, switches), *keyed[0], *(f"key={pin[1:]},{a},{b}" for pin, a, b in presses),
+               *watched_pins(config)]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")

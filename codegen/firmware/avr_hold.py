@@ -1,0 +1,50 @@
+"""Feed hold, resume and feed override in the ATmega2560's flash image (codegen/hold.py has the arithmetic): the
+keys main polls after every step interrupt, and the step interrupt's dilated path (templates/avr/player_isr.S.j2).
+
+Keys to ground on the board's `hold_keys:` pins (internal pull-ups, pressed reads low): `hold` sets the target
+factor to 0, `resume` to the override, `feed-` and `feed+` step the override by 10 % (10 % to 100 %) on each
+press. The step interrupt takes the dilated path while a GPIOR0 bit says so (main sets it at a key; the interrupt
+clears it once the factor and its target are both 100 %)."""
+
+from __future__ import annotations
+
+from codegen.errors import BuildError
+from codegen.firmware import FirmwareConfig
+from codegen.firmware.avr_player import NEED_BIT0
+from codegen.hold import CLAMP, F_FREE, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
+
+HOLD_KEYS = ("hold", "resume", "feed-", "feed+")
+HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, override step, keys seen, spill (6)
+PLAYER_FLAG_BITS = 2  # GPIOR0 bits 0 and 1: PLAYER_DONE, HOMING_FAILED
+
+
+def dilate_bit(motors: list[dict]) -> int:
+    """A GPIOR0 bit no motor's "Bresenham needed" flag takes (only motors kept in SRAM use theirs)."""
+    used = {m["need_bit"] for m in motors if m["bresenham"] and not m["regs"]}
+    free = [b for b in range(NEED_BIT0, 8) if b not in used]
+    if not free:
+        raise BuildError("machine.feed_hold: the player has no GPIOR0 bit left for the hold's flag")
+    return free[0]
+
+
+def hold_context(config: FirmwareConfig, motors: list[dict]) -> dict:
+    """The templates' `hold` (None without feed_hold). Call after the player's registers are allocated."""
+    plan = config.hold
+    if plan is None:
+        return {"hold": None}
+    if config.heaters:
+        raise BuildError("machine.feed_hold: a flash image with heaters cannot hold yet (its idle loop runs the "
+                         "heaters' stages); build it without feed_hold, or stream the job")
+    keys = []
+    for function in HOLD_KEYS:
+        pin = plan.keys.get(function)
+        if pin is None or len(pin) != 3 or pin[0] != "P" or not pin[2].isdigit():
+            raise BuildError(f"board {config.board}: hold_keys needs {function}: a pin such as PL2 (has {pin!r})")
+        keys.append({"function": function, "port": pin[1], "bit": int(pin[2]),
+                     "var": function.replace("-", "_minus").replace("+", "_plus")})
+    start = config.hold_override // 10
+    return {"hold": {
+        "bit": dilate_bit(motors), "key_of": {k["function"]: k for k in keys}, "key_list": keys,
+        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "clamp": CLAMP, "resume_ticks": RESUME_TICKS,
+        "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),
+        "table": plan.table}}

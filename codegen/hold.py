@@ -1,0 +1,157 @@
+"""Feed hold, resume and feed override by time dilation, the host's half: the constants the AVR player uses and
+the model of its integer arithmetic (the twin of a held or overridden run).
+
+The player plays the tables on a dilated clock. F (0..F_ONE) is the feed factor in 1/255: every event's tick
+delta becomes (delta x D[F]) >> 8 with D[F] = 65280 / F (8.8 fixed point; F_ONE gives delta itself), at most
+CLAMP (a long wait's first tick; long waits themselves are not dilated). So the path is unchanged and every motor's
+velocity scales with F / F_ONE (its acceleration with the square, plus the factor's own change).
+
+F ramps towards a target (0 for a hold, the override for resume) on the real clock: after each dilated delta of
+t ticks, F.frac16 moves by t x K. K keeps every motor's extra acceleration v x dF/dt within RAMP_SHARE of its
+limit at its highest velocity. Where the plan itself accelerates at the limit, the two must not add up: above
+F_FREE (f^2 + RAMP_SHARE <= 1) the factor falls only while the pending event's rate run does not brake (its add
+<= 0) and rises only while it does not accelerate (add >= 0); at or below F_FREE it moves freely. On curves the
+planner leaves a share of 1 - centripetal_share (RAMP_SHARE) of every motor's acceleration for this.
+
+At F 0 the player parks before the pending event (its timer's interrupt off); resume re-arms it RESUME_TICKS
+after main reads the timer, at F 1, and the ramp goes on up. Once F and the target are both F_ONE the player
+leaves the dilated path.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.errors import BuildError
+from codegen.schedule import FRAC_BITS, Schedule
+
+F_ONE = 255  # the feed factor 1 (100 %)
+RAMP_SHARE = 0.2  # of each motor's acceleration that the factor's change may take (the planner's curves leave it)
+F_FREE = int(math.floor(F_ONE * math.sqrt(1.0 - RAMP_SHARE)))  # at or below: f^2 a_max + RAMP_SHARE a_max <= a_max
+CLAMP = 0xFEFFFF  # the longest dilated delta, 1/256 tick: just under a long wait (0xFF00 ticks)
+LONG = 0xFF00 << FRAC_BITS  # an undilated delta this long goes the long-wait way, undilated
+RESUME_TICKS = 16  # from main's read of the timer at resume to the pending event
+OVERRIDE_STEPS = 10  # the override keys step by 10 %: target F = floor(step x 25.5), 1..10
+FRAC16 = 1 << 16
+
+
+def dilation_table() -> np.ndarray:
+    """D[F] for F = 0..F_ONE (8.8 fixed point, D[F_ONE] = 256; D[0] is never used: F 0 parks)."""
+    f = np.arange(F_ONE + 1, dtype=np.int64)
+    return np.where(f > 0, (65280 + f // 2) // np.maximum(f, 1), 0)
+
+
+def override_target(step: int) -> int:
+    """The target F of the override keys' step 1..10 (10 % each)."""
+    return step * 51 // 2
+
+
+@dataclass(frozen=True)
+class HoldPlan:
+    """What the firmware's feed hold needs: the ramp's K (F.frac16 per tick) and the board's keys."""
+
+    ramp_k: int  # F.frac16 per dilated tick
+    keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2)
+    table: tuple[int, ...]  # dilation_table()
+
+    def ramp_seconds(self, tick_hz: int) -> float:
+        """From F_ONE to 0 at the ramp's rate (where nothing freezes it)."""
+        return F_ONE * FRAC16 / self.ramp_k / tick_hz
+
+
+def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
+    """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:`."""
+    keys = board.get("hold_keys")
+    if not keys:
+        raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
+    steppers = job.machine.steppers.values()
+    per_second = min(s.max_accel / s.max_velocity for s in steppers)  # of f, for the fastest motor at its limit
+    ramp_k = int(RAMP_SHARE * per_second * F_ONE * FRAC16 / tick_hz)
+    if not 1 <= ramp_k < FRAC16:
+        raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
+                         f"player's 16-bit step per tick ({ramp_k})")
+    return HoldPlan(ramp_k, {str(k): str(v) for k, v in keys.items()}, tuple(int(d) for d in dilation_table()))
+
+
+def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
+    """Every event's undilated tick delta (1/256 tick) and the add of its rate run."""
+    n = schedule.run_count
+    run = np.repeat(np.arange(len(n)), n)
+    k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+    return schedule.run_interval[run] + k * schedule.run_add[run], schedule.run_add[run]
+
+
+@dataclass
+class Dilation:
+    """A held or overridden run as the player plays it: every event's tick, and where it parked."""
+
+    tick: np.ndarray  # (E,) int64
+    park_event: int | None  # the pending event the player parked before (None: it did not park)
+    park_tick: int | None  # the tick of the event played last before the park
+
+
+def _ramp(ffx: int, target: int, ticks: int, add: int, k: int) -> int:
+    """F.frac16 after a dilated delta of `ticks`, moving towards `target` where the gate lets it."""
+    f = ffx >> 16
+    if f == target:
+        return ffx
+    down = f > target
+    if f > F_FREE and ((add > 0) if down else (add < 0)):
+        return ffx  # the plan brakes (a hold) or accelerates (a resume): the factor waits
+    step = ticks * k
+    goal = target << 16
+    return max(ffx - step, goal) if down else min(ffx + step, goal)
+
+
+def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resume_tick: int | None = None,
+           resume_target: int = F_ONE) -> Dilation:
+    """Event ticks under `changes`: (event, target F) in order, each seen first by the interrupt that computes
+    that event's delta. After a park the player goes on at `resume_tick` (the simulator's tick of the parked
+    event: main re-armed the timer there) at F 1 towards `resume_target`; without it the rest never plays (-1).
+    A per-event loop over the dilated stretch only: before the first change, and once the factor is back at
+    F_ONE, ticks are the twin's deltas summed."""
+    delta, add = event_deltas(schedule)
+    pos = np.zeros(len(delta) + 1, dtype=np.int64)
+    np.cumsum(delta, out=pos[1:])
+    out = pos[1:] >> FRAC_BITS
+    if not changes:
+        return Dilation(out, None, None)
+    table, k = plan.table, plan.ramp_k
+    e = changes[0][0]
+    here = int(pos[e])  # 24.8: where event e - 1 played
+    ffx, target, pending = F_ONE << 16, F_ONE, list(changes)
+    park_event = park_tick = None
+    while e < len(delta):
+        while pending and pending[0][0] <= e:
+            target = pending.pop(0)[1]
+        f, d = ffx >> 16, int(delta[e])
+        if f == F_ONE and target == F_ONE and not pending:
+            out[e:] = (here + pos[e + 1:] - pos[e]) >> FRAC_BITS  # the undilated player again
+            break
+        if f == target and f:  # a steady factor up to the next change: vectorised
+            end = pending[0][0] if pending else len(delta)
+            d = delta[e:end]
+            step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
+            ends = here + np.cumsum(step)
+            out[e:end] = ends >> FRAC_BITS
+            here, e = int(ends[-1]), end
+            continue
+        if d >= LONG:
+            here += d  # a long wait: undilated, and no ramp
+        elif f == 0:
+            park_event, park_tick = e, here >> FRAC_BITS
+            if resume_tick is None:
+                out[e:] = -1
+                break
+            here = resume_tick << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
+            ffx, target = 1 << 16, resume_target
+        else:
+            d = min((d * table[f]) >> 8, CLAMP)
+            here += d
+            ffx = _ramp(ffx, target, d >> FRAC_BITS, int(add[e]), k)
+        out[e] = here >> FRAC_BITS
+        e += 1
+    return Dilation(out, park_event, park_tick)

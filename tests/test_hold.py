@@ -1,0 +1,163 @@
+"""Feed hold, resume and override by time dilation (codegen/hold.py, the AVR flash image's dilated path,
+codegen/verify_hold.py): the star at full speed held at random points and resumed in simavr, every pulse on the
+dilated twin's clock and every motor within its limits; an override through the feed keys; the host model over
+random machines and programs (hypothesis); and the refusals where there is no hold yet."""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from codegen.checks import check
+from codegen.cli import _build, main
+from codegen.errors import BuildError, JobError
+from codegen.hold import F_ONE, dilate, dilation_table, override_target
+from codegen.job import load_job
+from codegen.pipeline import host_build, trains_from
+from codegen.streaming import stream_setup
+from codegen.verify_hold import hold_verify
+from tests.jobgen import jobs
+
+ROOT = Path(__file__).resolve().parent.parent
+needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="avr-gcc not installed")
+
+
+@pytest.fixture(scope="module")
+def star(tmp_path_factory):
+    """examples/star.yaml (it has feed_hold), built once."""
+    out = tmp_path_factory.mktemp("star")
+    job = load_job(ROOT / "examples" / "star.yaml")
+    host, image, _ = _build(job, str(out), reuse=False, strict=False)
+    return host, image
+
+
+def test_the_dilation_table_is_the_factor_s_reciprocal():
+    d = dilation_table()
+    assert d[F_ONE] == 256 and d[1] == 65280 and d[128] == 510
+    assert np.all(np.diff(d[1:]) <= 0)
+    assert [override_target(s) for s in (1, 5, 10)] == [25, 127, F_ONE]
+
+
+@needs_simavr
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_star_held_at_a_random_point_comes_to_rest_within_its_limits_and_ends_exact(star, seed):
+    host, image = star
+    at = random.Random(seed).uniform(0.05, host.plan.total - 0.5)
+    result, trace = hold_verify(host, image, at, None)
+    assert result["pass"], result["problems"]
+    hold = result["hold"]
+    # at rest within the ramp's time (0.253 s from 100 % to 0) and the braking it waited for
+    assert 0.0 < hold["stopping_s"] < 0.4
+    assert hold["resume_s"] > hold["at_rest_s"]
+    for name, motor in result["motors"].items():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_timing_error_us"] <= 1.0
+        assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
+    # no pulse while parked: between the last one before the rest and the resume key (times rounded to 1 us)
+    rest, resume = (trace.timer_start_cycle + hold[k] * 16e6 for k in ("at_rest_s", "resume_s"))
+    parked = (trace.step_cycle > rest + 40) & (trace.step_cycle < resume)
+    assert not parked.any()
+    # the hold added its time: stopping, standing, speeding up again
+    assert result["duration_s"] > result["planned_duration_s"] - 1e-6 > 0
+    assert result["duration_s"] > host.plan.total + (hold["resume_s"] - hold["at_rest_s"])
+
+
+@needs_simavr
+def test_the_feed_keys_override_the_whole_star_to_half_speed(star):
+    host, image = star
+    result, _ = hold_verify(host, image, None, 50)
+    assert result["pass"], result["problems"]
+    assert [k["key"] for k in result["hold"]["keys"]] == ["feed-"] * 5
+    # 10 % per 100 ms down to 50 %: the job takes close to twice its time
+    assert 1.8 * host.plan.total < result["duration_s"] < 2.0 * host.plan.total
+    assert all(m["final"] == m["expected_final"] for m in result["motors"].values())
+
+
+@needs_simavr
+def test_a_twin_with_another_ramp_does_not_pass(star):
+    """The comparison can fail: a ramp one step per tick faster than the firmware's is found out."""
+    host, image = star
+    wrong = dataclasses.replace(host.hold_plan, ramp_k=host.hold_plan.ramp_k + 1)
+    fake = dataclasses.replace(host)
+    fake.__dict__["hold_plan"] = wrong
+    result, _ = hold_verify(fake, image, 0.7, None)
+    assert not result["pass"]
+    assert any("away from its predicted time" in p for p in result["problems"])
+
+
+@needs_simavr
+def test_verify_hold_on_the_command_line(star, capsys):
+    code = main(["verify", str(ROOT / "examples" / "star.yaml"), "--out", str(star[1].hex_path.parent),
+                 "--hold", "1.0"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert out.startswith("PASS star")
+    assert "key hold at 1.0000 s" in out and "hold: at rest" in out
+
+
+def _with_hold(text: str, override: int = 100) -> str:
+    job = yaml.safe_load(text)
+    job["machine"]["feed_hold"] = {"override": override}
+    return yaml.safe_dump(job, sort_keys=False)
+
+
+def test_no_hold_yet_on_the_8051_or_a_stream(tmp_path):
+    text = _with_hold((ROOT / "examples" / "star.yaml").read_text())
+    for target, stream, where in (("mcs51", False, "the 8051's player"), ("avr", True, "the streaming firmware")):
+        path = tmp_path / f"{target}.yaml"
+        path.write_text(text)
+        job = load_job(path, target)
+        with pytest.raises(BuildError, match=f"machine.feed_hold: {where} has no feed hold yet"):
+            host_build(job, link=stream_setup(job).budget if stream else None)
+
+
+def test_an_override_the_keys_cannot_reach_is_an_error(tmp_path):
+    path = tmp_path / "job.yaml"
+    path.write_text(_with_hold((ROOT / "examples" / "star.yaml").read_text()).replace("override: 100",
+                                                                                      "override: 55"))
+    with pytest.raises(JobError) as err:
+        load_job(path)
+    assert "from 10 to 100 in steps of 10" in err.value.render()
+
+
+HOST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])
+
+
+@HOST
+@given(st.sampled_from(["cartesian", "corexy", "delta"]).flatmap(lambda k: jobs(k, "avr")),
+       st.floats(0.05, 0.95), st.integers(0, 3))
+def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_factory, text, where, override):
+    """The host model of a hold (and a lower override before it) over random machines and programs: the dilated
+    pulse trains keep every motor within its rate and acceleration, as the planned ones do."""
+    path = tmp_path_factory.mktemp("hold") / "job.yaml"
+    path.write_text(_with_hold(text))
+    try:
+        host = host_build(load_job(path))
+    except (JobError, BuildError):
+        assume(False)
+    assume(host.findings.ok and len(host.pulses.event_tick) > 10)
+    twin = host.pulses
+    events = len(twin.event_tick)
+    changes = ([(1, override_target(10 - 3 * override))] if override else []) + [(int(where * events), 0)]
+    held = dilate(host.schedule, host.hold_plan, changes)
+    if held.park_event is not None:  # resume 20 ms after the rest, back to 100 %
+        resume = held.park_tick + host.target.tick_hz // 50
+        held = dilate(host.schedule, host.hold_plan, changes, resume, F_ONE)
+    assert np.all(np.diff(held.tick) >= 0)
+    delay = (held.tick - twin.event_tick) / host.target.tick_hz
+    trains = trains_from(held.tick[twin.event] / host.target.tick_hz, twin.motor, twin.dir, len(host.kin.motors))
+    findings = check(trains, np.zeros((0, len(host.kin.motors)), dtype=np.int64), np.zeros(0, dtype=np.int64),
+                     host.segments, host.plan, host.kin, host.expected_final, host.start_steps,
+                     host.job.machine.tolerance, lambda t: t + np.interp(t, host.events.time, delay))
+    for name in host.kin.motors:
+        assert findings.accel_ratio[name] <= max(1.0, host.findings.accel_ratio[name]) + 1e-9, findings.problems
+        assert findings.rate_ratio[name] <= max(1.0, host.findings.rate_ratio[name]) + 1e-9, findings.problems
