@@ -19,7 +19,7 @@ from codegen.pipeline import HostBuild, host_build
 from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
 from codegen.verify_heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
-from codegen.verify_hold import hold_lines, hold_verify
+from codegen.verify_hold import hold_lines, hold_verify, pauses
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -114,15 +114,13 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    if args.stream and (args.hold is not None or args.override is not None):
-        raise BuildError("verify --hold/--override: the streaming firmware has no feed hold yet (a flash image has)")
     if args.stream:
         host, result, trace, headline = cli_stream.verify_stream(args)
         return _conclude_verify(args, host, result, trace, headline)
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
-    if args.hold is not None or args.override is not None:
+    if args.hold is not None or args.override is not None or pauses(host):
         result, trace = hold_verify(host, image, args.hold, args.override)
     elif host.heaters:
         result, trace = verify_heaters(host, image, faults)

@@ -18,6 +18,7 @@ from codegen.report import human_plan, plan_summary, verify_json, write_json
 from codegen.streaming import SIM_MODULES, StreamSetup, build_stream_firmware, stream_chunks, stream_setup
 from codegen.verify import compare, simulated_switches
 from codegen.verify_heaters import HEAT_LIMIT_S, heater_result, job_faults, job_plants
+from codegen.verify_hold import hold_verify, pauses
 
 
 def _out_dir(job, out: str | None) -> Path:
@@ -86,7 +87,10 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
     if not host.findings.ok:
         raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
                          + "\n  ".join(host.findings.problems))
-    result, trace = _simulate_stream(host, setup, image, faults)
+    if args.hold is not None or args.override is not None or pauses(host):
+        result, trace = hold_verify(host, image, args.hold, args.override, setup)
+    else:
+        result, trace = _simulate_stream(host, setup, image, faults)
     lk = result["link"]
     headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: streamed to {out_dir / 'firmware.hex'} at "
                 f"{lk['baud']} baud, {result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s "
@@ -102,14 +106,10 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
     simulated clock)."""
     import importlib
 
-    data = tables.encode(host.schedule).data
     config = setup.config
-    link = HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
-                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
-                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in config.heaters))
+    link = new_link(host, setup)
     simulator = importlib.import_module(SIM_MODULES[setup.target.target])
-    budget = (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
-              + (HEAT_LIMIT_S if config.heaters else 0.0))
+    budget = session_budget_s(host, setup)
     switches = simulated_switches(host)
     if config.heaters:
         run, figures = simulator.simulate_stream_heaters(image.hex_path, config, link, int(budget * setup.target.f_cpu),
@@ -119,6 +119,25 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
         trace, figures = simulator.simulate_stream(image.hex_path, config, link, int(budget * setup.target.f_cpu),
                                                    switches=switches)
         result = verify_json(host, compare(host, trace, switches, streamed=True), image)
+    return stream_result(host, link, figures, trace, result), trace
+
+
+def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
+    """The host's side of a simulated session: the job's table stream, as `stream` sends it."""
+    data = tables.encode(host.schedule).data
+    return HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in setup.config.heaters))
+
+
+def session_budget_s(host: HostBuild, setup: StreamSetup) -> float:
+    """Simulated seconds a session may take: the plan, the ring's fill and drain, a heat-up."""
+    return (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
+            + (HEAT_LIMIT_S if setup.config.heaters else 0.0))
+
+
+def stream_result(host: HostBuild, link: HostLink, figures, trace, result: dict) -> dict:
+    """verify's result of a session with the link's checks and figures (`link`)."""
     problems = result["problems"]
     if link.outcome not in ("finished", "fault"):
         problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
@@ -143,7 +162,7 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
                       "planned_min_ring_fill_bytes": host.link_plan.min_ring_fill_bytes,
                       "prefill_bytes": host.link_plan.prefill_bytes,
                       "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
-    return result, trace
+    return result
 
 
 def cmd_stream(args) -> int:
@@ -168,8 +187,11 @@ def cmd_stream(args) -> int:
         port = serial_port.open_port(args.port, setup.layout.baud)
         began = time.monotonic()
         try:
-            interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet,
-                                          motors=tuple(m.name for m in setup.config.motors))
+            with serial_port.terminal_keys(setup.config.hold is not None) as keys:
+                if setup.config.hold is not None and sys.stdin.isatty():
+                    print("keys: ! hold, ~ resume, - and + the feed override", file=sys.stderr)
+                interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet,
+                                              motors=tuple(m.name for m in setup.config.motors), keys=keys)
         finally:
             port.close()
     took = time.monotonic() - began

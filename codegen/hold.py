@@ -11,7 +11,9 @@ t ticks, F.frac16 moves by t x K. K keeps every motor's extra acceleration v x d
 limit at its highest velocity. Where the plan itself accelerates at the limit, the two must not add up: above
 F_FREE (f^2 + RAMP_SHARE <= 1) the factor falls only while the pending event's rate run does not brake (its add
 <= 0) and rises only while it does not accelerate (add >= 0); at or below F_FREE it moves freely. On curves the
-planner leaves a share of 1 - centripetal_share (RAMP_SHARE) of every motor's acceleration for this.
+planner leaves a share of 1 - centripetal_share (RAMP_SHARE) of every motor's acceleration for this. A delta's
+motors speed up and slow down along a straight line (its blocks' ratios change), which the master's add cannot
+tell: a delta has no feed hold yet (random deltas broke the limits by 9 to 12 %).
 
 At F 0 the player parks before the pending event (its timer's interrupt off); resume re-arms it RESUME_TICKS
 after main reads the timer, at F 1, and the ramp goes on up. Once F and the target are both F_ONE the player
@@ -26,14 +28,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.schedule import FRAC_BITS, Schedule
+from codegen.schedule import FRAC_BITS, RT_PAUSE, Schedule
 
 F_ONE = 255  # the feed factor 1 (100 %)
 RAMP_SHARE = 0.2  # of each motor's acceleration that the factor's change may take (the planner's curves leave it)
 F_FREE = int(math.floor(F_ONE * math.sqrt(1.0 - RAMP_SHARE)))  # at or below: f^2 a_max + RAMP_SHARE a_max <= a_max
 CLAMP = 0xFEFFFF  # the longest dilated delta, 1/256 tick: just under a long wait (0xFF00 ticks)
 LONG = 0xFF00 << FRAC_BITS  # an undilated delta this long goes the long-wait way, undilated
-RESUME_TICKS = 16  # from main's read of the timer at resume to the pending event
+RESUME_TICKS = 0xFEFF  # from main's read of the timer at resume to the pending event: at least its own interval
+# (a parked event is never a long wait), so no step comes sooner after the one before than the plan's
 OVERRIDE_STEPS = 10  # the override keys step by 10 %: target F = floor(step x 25.5), 1..10
 FRAC16 = 1 << 16
 
@@ -64,6 +67,12 @@ class HoldPlan:
 
 def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:`."""
+    if job.machine.kinematics == "delta":
+        raise BuildError("machine.feed_hold: a delta cannot hold yet (its motors' own acceleration along a line is "
+                         "not what the player's ramp watches)")
+    if job.machine.laser is not None:  # a held laser must go dark, and M4 follow the factor: not built yet
+        raise BuildError("machine.feed_hold: a machine with a laser cannot hold yet (its power does not follow the "
+                         "dilated clock, nor go off at rest)")
     keys = board.get("hold_keys")
     if not keys:
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
@@ -86,11 +95,11 @@ def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class Dilation:
-    """A held or overridden run as the player plays it: every event's tick, and where it parked."""
+    """A held, paused or overridden run as the player plays it: every event's tick (-1: never played), and where
+    it parked: (the pending event, the tick of the event played last, whether an M0/M1 pause parked it)."""
 
     tick: np.ndarray  # (E,) int64
-    park_event: int | None  # the pending event the player parked before (None: it did not park)
-    park_tick: int | None  # the tick of the event played last before the park
+    parks: list[tuple[int, int, bool]]
 
 
 def _ramp(ffx: int, target: int, ticks: int, add: int, k: int) -> int:
@@ -106,33 +115,43 @@ def _ramp(ffx: int, target: int, ticks: int, add: int, k: int) -> int:
     return max(ffx - step, goal) if down else min(ffx + step, goal)
 
 
-def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resume_tick: int | None = None,
+def pause_events(schedule: Schedule) -> list[int]:
+    """The events an M0/M1 pause parks before: the first of the block its record precedes (none at the end)."""
+    first = np.concatenate([[0], np.cumsum(schedule.block_events)])
+    blocks = schedule.runtime_block[(schedule.runtime_command == RT_PAUSE) &
+                                    (schedule.runtime_block < schedule.n_blocks)]
+    return [int(first[b]) for b in blocks]
+
+
+def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
            resume_target: int = F_ONE) -> Dilation:
     """Event ticks under `changes`: (event, target F) in order, each seen first by the interrupt that computes
-    that event's delta. After a park the player goes on at `resume_tick` (the simulator's tick of the parked
-    event: main re-armed the timer there) at F 1 towards `resume_target`; without it the rest never plays (-1).
-    A per-event loop over the dilated stretch only: before the first change, and once the factor is back at
-    F_ONE, ticks are the twin's deltas summed."""
+    that event's delta, and the schedule's pauses. After each park the player goes on at the next of `resumes`
+    (the simulator's tick of the parked event: main re-armed the timer there) towards `resume_target`, at F 1
+    after a hold and at F_ONE after a pause; without one the rest never plays. A per-event loop only where the
+    factor ramps: elsewhere the deltas are summed (scaled where the factor is steady)."""
     delta, add = event_deltas(schedule)
     pos = np.zeros(len(delta) + 1, dtype=np.int64)
     np.cumsum(delta, out=pos[1:])
     out = pos[1:] >> FRAC_BITS
-    if not changes:
-        return Dilation(out, None, None)
+    pauses, pending, resumes = pause_events(schedule), list(changes), list(resumes)
+    marks = sorted([e for e, _ in pending] + pauses)
+    parks: list[tuple[int, int, bool]] = []
+    if not marks:
+        return Dilation(out, parks)
     table, k = plan.table, plan.ramp_k
-    e = changes[0][0]
+    e = marks[0]
     here = int(pos[e])  # 24.8: where event e - 1 played
-    ffx, target, pending = F_ONE << 16, F_ONE, list(changes)
-    park_event = park_tick = None
+    ffx, target, paused = F_ONE << 16, F_ONE, False
     while e < len(delta):
         while pending and pending[0][0] <= e:
             target = pending.pop(0)[1]
+        if pauses and pauses[0] <= e:  # the record comes with this event's block: F 0
+            pauses.pop(0)
+            ffx, paused = ffx & 0xFFFF, True
         f, d = ffx >> 16, int(delta[e])
-        if f == F_ONE and target == F_ONE and not pending:
-            out[e:] = (here + pos[e + 1:] - pos[e]) >> FRAC_BITS  # the undilated player again
-            break
-        if f == target and f:  # a steady factor up to the next change: vectorised
-            end = pending[0][0] if pending else len(delta)
+        end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
+        if f == target and f and end > e:  # a steady factor up to the next change (F_ONE: undilated)
             d = delta[e:end]
             step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
             ends = here + np.cumsum(step)
@@ -142,16 +161,16 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
         if d >= LONG:
             here += d  # a long wait: undilated, and no ramp
         elif f == 0:
-            park_event, park_tick = e, here >> FRAC_BITS
-            if resume_tick is None:
+            parks.append((e, here >> FRAC_BITS, paused))
+            if not resumes:
                 out[e:] = -1
                 break
-            here = resume_tick << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
-            ffx, target = 1 << 16, resume_target
+            here = resumes.pop(0) << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
+            ffx, target, paused = (F_ONE if paused else 1) << 16, resume_target, False
         else:
             d = min((d * table[f]) >> 8, CLAMP)
             here += d
             ffx = _ramp(ffx, target, d >> FRAC_BITS, int(add[e]), k)
         out[e] = here >> FRAC_BITS
         e += 1
-    return Dilation(out, park_event, park_tick)
+    return Dilation(out, parks)

@@ -146,9 +146,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
-    if job.machine.feed_hold is not None and (target.target != "avr" or link is not None):
-        where = "the 8051's player" if target.target != "avr" else "the streaming firmware"
-        raise BuildError(f"machine.feed_hold: {where} has no feed hold yet (the ATmega2560's flash image has)")
+    if job.machine.feed_hold is not None and target.target != "avr":
+        raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
     if job.machine.feed_hold is not None:
         hold_plan(job, target.tick_hz, target.board, target.board_data)  # its errors before any planning
     kin = make_kinematics(job.machine)
@@ -207,7 +206,10 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
     that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
-    heater uses its pin); none elsewhere (codegen/runtime.py)."""
+    heater uses its pin); a flash image with feed_hold plays the program's pauses (M0/M1) alone (it has no heaters
+    yet: avr_hold.py); none elsewhere (codegen/runtime.py)."""
+    if target.target == "avr" and job.machine.feed_hold is not None:
+        return ("pause",)
     if target.target != "avr" or not target.heater_pins:
         return ()
     if streamed:

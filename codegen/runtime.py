@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from codegen.schedule import HEATER_COMMANDS, RT_FAN, RT_WAIT, WAIT_MASKS, Schedule
+from codegen.schedule import HEATER_COMMANDS, RT_FAN, RT_PAUSE, RT_WAIT, WAIT_MASKS, Schedule
 from codegen.toolpath import Output
 
 FAN_FULL = 255  # the fan record's duty at M106 S255
@@ -45,6 +45,9 @@ def runtime_records(settings: list[tuple[int, Output]], played: tuple[str, ...])
     rows = []
     for index, out in settings:
         if out.name not in played:
+            continue
+        if out.name == "pause":
+            rows.append((index, RT_PAUSE, 0))
             continue
         if out.name == "fan":
             rows.append((index, RT_FAN, min(FAN_FULL, max(0, round(out.value * FAN_FULL)))))

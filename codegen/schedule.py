@@ -52,7 +52,8 @@ TOOL_BIT = 0x40
 MAX_POWER = 0xFFFF  # a power record's PWM counts, u16
 # Runtime commands (codegen/tables.py's runtime record) and their values.
 RT_TARGET_HOTEND, RT_TARGET_BED, RT_FAN, RT_WAIT = 0, 1, 2, 3  # 0.1 degC; 0.1 degC; duty 0..255; heater mask
-RUNTIME_NAMES = ("target hotend", "target bed", "fan", "wait")
+RT_PAUSE = 4  # M0/M1: the player parks before the block until the resume key (value 0; codegen/hold.py)
+RUNTIME_NAMES = ("target hotend", "target bed", "fan", "wait", "pause")
 HEATER_COMMANDS = {"hotend": RT_TARGET_HOTEND, "bed": RT_TARGET_BED}
 WAIT_MASKS = {"hotend": 1, "bed": 2}
 
@@ -128,7 +129,7 @@ class Schedule:
             problems.append("run add out of range")
         block, command, value = self.runtime_block, self.runtime_command, self.runtime_value
         if np.any(np.diff(block) < 0) or np.any(block < 0) or np.any(block > self.n_blocks) \
-                or np.any((value < 0) | (value > 0xFFFF)) or np.any((command < 0) | (command > RT_WAIT)):
+                or np.any((value < 0) | (value > 0xFFFF)) or np.any((command < 0) | (command > RT_PAUSE)):
             problems.append("runtime records out of range or out of order")
         if len(self.run_power) not in (0, self.n_runs) or np.any(self.run_power > MAX_POWER):
             problems.append("power records out of range")

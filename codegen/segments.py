@@ -16,7 +16,7 @@ from codegen.toolpath import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Lines,
 
 REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 AXIS = {"x": 0, "y": 1, "z": 2, "e": 3}
-RUNTIME_OUTPUTS = ("hotend", "bed", "fan")  # the settings a player with a runtime plays at their place
+RUNTIME_OUTPUTS = ("hotend", "bed", "fan", "pause")  # the settings a player with a runtime plays at their place
 WAIT_REST_S = 0.001  # a temperature wait: the plan rests there, in a dwell this long after the hold
 
 
@@ -135,7 +135,7 @@ class Flattener:
                 limits.apply(item)
             elif isinstance(item, Output) and self.runtime and item.name in RUNTIME_OUTPUTS:
                 self.settings.append((index, item))
-                if item.wait and item.value > 0:
+                if item.wait and (item.value > 0 or item.name == "pause"):
                     single.add(self._pieces(Dwell(WAIT_REST_S, item.source), fines), index, len(limits.rows) - 1)
             elif isinstance(item, (Line, Arc, Curve, Dwell)):  # not Output, Home: nothing to move along
                 single.add(self._pieces(item, fines), index, len(limits.rows) - 1)

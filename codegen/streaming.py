@@ -17,6 +17,7 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, MotorPins
 from codegen.firmware.avr_heaters import stream_heaters
+from codegen.hold import HoldPlan, hold_plan
 from codegen.homing import homing_axes
 from codegen.jog import jog_plan
 from codegen.kinematics import make_kinematics
@@ -57,6 +58,15 @@ def stream_homes(job) -> bool:
     return job.machine.kinematics == "delta" or bool(job.program is not None and job.program.home)
 
 
+def _hold(job, target) -> HoldPlan | None:
+    """The streaming firmware's feed hold (the link's HOLD, RESUME, FEED_DOWN, FEED_UP and the board's keys)."""
+    if job.machine.feed_hold is None:
+        return None
+    if target.target != "avr":
+        raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
+    return hold_plan(job, target.tick_hz, target.board, target.board_data)
+
+
 def stream_setup(job, baud: int | None = None) -> StreamSetup:
     """The machine's streaming firmware config and its link; `baud` overrides machine.link.baud."""
     try:
@@ -73,7 +83,9 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
         baud=int(baud or job.machine.link.baud or 0),
         heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else (),
         laser=laser_pwm(job, target.board_data, target.f_cpu),
-        jog=jog_plan(job, kin.motors, target.tick_hz) if job.machine.jog else None)
+        jog=jog_plan(job, kin.motors, target.tick_hz) if job.machine.jog else None,
+        hold=_hold(job, target),
+        hold_override=job.machine.feed_hold.override if job.machine.feed_hold else 100)
     module = stream_module(target.target)
     layout = module.ring_layout(config)
     budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),

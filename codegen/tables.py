@@ -20,6 +20,8 @@ block uses), then command u8 and value u16                                      
     RT_FAN                            the fan's duty, 0..255
     RT_WAIT                           hold until the heaters of the mask (bit 0 hot end, bit 1 bed) have settled
                                       (the player stops its timer and restarts it at tick 0, codegen/schedule.py)
+    RT_PAUSE                          M0/M1 (value 0): the player parks before the block until the resume key
+                                      (an image with feed_hold, codegen/hold.py)
 The player reads them at the event that reads the block record after them, and hands each to the runtime.
 Run record, first byte `count`:
     1..255        short form: interval u24 (16.8 ticks), add i16 (8.8 ticks)           (6 bytes)

@@ -169,9 +169,10 @@ class Home:
 @dataclass(frozen=True)
 class Output:
     """A setting of an auxiliary output: fan speed 0..1 (M106/M107), or a heater's target in degrees C
-    (M104/M109 hot end, M140/M190 bed; `wait`: the program waits until it is reached)."""
+    (M104/M109 hot end, M140/M190 bed; `wait`: the program waits until it is reached); or a program pause
+    (M0/M1: `pause`, the program waits for the resume key)."""
 
-    name: str  # fan | hotend | bed
+    name: str  # fan | hotend | bed | pause
     value: float
     wait: bool
     source: SourceRef

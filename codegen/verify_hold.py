@@ -1,12 +1,14 @@
-"""`verify --hold SECONDS` and `verify --override PERCENT` on an ATmega2560 flash image with machine.feed_hold:
-the simulator presses the board's hold keys, and every pulse is compared with the twin on the dilated clock that
-codegen/hold.py models (the same integers as the player).
+"""`verify --hold SECONDS` and `verify --override PERCENT` on an ATmega2560 image with machine.feed_hold: the
+simulator presses the board's hold keys (a flash image) or the host sends HOLD, RESUME, FEED_DOWN and FEED_UP
+frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the dilated clock
+that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its resume key or
+frame comes once the machine rests at each.
 
-The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the keys. The
-override keys (feed- or feed+, one press per 10 %) are pressed from 10 ms into the job, one every 100 ms; the hold
-key at SECONDS into the job; resume once the twin says the machine is at rest (REST_S after its park). A key is
-seen by main's poll after a step interrupt, and that event's next interrupt dilates the event after it: which
-event that is depends on cycles the twin does not count, so each key's first dilated event is chosen among a few
+The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the requests.
+The override requests (feed- or feed+, one per 10 %) come from 10 ms into the job, one every 100 ms; the hold at
+SECONDS into the job; resume once the twin says the machine is at rest (REST_S after its park). A request is seen
+by main's poll after a step interrupt, and that event's next interrupt dilates the event after it: which event that
+is depends on cycles the twin does not count, so each request's first dilated event is chosen among a few
 (CANDIDATES) as the one the simulated pulses agree with, and reported. Everything after follows from it: the
 times of every pulse, where the machine comes to rest, and the limits over the whole run (checks.py)."""
 
@@ -17,13 +19,11 @@ import dataclasses
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.hold import F_ONE, Dilation, dilate, override_target
+from codegen.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
+from codegen.hold_runs import FlashRun, StreamRun
 from codegen.pipeline import HostBuild
-from codegen.report import verify_json
-from codegen.sim.avr import simulate
-from codegen.verify import compare, simulated_switches
+from codegen.verify import compare
 
-PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from the job's start
 REST_S = 0.02  # from the park the twin predicts to the resume key
 POLL_CYCLES = 400  # a step interrupt and main's poll: a key pressed this long before an event may be seen after it
@@ -50,16 +50,20 @@ def _actions(host: HostBuild, tick0: int, hold_s: float | None, override: int | 
             nxt = step + (1 if goal > start else -1)
             actions.append(KeyAction("feed+" if goal > start else "feed-", override_target(nxt), press))
     if hold_s is not None:
+        last = (actions[-1].press - tick0) / f_cpu + OVERRIDE_EVERY_S if actions else 0.0
+        if hold_s < last:
+            raise BuildError(f"verify --hold {hold_s:g}: the override's requests go on until {last:g} s into the "
+                             "job; hold after them")
         actions.append(KeyAction("hold", 0, tick0 + int(hold_s * f_cpu)))
     return actions
 
 
-def _predict(host: HostBuild, actions: list[KeyAction], events: list[int], resume_tick: int | None,
+def _predict(host: HostBuild, actions: list[KeyAction], events: list[int], resumes: list[int],
              resume_target: int) -> Dilation:
     """The twin on the dilated clock; an image that starts below 100 % dilates from its first event on."""
     start = override_target(host.job.machine.feed_hold.override // 10)
     changes = ([(0, start)] if start != F_ONE else []) + [(e, a.target) for a, e in zip(actions, events)]
-    return dilate(host.schedule, host.hold_plan, changes, resume_tick, resume_target)
+    return dilate(host.schedule, host.hold_plan, changes, resumes, resume_target)
 
 
 def _event_cycles(host: HostBuild, trace) -> np.ndarray:
@@ -80,69 +84,71 @@ def _event_cycles(host: HostBuild, trace) -> np.ndarray:
     return out
 
 
-def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | None) -> tuple[dict, object]:
-    """The verdict (verify's JSON, with `hold`) and the keyed simulation's trace."""
+def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | None,
+                setup=None) -> tuple[dict, object]:
+    """The verdict (verify's JSON, with `hold`; a stream's with `link`) and the run's trace. `setup`: the
+    streaming firmware's (codegen/streaming.py), else the flash image."""
     if host.hold_plan is None:
         raise BuildError("verify --hold/--override: the job has no machine.feed_hold (the image has no hold keys)")
-    config, switches = host.firmware_config(), simulated_switches(host)
-    target, f_cpu = host.target, host.target.f_cpu
-    prescale, latency = f_cpu // target.tick_hz, int(target.mcu_data.get("isr_latency_cycles", 0))
-    budget = int((host.plan.total * 1.2 + 1.0) * f_cpu)
-    tick0 = simulate(image.hex_path, config, budget, switches=switches).timer_start_cycle
     if hold_s is not None and not 0 <= hold_s < host.plan.total:
         raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
+    runner = StreamRun(host, image, setup) if setup is not None else FlashRun(host, image)
+    target, f_cpu = host.target, host.target.f_cpu
+    prescale, latency = f_cpu // target.tick_hz, int(target.mcu_data.get("isr_latency_cycles", 0))
+    tick0 = runner.tick0(bool(pause_events(host.schedule)))
     actions = _actions(host, tick0, hold_s, override)
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
 
     def cycles_of(d: Dilation) -> np.ndarray:
         return tick0 + d.tick * prescale + latency
 
-    # Where each key is first seen (the middle candidate, to place the presses that follow and the resume).
+    # Where each request is first seen (the middle candidate, to place those that follow and the resumes).
     guess: list[int] = []
     for a in actions:
-        pred = cycles_of(_predict(host, actions[:len(guess)], guess, None, resume_target))
+        pred = cycles_of(_predict(host, actions[:len(guess)], guess, [], resume_target))
         first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
-        a.event = first + 1
         guess.append(first + CANDIDATES // 2 + 1)
-    resume_press = None
-    if hold_s is not None:
-        parks = []
-        for k in range(1, CANDIDATES + 1):
-            d = _predict(host, actions, guess[:-1] + [actions[-1].event + k - 1], None, resume_target)
-            if d.park_event is None:
-                raise BuildError(f"verify --hold {hold_s:g}: the job ends before the machine would come to rest")
-            parks.append(tick0 + d.park_tick * prescale)
-        resume_press = max(parks) + int(REST_S * f_cpu)
-    pins = host.hold_plan.keys
-    presses = [(pins[a.function], a.press, a.press + int(PRESS_S * f_cpu)) for a in actions]
-    if resume_press is not None:
-        presses.append((pins["resume"], resume_press, resume_press + int(PRESS_S * f_cpu)))
-    extra = int((2.0 + sum(PRESS_S for _ in presses)) * f_cpu) + (resume_press or 0)
-    trace = simulate(image.hex_path, config, budget * (1 if override is None else 11) + extra,
-                     switches=switches, presses=presses)
+    resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale)
+    presses = [(a.function, a.press) for a in actions] + [("resume", r) for r in resume_presses]
+    trace, arrived = runner.run(presses, 1.0 if override is None else 11.0)
+    for a, when in zip(actions, arrived):
+        a.press = when  # a frame reaches the firmware when its last byte has arrived
+    resume_arrived = arrived[len(actions):]
 
-    # Each key's first dilated event: the candidate the simulated pulses agree with (in order).
+    # The resumed events' ticks, then each request's first dilated event: the candidate the pulses agree with.
     sim = _event_cycles(host, trace)
-    resume_tick = None
-    if resume_press is not None:
-        after = np.flatnonzero(sim > resume_press)
-        if len(after):
-            resume_tick = int(round((sim[after[0]] - tick0 - latency) / prescale))
+
+    def resumed(events: list[int]) -> list[int]:
+        """Each park's resumed tick: the one that puts the first pulse after its resume in place (everything
+        after a resume moves with it)."""
+        ticks: list[int] = []
+        for r in resume_arrived:
+            provisional = (r - tick0) // prescale + RESUME_TICKS
+            d = _predict(host, actions[:len(events)], events, ticks + [provisional], resume_target)
+            if r < 0 or len(d.parks) <= len(ticks):
+                break
+            after = np.flatnonzero((sim > r) & (np.arange(len(sim)) >= d.parks[len(ticks)][0]))
+            if not len(after):
+                break
+            k = after[0]
+            ticks.append(provisional + int(round((sim[k] - tick0 - latency) / prescale)) - int(d.tick[k]))
+        return ticks
+
     chosen: list[int] = []
     for i, a in enumerate(actions):
-        pred = cycles_of(_predict(host, actions[:i], chosen, None, resume_target))
+        pred = cycles_of(_predict(host, actions[:i], chosen, resumed(chosen), resume_target))
         first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
-        # the pulses before the next key can tell (that key has not been pressed yet)
+        # the pulses before the next request can tell (it has not come yet)
         before = (sim >= 0) & (sim < (actions[i + 1].press if i + 1 < len(actions) else np.inf))
         best, best_err = first + 1, None
         for n in range(first + 1, first + 1 + CANDIDATES):
-            d = _predict(host, actions[:i + 1], chosen + [n], resume_tick, resume_target)
+            d = _predict(host, actions[:i + 1], chosen + [n], resumed(chosen + [n]), resume_target)
             err = int(np.abs(cycles_of(d)[before] - sim[before]).max()) if before.any() else 0
             if best_err is None or err < best_err:
                 best, best_err = n, err
         chosen.append(best)
         a.event = best
-    final = _predict(host, actions, chosen, resume_tick, resume_target)
+    final = _predict(host, actions, chosen, resumed(chosen), resume_target)
     twin = host.pulses
     dilated = dataclasses.replace(twin, tick=final.tick[twin.event], event_tick=final.tick, motor_tick=None,
                                   motor_dir=None, motor_first=None)
@@ -152,35 +158,71 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     def warp(t):
         return t + np.interp(t, plan_time, delay)
 
-    verdict = compare(host, trace, switches, dilated=dilated, warp=warp)
-    result = verify_json(host, verdict, image)
-    result["hold"] = _report(host, actions, final, tick0, resume_press, override)
-    if hold_s is not None and final.park_event is None:
-        result["problems"].append("the machine did not come to rest after the hold")
+    verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp)
+    result = runner.result(verdict, trace)
+    result["hold"] = _report(host, actions, final, tick0, resume_arrived, override)
+    if len(final.parks) != len(resume_presses) or (hold_s is not None and all(p for *_, p in final.parks)):
+        result["problems"].append(f"the machine came to rest {len(final.parks)} times, "
+                                  f"{len(resume_presses)} expected (the hold and every M0/M1)")
         result["pass"] = False
     return result, trace
 
 
+def pauses(host: HostBuild) -> bool:
+    """The job has M0/M1 pauses: its verification presses the resume key (hold_verify)."""
+    return host.hold_plan is not None and bool(pause_events(host.schedule))
+
+
+def _resume_presses(host: HostBuild, actions: list[KeyAction], guess: list[int], resume_target: int, tick0: int,
+                    prescale: int) -> list[int]:
+    """The resume key's presses: REST_S after each park the twin predicts (a hold's: the latest of its
+    candidates), in order; each predicted resume is RESUME_TICKS after its press."""
+    f_cpu, presses, resumes = host.target.f_cpu, [], []
+    hold = next((i for i, a in enumerate(actions) if a.function == "hold"), None)
+    while True:
+        d = _predict(host, actions, guess, resumes, resume_target)
+        if len(d.parks) <= len(resumes):
+            return presses
+        event, tick, paused = d.parks[len(resumes)]
+        if not paused and hold is not None:  # the hold's park: the latest of its candidates
+            for k in range(CANDIDATES):
+                other = guess[:hold] + [guess[hold] - CANDIDATES // 2 + k] + guess[hold + 1:]
+                parks = _predict(host, actions, other, resumes, resume_target).parks
+                if len(parks) > len(resumes):
+                    tick = max(tick, parks[len(resumes)][1])
+        press = tick0 + tick * prescale + int(REST_S * f_cpu)
+        presses.append(press)
+        resumes.append((press - tick0) // prescale + RESUME_TICKS)
+
+
 def hold_lines(hold: dict) -> list[str]:
     """verify's text lines for a held or overridden run."""
-    lines = [f"  key {k['key']} at {k['pressed_s']:.4f} s: the player dilated from event {k['first_dilated_event']}"
+    lines = [f"  {k['key']} at {k['pressed_s']:.4f} s: the player dilated from event {k['first_dilated_event']}"
              for k in hold["keys"]]
     if "at_rest_s" in hold:
         lines.append(f"  hold: at rest {hold['stopping_s']:.4f} s after the key (at {hold['at_rest_s']:.4f} s, "
                      f"before event {hold['parked_event']}), resumed at {hold['resume_s']:.4f} s")
+    lines += [f"  M0/M1 pause: at rest at {r['at_rest_s']:.4f} s (before event {r['parked_event']}), resumed at "
+              f"{r['resume_s']:.4f} s" for r in hold["rests"] if r["kind"] == "pause"]
     return lines
 
 
-def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: int, resume_press: int | None,
+def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: int, resume_presses: list[int],
             override: int | None) -> dict:
     f_cpu, tick_hz = host.target.f_cpu, host.target.tick_hz
-    seconds = lambda cycles: round((cycles - tick0) / f_cpu, 6)  # noqa: E731  (from the job's tick 0)
-    out: dict = {"override_pct": override, "keys": [
+
+    def seconds(cycles: int) -> float:  # from the job's tick 0
+        return round((cycles - tick0) / f_cpu, 6)
+
+    rests = [{"kind": "pause" if paused else "hold", "at_rest_s": round(tick / tick_hz, 6),
+              "parked_event": event, "resume_s": seconds(press)}
+             for (event, tick, paused), press in zip(final.parks, resume_presses)]
+    out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests, "keys": [
         {"key": a.function, "pressed_s": seconds(a.press), "first_dilated_event": a.event} for a in actions]}
     hold = next((a for a in actions if a.function == "hold"), None)
-    if hold is not None and final.park_event is not None:
-        out.update({"hold_s": seconds(hold.press), "at_rest_s": round(final.park_tick / tick_hz, 6),
-                    "stopping_s": round(final.park_tick / tick_hz - (hold.press - tick0) / f_cpu, 6),
-                    "resume_s": seconds(resume_press), "parked_event": final.park_event})
-    out["factor_full_scale"] = F_ONE
+    held = next((r for r in rests if r["kind"] == "hold"), None)
+    if hold is not None and held is not None:
+        out.update({"hold_s": seconds(hold.press), "at_rest_s": held["at_rest_s"], "resume_s": held["resume_s"],
+                    "stopping_s": round(held["at_rest_s"] - seconds(hold.press), 6),
+                    "parked_event": held["parked_event"]})
     return out

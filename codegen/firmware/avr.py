@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from codegen import tables
@@ -27,7 +28,7 @@ from codegen.firmware.avr_laser import laser_context
 from codegen.firmware.avr_player import isr_context, table_chunks
 from codegen.paths import targets_dir
 from codegen.render import render
-from codegen.schedule import TOOL_BIT, Schedule
+from codegen.schedule import RT_PAUSE, TOOL_BIT, Schedule
 
 CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
 ASFLAGS = ("-Wa,--fatal-warnings",)
@@ -141,8 +142,11 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
         table = tables.encode(schedule)
     except ValueError as exc:
         raise BuildError(f"the schedule cannot be played by the {context['mcu']} player: {exc}") from exc
-    if schedule.n_runtime and not config.heaters:
+    settings = schedule.n_runtime - int(np.count_nonzero(schedule.runtime_command == RT_PAUSE))
+    if settings and not config.heaters:
         raise BuildError("the tables carry heater or fan settings, but the image runs no heaters")
+    if schedule.n_runtime > settings and config.hold is None:
+        raise BuildError("the tables carry M0/M1 pauses, but the image has no feed hold (its resume key)")
     context.update({"table_bytes": len(table.data), "blocks": schedule.n_blocks, "runs": schedule.n_runs,
                     "chunks": table_chunks(table), "runtime_records": schedule.n_runtime})
     names = ("config.h", "table.h", "table.c", "player.c", "player_isr.S") + (("homing.c",) if config.homing else ())
@@ -206,7 +210,7 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     from codegen.firmware.avr_jog import jog_context  # here: that module builds on this one
 
     context.update(jog_context(config, motors))
-    context.update(hold_context(config, motors) if not stream else {"hold": None})
+    context.update(hold_context(config, motors, stream))
     return context
 
 

@@ -12,29 +12,32 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr_player import NEED_BIT0
 from codegen.hold import CLAMP, F_FREE, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
+from codegen.schedule import RT_PAUSE
 
-HOLD_KEYS = ("hold", "resume", "feed-", "feed+")
-HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, override step, keys seen, spill (6)
+HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits (the link's requests' too)
+HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, paused, override step, keys, spill (6)
+HOLD_STREAM_VARIABLES = 2  # the streaming firmware's: the link's requests, the catch-up's far flag
+LINK_BITS = (6, 7)  # GPIOR0 bits the streaming firmware's link keeps (link.h: RX_STORE_BIT, RX_KEEP_BIT)
 PLAYER_FLAG_BITS = 2  # GPIOR0 bits 0 and 1: PLAYER_DONE, HOMING_FAILED
 
 
-def dilate_bit(motors: list[dict]) -> int:
-    """A GPIOR0 bit no motor's "Bresenham needed" flag takes (only motors kept in SRAM use theirs)."""
-    used = {m["need_bit"] for m in motors if m["bresenham"] and not m["regs"]}
+def dilate_bit(motors: list[dict], stream: bool) -> int:
+    """A GPIOR0 bit no motor's "Bresenham needed" flag takes (only motors kept in SRAM use theirs), nor the link."""
+    used = {m["need_bit"] for m in motors if m["bresenham"] and not m["regs"]} | (set(LINK_BITS) if stream else set())
     free = [b for b in range(NEED_BIT0, 8) if b not in used]
     if not free:
         raise BuildError("machine.feed_hold: the player has no GPIOR0 bit left for the hold's flag")
     return free[0]
 
 
-def hold_context(config: FirmwareConfig, motors: list[dict]) -> dict:
+def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool) -> dict:
     """The templates' `hold` (None without feed_hold). Call after the player's registers are allocated."""
     plan = config.hold
     if plan is None:
         return {"hold": None}
     if config.heaters:
-        raise BuildError("machine.feed_hold: a flash image with heaters cannot hold yet (its idle loop runs the "
-                         "heaters' stages); build it without feed_hold, or stream the job")
+        raise BuildError("machine.feed_hold: an image with heaters cannot hold yet (its idle loop runs the heaters' "
+                         "stages); build it without feed_hold")
     keys = []
     for function in HOLD_KEYS:
         pin = plan.keys.get(function)
@@ -44,7 +47,7 @@ def hold_context(config: FirmwareConfig, motors: list[dict]) -> dict:
                      "var": function.replace("-", "_minus").replace("+", "_plus")})
     start = config.hold_override // 10
     return {"hold": {
-        "bit": dilate_bit(motors), "key_of": {k["function"]: k for k in keys}, "key_list": keys,
+        "bit": dilate_bit(motors, stream), "key_list": keys,
         "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "clamp": CLAMP, "resume_ticks": RESUME_TICKS,
         "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),
-        "table": plan.table}}
+        "table": plan.table, "rt_pause": RT_PAUSE}}

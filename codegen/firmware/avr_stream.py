@@ -16,6 +16,7 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image
 from codegen.firmware.avr import _run, build_image, load_target, player_context
+from codegen.firmware.avr_hold import HOLD_STREAM_VARIABLES, HOLD_VARIABLES
 from codegen.firmware.avr_laser import LASER_VARIABLES
 from codegen.link import protocol
 from codegen.render import render
@@ -109,6 +110,7 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
         variables += HEATER_VARIABLES + RAM_PER_HEATER * n + (HEATER_CONFIG_BYTES * n) % 2  # .data ends even
     variables += LASER_VARIABLES if config.laser else 0
     variables += JOG_PER_MOTOR * len(config.jog.motors) if config.jog else 0
+    variables += HOLD_VARIABLES + HOLD_STREAM_VARIABLES if config.hold else 0
     record_max = protocol.max_record_bytes(len(config.motors))
     start = SRAM_START + variables
     stack = SRAM_START + int(mcu["ram"]) - RING_END - record_max
@@ -140,7 +142,7 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     if status_payload > protocol.MAX_ANSWER:
         raise BuildError(f"a STATUS of {len(config.motors)} motors, {len(config.heaters)} heaters and a laser "
                          f"takes {status_payload} bytes: the link's answers hold {protocol.MAX_ANSWER}")
-    kinds = ("DATA", "HELLO", "START", "STATUS", "ABORT", "ACK", "IDENT", "STARTED", "FINISHED", "UNDERRUN",
+    kinds = ("DATA", "HELLO", "START", "STATUS", "ABORT", "HOLD", "RESUME", "FEED_DOWN", "FEED_UP", "ACK", "IDENT", "STARTED", "FINISHED", "UNDERRUN",
              "STATUS_REPLY", "ABORTED", "HOMING_FAILED", "FAULT")
     crc_hi, crc_lo = crc_table_lines()
     context.update({

@@ -70,6 +70,7 @@ class Interpreter(Moves, GrblState):
         self.power = 1.0
         scale = getattr(program, "s_max", None)
         self.s_full = float(scale) if scale else S_FULL_SCALE
+        self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.origin, self.strict = origin, strict
         self.flat = list(start)
@@ -319,6 +320,9 @@ class Interpreter(Moves, GrblState):
                 return
             self._move(block, motion, params, machine="G53" in names)
             self.inverse_feed = None
+        for name in ("M0", "M1"):  # the stopping group comes after the line's motion
+            if name in names:
+                mcodes.pause(self, block, params, name)
         if "M2" in names or "M30" in names:
             raise _Stop
 

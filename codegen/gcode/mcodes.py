@@ -172,6 +172,19 @@ def dwell(it, block, params):
     return None
 
 
+def pause(it, block, params, name: str) -> None:
+    """M0 / M1 (Grbl's and Marlin's program pause; M1 as M0: there is no optional stop switch): the plan comes to
+    rest and the player waits for the resume key. With P (ms) or S (s), Marlin's timed form: a dwell."""
+    if "S" in params or "P" in params:
+        return dwell(it, block, params)
+    if not it.pausable:
+        it.fail(block, name, f"{name} waits for the resume key: the machine needs feed_hold (its hold keys), "
+                             "which the ATmega2560's flash image has")
+        return None
+    it.items.append(Output("pause", 0.0, True, it.source(block)))
+    return None
+
+
 HANDLERS = {
     "M104": _heater("hotend", False, "T"),
     "M109": _heater("hotend", True, "T"),

@@ -113,6 +113,7 @@ class HostLink:
         self._ping_due: float | None = None
         self._abort = False
         self._status_wanted = False
+        self._feed: list[int] = []  # HOLD, RESUME, FEED_DOWN, FEED_UP frames to send
 
     def heater_name(self, index: int) -> str:
         return self.heaters[index] if 0 <= index < len(self.heaters) else f"#{index}"
@@ -128,6 +129,16 @@ class HostLink:
 
     def request_status(self) -> None:
         self._status_wanted = True
+
+    def feed(self, kind: int) -> None:
+        """Send HOLD, RESUME, FEED_DOWN or FEED_UP (a firmware with feed hold) first with the next transmit, once
+        the session has begun."""
+        self._feed.append(kind)
+
+    @property
+    def line_free_at(self) -> float:
+        """When the bytes sent so far have left the host (seconds): a frame sent then goes out at once."""
+        return self._line_free
 
     @property
     def in_tail(self) -> bool:
@@ -164,6 +175,9 @@ class HostLink:
                 self._next_seq = self._acked = 1
                 self._hello_due = self._line_free + self.ack_timeout_s + 20 * self.byte_s
             return bytes(out)
+        for kind in self._feed:  # first: the line takes them at once
+            out += self._send(kind, b"", now)
+        self._feed.clear()
         deadline = self._ack_deadline()
         if self._resend_from is None and deadline is not None and now >= deadline - TIME_SLACK_S:
             self._resend_from = self._acked

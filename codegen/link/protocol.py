@@ -16,6 +16,9 @@ to the one it expects next, which it then counts on. HELLO and ABORT are taken w
     START  0x03  play: home (if the machine homes), then play the ring's records from the first
     STATUS 0x04  asks for a STATUS frame
     ABORT  0x05  stop stepping at once
+    HOLD   0x06  feed hold (a firmware with machine.feed_hold, codegen/hold.py): slow down to a stop on the path
+    RESUME 0x07  go on after a hold or an M0/M1 pause, at the override
+    FEED_DOWN 0x08, FEED_UP 0x09  the feed override 10 % lower or higher (10 % to 100 %), as the hold keys'
 
 Firmware to host; SEQ is the host sequence number the firmware expects next (every frame acknowledges).
     ACK       0x81  free u16 (ring bytes free after every frame it took), flags u8 (bit 0 REJECTED: the frame
@@ -61,12 +64,13 @@ OVERHEAD_BYTES = HEADER_BYTES + CRC_BYTES
 MAX_PAYLOAD = 250  # what a receiver takes at most; the host's DATA frames are smaller (host.py)
 MAX_ANSWER = 32  # the firmware's longest frame payload (STATUS with 4 motors and 2 heaters: 31)
 
-DATA, HELLO, START, STATUS, ABORT = 0x01, 0x02, 0x03, 0x04, 0x05
+DATA, HELLO, START, STATUS, ABORT, HOLD, RESUME, FEED_DOWN, FEED_UP = range(0x01, 0x0A)
 ACK, IDENT, STARTED, FINISHED, UNDERRUN, STATUS_REPLY, ABORTED, HOMING_FAILED, FAULT = range(0x81, 0x8A)
 REJECTED = 0x01  # ACK flags
 STATES = {0: "idle", 1: "homing", 2: "playing", 3: "finished", 4: "underrun", 5: "aborted", 6: "homing failed",
           7: "fault"}
-NAMES = {DATA: "DATA", HELLO: "HELLO", START: "START", STATUS: "STATUS", ABORT: "ABORT", ACK: "ACK",
+NAMES = {DATA: "DATA", HELLO: "HELLO", START: "START", STATUS: "STATUS", ABORT: "ABORT", HOLD: "HOLD",
+         RESUME: "RESUME", FEED_DOWN: "FEED_DOWN", FEED_UP: "FEED_UP", ACK: "ACK",
          IDENT: "IDENT", STARTED: "STARTED", FINISHED: "FINISHED", UNDERRUN: "UNDERRUN", STATUS_REPLY: "STATUS",
          ABORTED: "ABORTED", HOMING_FAILED: "HOMING_FAILED", FAULT: "FAULT"}
 
@@ -159,6 +163,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
         canonical["laser"] = [config.laser.pin, config.laser.prescaler, config.laser.top]
     if config.jog:  # and one without jog keys
         canonical["jog"] = repr(config.jog)
+    if config.hold:  # and one without feed hold
+        canonical["hold"] = [repr(config.hold), config.hold_override]
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).digest()
     return int.from_bytes(digest[:4], "little")
 

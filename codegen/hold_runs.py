@@ -1,0 +1,125 @@
+"""The simulated runs of codegen/verify_hold.py: a flash image whose hold keys are pressed (simavr's key pins), or
+a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the closed-loop link of
+codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each reached the firmware:
+a key at once, a frame once its last byte has arrived (it is sent when the line is idle, at or after its cycle)."""
+
+from __future__ import annotations
+
+from codegen.link import protocol
+from codegen.pipeline import HostBuild
+from codegen.report import verify_json
+from codegen.sim.avr import simulate
+from codegen.verify import simulated_switches
+
+PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
+RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
+KINDS = {"hold": protocol.HOLD, "resume": protocol.RESUME, "feed-": protocol.FEED_DOWN, "feed+": protocol.FEED_UP}
+FRAME_BYTES = protocol.OVERHEAD_BYTES  # a request has no payload
+
+
+class FlashRun:
+    """A flash image in simavr, its keys pressed."""
+
+    def __init__(self, host: HostBuild, image):
+        self.host, self.image = host, image
+        self.config, self.switches = host.firmware_config(), simulated_switches(host)
+        self.f_cpu = host.target.f_cpu
+        self.budget = int((host.plan.total * 1.2 + 1.0) * self.f_cpu)
+        self.streamed = False
+
+    def tick0(self, pauses: bool) -> int:
+        """The job's tick 0 (cycles from reset); with `pauses` the resume key is held down all along."""
+        held = [(self.host.hold_plan.keys["resume"], 1, 1 << 62)] if pauses else []
+        return simulate(self.image.hex_path, self.config, self.budget, switches=self.switches,
+                        presses=held).timer_start_cycle
+
+    def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
+        pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
+        keys = [(pins[function], cycle, cycle + hold) for function, cycle in presses]
+        budget = int(self.budget * slower) + max((c for _, c in presses), default=0) + int(2 * self.f_cpu)
+        trace = simulate(self.image.hex_path, self.config, budget, switches=self.switches, presses=keys)
+        return trace, [cycle for _, cycle in presses]
+
+    def result(self, verdict, trace) -> dict:
+        return verify_json(self.host, verdict, self.image)
+
+
+class Scripted:
+    """A HostLink that sends the script's requests ((cycle, kind), in order) once the line is idle at or after
+    their cycle, noting when each arrives; with `resume_every` a RESUME that often besides."""
+
+    def __init__(self, link, script: list[tuple[int, int]], f_cpu: int, resume_every: float | None = None):
+        self.link, self.script, self.f_cpu = link, list(script), f_cpu
+        self.resume_every = resume_every
+        self.next_resume = resume_every
+        self.arrived: list[int] = []
+
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)
+
+    def _due(self) -> float | None:
+        if not self.script or self.link.ident is None:
+            return None
+        return max(self.script[0][0] / self.f_cpu, self.link.line_free_at)
+
+    def wake_at(self) -> float | None:
+        times = [t for t in (self.link.wake_at(), self._due()) if t is not None]
+        if self.resume_every is not None and self.link.ident is not None:
+            times.append(self.next_resume)
+        return min(times) if times else None
+
+    def transmit(self, now: float) -> bytes:
+        due = self._due()
+        if due is not None and now >= due - 1e-12:  # the line is idle: the request goes first, at once
+            self.link.feed(self.script.pop(0)[1])
+            self.arrived.append(int(round((now + FRAME_BYTES * self.link.byte_s) * self.f_cpu)))
+        if self.resume_every is not None and now >= self.next_resume:
+            self.link.feed(protocol.RESUME)
+            self.next_resume = now + self.resume_every
+        return self.link.transmit(now)
+
+    def receive(self, data: bytes, now: float) -> None:
+        self.link.receive(data, now)
+
+    @property
+    def done(self) -> bool:
+        return self.link.done
+
+
+class StreamRun:
+    """A streaming firmware in simavr, the job streamed to it, its requests sent over the link."""
+
+    def __init__(self, host: HostBuild, image, setup):
+        self.host, self.image, self.setup = host, image, setup
+        self.switches = simulated_switches(host)
+        self.f_cpu = host.target.f_cpu
+        self.streamed = True
+        self.link = self.figures = None
+
+    def _session(self, scripted: Scripted, slower: float):
+        from codegen.cli_stream import session_budget_s  # here: the CLI builds on this module
+        from codegen.sim.avr_link import simulate_stream
+
+        budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
+        return simulate_stream(self.image.hex_path, self.setup.config, scripted, budget, switches=self.switches)
+
+    def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:
+        from codegen.cli_stream import new_link  # here: the CLI builds on this module
+
+        return Scripted(new_link(self.host, self.setup), script, self.f_cpu, resume_every)
+
+    def tick0(self, pauses: bool) -> int:
+        scripted = self._scripted([], RESUME_EVERY_S if pauses else None)
+        trace, _ = self._session(scripted, 1.0)
+        return trace.timer_start_cycle
+
+    def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
+        scripted = self._scripted([(cycle, KINDS[function]) for function, cycle in presses])
+        trace, self.figures = self._session(scripted, slower + sum(c for _, c in presses) / self.f_cpu)
+        self.link = scripted.link
+        return trace, scripted.arrived + [-1] * (len(presses) - len(scripted.arrived))
+
+    def result(self, verdict, trace) -> dict:
+        from codegen.cli_stream import stream_result
+
+        return stream_result(self.host, self.link, self.figures, trace, verify_json(self.host, verdict, self.image))
