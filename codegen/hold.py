@@ -16,8 +16,9 @@ motors speed up and slow down along a straight line (its blocks' ratios change),
 tell: a delta has no feed hold yet (random deltas broke the limits by 9 to 12 %).
 
 At F 0 the player parks before the pending event (its timer's interrupt off); resume re-arms it RESUME_TICKS
-after main reads the timer, at F 1, and the ramp goes on up. Once F and the target are both F_ONE the player
-leaves the dilated path.
+after main reads the timer, at F 1, and the ramp goes on up. An M0/M1 pause (a runtime record RT_PAUSE) sets F 0
+where the plan rests; its resume goes on at F_ONE. Once F and the target are both F_ONE the player leaves the
+dilated path.
 """
 
 from __future__ import annotations

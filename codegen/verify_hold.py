@@ -217,7 +217,8 @@ def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: i
     rests = [{"kind": "pause" if paused else "hold", "at_rest_s": round(tick / tick_hz, 6),
               "parked_event": event, "resume_s": seconds(press)}
              for (event, tick, paused), press in zip(final.parks, resume_presses)]
-    out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests, "keys": [
+    out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests,
+                 "ramp_s": round(host.hold_plan.ramp_seconds(tick_hz), 6), "keys": [
         {"key": a.function, "pressed_s": seconds(a.press), "first_dilated_event": a.event} for a in actions]}
     hold = next((a for a in actions if a.function == "hold"), None)
     held = next((r for r in rests if r["kind"] == "hold"), None)

@@ -56,7 +56,8 @@ def test_a_streamed_star_holds_over_the_link_and_resumes_exactly(star_stream, se
     result, _ = hold_verify(host, image, at, None, setup)
     _exact(result)
     hold = result["hold"]
-    assert 0.0 < hold["stopping_s"] < 0.4 and hold["resume_s"] > hold["at_rest_s"]
+    assert hold["ramp_s"] - 0.001 < hold["stopping_s"] < hold["ramp_s"] + 0.15
+    assert hold["resume_s"] > hold["at_rest_s"]
     # the HOLD frame reaches the firmware within a frame's bytes of the time asked for (the line was idle)
     assert abs(hold["hold_s"] - at) < 0.003
     limit = 5.0 + host.target.isr_latency_us

@@ -8,8 +8,10 @@ clears it once the factor and its target are both 100 %)."""
 
 from __future__ import annotations
 
+import re
+
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
+from codegen.firmware import FirmwareConfig, board_pin_uses
 from codegen.firmware.avr_player import NEED_BIT0
 from codegen.hold import CLAMP, F_FREE, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
 from codegen.schedule import RT_PAUSE
@@ -17,6 +19,7 @@ from codegen.schedule import RT_PAUSE
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits (the link's requests' too)
 HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, paused, override step, keys, spill (6)
 HOLD_STREAM_VARIABLES = 2  # the streaming firmware's: the link's requests, the catch-up's far flag
+PIN = re.compile(r"P[A-L][0-7]")
 LINK_BITS = (6, 7)  # GPIOR0 bits the streaming firmware's link keeps (link.h: RX_STORE_BIT, RX_KEEP_BIT)
 PLAYER_FLAG_BITS = 2  # GPIOR0 bits 0 and 1: PLAYER_DONE, HOMING_FAILED
 
@@ -38,11 +41,16 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool) -> di
     if config.heaters:
         raise BuildError("machine.feed_hold: an image with heaters cannot hold yet (its idle loop runs the heaters' "
                          "stages); build it without feed_hold")
+    from codegen.firmware.avr import load_target  # here: that module builds on this one
+
+    taken = board_pin_uses(load_target(config.board), PIN, {"name", "target", "mcu", "hold_keys"})
     keys = []
     for function in HOLD_KEYS:
         pin = plan.keys.get(function)
-        if pin is None or len(pin) != 3 or pin[0] != "P" or not pin[2].isdigit():
+        if pin is None or not PIN.fullmatch(pin):
             raise BuildError(f"board {config.board}: hold_keys needs {function}: a pin such as PL2 (has {pin!r})")
+        if pin in taken:
+            raise BuildError(f"board {config.board}: hold_keys {function} is {pin}, which is its {taken[pin]} too")
         keys.append({"function": function, "port": pin[1], "bit": int(pin[2]),
                      "var": function.replace("-", "_minus").replace("+", "_plus")})
     start = config.hold_override // 10
