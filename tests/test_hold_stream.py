@@ -1,6 +1,6 @@
 """Feed hold over the link (HOLD, RESUME, FEED_DOWN, FEED_UP frames to the streaming firmware) and the program
 pause M0/M1 (flash image and stream): simulated in simavr, every pulse against the dilated twin, positions exact;
-and what M0/M1 does where there is no resume key."""
+and what M0/M1 does where there is no resume key; STATUS carries the feed factor, and `stream` takes Grbl's keys."""
 
 from __future__ import annotations
 
@@ -12,15 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from codegen import hold_runs
 from codegen.cli import _build, main
-from codegen.cli_stream import _firmware, streamed_host
+from codegen.cli_stream import _firmware, new_link, streamed_host
 from codegen.errors import JobError
+from codegen.hold_runs import Scripted
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
-from codegen.link.serial_port import send_hold_keys, terminal_keys
+from codegen.link.serial_port import send_hold_keys, status_line, terminal_keys
 from codegen.pipeline import host_build
+from codegen.sim.avr_link import simulate_stream
 from codegen.streaming import stream_setup
+from codegen.verify import simulated_switches
 from codegen.verify_hold import hold_verify
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -124,6 +128,47 @@ def test_marlin_timed_m0_is_a_dwell(tmp_path):
     timed = host_build(load_job(job))
     assert timed.runtime is not None and len(timed.runtime) == 0  # no pause record
     assert 1.99 < timed.plan.total - plain.plan.total < 2.01
+
+
+class Watched(Scripted):
+    """The scripted host that also asks for a STATUS at given cycles and keeps every answer."""
+
+    def __init__(self, link, script, f_cpu, asks):
+        super().__init__(link, script, f_cpu)
+        self.asks, self.answers = list(asks), []
+
+    def wake_at(self):
+        times = [t for t in (super().wake_at(), self.asks[0] / self.f_cpu if self.asks else None) if t is not None]
+        return min(times) if times else None
+
+    def transmit(self, now):
+        if self.asks and now * self.f_cpu >= self.asks[0] - 1 and self.link.ident is not None:
+            self.asks.pop(0)
+            self.link.request_status()
+        return super().transmit(now)
+
+    def receive(self, data, now):
+        before = self.link.status
+        super().receive(data, now)
+        if self.link.status is not before:
+            self.answers.append((now, self.link.status))
+
+
+def test_status_reports_the_feed_factor_through_a_hold(star_stream):
+    """STATUS while playing at 100 %, while held at rest (F 0, the positions standing), and after the resume."""
+    host, image, setup = star_stream
+    f_cpu = host.target.f_cpu
+    start = hold_runs.StreamRun(host, image, setup).tick0(False)
+    hold, resume = start + f_cpu, start + 2 * f_cpu  # HOLD 1 s into the job, RESUME a second later
+    asks = [start + f_cpu // 2, hold + f_cpu // 2, hold + f_cpu * 3 // 4, resume + f_cpu // 2]
+    watched = Watched(new_link(host, setup), [(hold, protocol.HOLD), (resume, protocol.RESUME)], f_cpu, asks)
+    simulate_stream(image.hex_path, setup.config, watched, int(10 * f_cpu), switches=simulated_switches(host))
+    assert watched.link.outcome == "finished"
+    feeds = [(s.state, s.feed) for _, s in watched.answers]
+    assert feeds == [("playing", 255), ("playing", 0), ("playing", 0), ("playing", 255)]
+    assert watched.answers[1][1].position == watched.answers[2][1].position  # standing still while held
+    line = status_line(watched.answers[1][1], ("a", "b"), ())
+    assert line.endswith("held")
 
 
 def test_terminal_keys_become_link_requests():

@@ -138,7 +138,8 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         raise BuildError(f"a streaming image homes at most {MAX_HOMING_AXES} axes, not {len(config.homing)}")
     layout = ring_layout(config)
     context = player_context(config, stream=True)
-    status_payload = 7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]) + (2 if config.laser else 0)
+    status_payload = (7 + 4 * len(context["motors"]) + 4 * len(context["heaters"]) + (2 if config.laser else 0)
+                      + (1 if config.hold else 0))
     if status_payload > protocol.MAX_ANSWER:
         raise BuildError(f"a STATUS of {len(config.motors)} motors, {len(config.heaters)} heaters and a laser "
                          f"takes {status_payload} bytes: the link's answers hold {protocol.MAX_ANSWER}")

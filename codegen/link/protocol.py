@@ -33,7 +33,8 @@ Firmware to host; SEQ is the host sequence number the firmware expects next (eve
     STATUS    0x86  state u8 (STATES), played u32 (stream bytes consumed), fill u16 (ring bytes held), position
                     i32 per motor (while playing: where the current block ends; stopped: exact), then per heater
                     of a firmware that runs them: temperature i16 and target i16 (0.1 degC; target 0: off), then
-                    a laser firmware's power u16 (its PWM's counts)
+                    a laser firmware's power u16 (its PWM's counts), then a feed hold firmware's factor u8 (F,
+                    0..255: 0 at rest in a hold or a pause; the payload's one odd byte)
     ABORTED   0x87  position i32 per motor: stopped by ABORT; nothing more plays until reset
     HOMING_FAILED 0x88  status u8: the failed axes' bits (low nibble) and the homing phase << 4; nothing more plays
                     until reset
@@ -196,17 +197,21 @@ class Status:
     position: tuple[int, ...]
     heaters: tuple[tuple[float, float], ...] = ()  # per heater: temperature and target, degC
     laser: int | None = None  # a laser firmware's power, in its PWM's counts
+    feed: int | None = None  # a feed hold firmware's factor F, 0..255 (0: at rest in a hold or an M0/M1 pause)
 
     @staticmethod
     def parse(payload: bytes, motors: int) -> "Status":
         state, played, fill = struct.unpack_from("<BIH", payload)
         after = 7 + 4 * motors
+        feed = None
+        if (len(payload) - after) % 2:  # a feed hold firmware's factor: the one odd byte, last
+            feed, payload = payload[-1], payload[:-1]
         words = (len(payload) - after) // 2  # two per heater, then one for a laser
         pairs = struct.unpack_from(f"<{words - words % 2}h", payload, after)
         heaters = tuple((pairs[i] / 10, pairs[i + 1] / 10) for i in range(0, len(pairs) - 1, 2))
         laser = struct.unpack_from("<H", payload, len(payload) - 2)[0] if words % 2 else None
         return Status(STATES.get(state, f"state {state}"), played, fill, positions(payload, motors, 7), heaters,
-                      laser)
+                      laser, feed)
 
 
 @dataclass(frozen=True)

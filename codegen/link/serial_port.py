@@ -74,6 +74,8 @@ def status_line(status: Status, motors: tuple[str, ...], heaters: tuple[str, ...
     parts += [f"{name} {temp:.1f}/{target:g} degC" for name, (temp, target) in zip(heaters, status.heaters)]
     if status.laser is not None and laser_top:
         parts.append(f"laser {100 * status.laser / laser_top:.1f} %")
+    if status.feed is not None and status.state == "playing":
+        parts.append("held" if status.feed == 0 else f"feed {100 * status.feed / 255:.0f} %")
     return ", ".join(parts)
 
 
