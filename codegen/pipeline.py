@@ -91,7 +91,7 @@ class HostBuild:
 
     @cached_property
     def hold_plan(self) -> HoldPlan | None:
-        """The feed hold of an AVR flash image (codegen/hold.py); BuildError where the player cannot hold."""
+        """The feed hold of an ATmega2560 image (codegen/hold.py); BuildError where the player cannot hold."""
         if self.job.machine.feed_hold is None:
             return None
         return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data)
@@ -146,10 +146,10 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
-    if job.machine.feed_hold is not None and target.target != "avr":
-        raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
-    if job.machine.feed_hold is not None:
-        hold_plan(job, target.tick_hz, target.board, target.board_data)  # its errors before any planning
+    if job.machine.feed_hold is not None:  # its errors before any planning
+        if target.target != "avr":
+            raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
+        hold_plan(job, target.tick_hz, target.board, target.board_data)
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
     played_out = runtime_outputs(job, target, link is not None)

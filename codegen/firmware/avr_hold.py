@@ -1,5 +1,6 @@
-"""Feed hold, resume and feed override in the ATmega2560's flash image (codegen/hold.py has the arithmetic): the
-keys main polls after every step interrupt, and the step interrupt's dilated path (templates/avr/player_isr.S.j2).
+"""Feed hold, resume, feed override and M0/M1 in the ATmega2560's flash image and streaming firmware
+(codegen/hold.py has the arithmetic): the keys (and a stream's link requests) main polls after every interrupt,
+and the step interrupt's dilated path (templates/avr/player_isr.S.j2).
 
 Keys to ground on the board's `hold_keys:` pins (internal pull-ups, pressed reads low): `hold` sets the target
 factor to 0, `resume` to the override, `feed-` and `feed+` step the override by 10 % (10 % to 100 %) on each
@@ -21,7 +22,6 @@ HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, pause
 HOLD_STREAM_VARIABLES = 2  # the streaming firmware's: the link's requests, the catch-up's far flag
 PIN = re.compile(r"P[A-L][0-7]")
 LINK_BITS = (6, 7)  # GPIOR0 bits the streaming firmware's link keeps (link.h: RX_STORE_BIT, RX_KEEP_BIT)
-PLAYER_FLAG_BITS = 2  # GPIOR0 bits 0 and 1: PLAYER_DONE, HOMING_FAILED
 
 
 def dilate_bit(motors: list[dict], stream: bool) -> int:
@@ -51,11 +51,11 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool) -> di
             raise BuildError(f"board {config.board}: hold_keys needs {function}: a pin such as PL2 (has {pin!r})")
         if pin in taken:
             raise BuildError(f"board {config.board}: hold_keys {function} is {pin}, which is its {taken[pin]} too")
-        keys.append({"function": function, "port": pin[1], "bit": int(pin[2]),
-                     "var": function.replace("-", "_minus").replace("+", "_plus")})
+        keys.append({"function": function, "port": pin[1], "bit": int(pin[2])})
     start = config.hold_override // 10
     return {"hold": {
         "bit": dilate_bit(motors, stream), "key_list": keys,
-        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "clamp": CLAMP, "resume_ticks": RESUME_TICKS,
+        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "resume_ticks": RESUME_TICKS,
+        "clamp_bytes": [CLAMP >> 8 * k & 0xFF for k in range(3)],
         "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),
         "table": plan.table, "rt_pause": RT_PAUSE}}

@@ -178,8 +178,8 @@ def pause(it, block, params, name: str) -> None:
     if "S" in params or "P" in params:
         return dwell(it, block, params)
     if not it.pausable:
-        it.fail(block, name, f"{name} waits for the resume key: the machine needs feed_hold (its hold keys), "
-                             "which the ATmega2560's flash image has")
+        it.fail(block, name, f"{name} waits for the resume key: the machine needs feed_hold (its hold keys or "
+                             "the link's RESUME; the ATmega2560's images have it)")
         return None
     it.items.append(Output("pause", 0.0, True, it.source(block)))
     return None
