@@ -24,6 +24,8 @@ from codegen.hold import F_ONE, RESUME_TICKS, dilate, dilation_table, override_t
 from codegen.job import load_job
 from codegen.pipeline import host_build, trains_from
 from codegen.streaming import stream_setup
+from codegen.hold_runs import FlashRun
+from codegen.sim.avr import simulate
 from codegen.verify_hold import hold_verify
 from tests.jobgen import jobs
 
@@ -80,6 +82,24 @@ def test_the_feed_keys_override_the_whole_star_to_half_speed(star):
     # 10 % per 100 ms down to 50 %: the job takes close to twice its time
     assert 1.8 * host.plan.total < result["duration_s"] < 2.0 * host.plan.total
     assert all(m["final"] == m["expected_final"] for m in result["motors"].values())
+
+
+@needs_simavr
+def test_a_bouncing_feed_key_steps_the_override_once(star):
+    """Three closings of feed- within 5 ms (its contacts bouncing) take the override to 90 %, not 70 %."""
+    host, image = star
+    run = FlashRun(host, image)
+    tick0, ms = run.tick0(False), host.target.f_cpu // 1000
+    pin, at = host.hold_plan.keys["feed-"], tick0 + 10 * ms
+    bounces = [(pin, at, at + 2 * ms), (pin, at + 3 * ms, at + 4 * ms), (pin, at + 5 * ms, at + 60 * ms)]
+    trace = simulate(image.hex_path, run.config, 3 * run.budget, switches=run.switches, presses=bounces)
+    took = (int(trace.step_cycle.max()) - trace.timer_start_cycle) / host.target.f_cpu
+    cycles = tick0 + host.pulses.event_tick * (host.target.f_cpu // host.target.tick_hz)
+    seen = int(np.searchsorted(cycles, at)) + 2
+    predicted = {step: dilate(host.schedule, host.hold_plan, [(seen, override_target(step))]).tick[-1]
+                 / host.target.tick_hz for step in (9, 8, 7)}
+    assert abs(took - predicted[9]) < 0.001 * predicted[9], (took, predicted)
+    assert predicted[8] - predicted[9] > 0.1
 
 
 @needs_simavr

@@ -210,7 +210,7 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     from codegen.firmware.avr_jog import jog_context  # here: that module builds on this one
 
     context.update(jog_context(config, motors))
-    context.update(hold_context(config, motors, stream))
+    context.update(hold_context(config, motors, stream, tick_hz))
     return context
 
 

@@ -18,7 +18,9 @@ from codegen.hold import CLAMP, F_FREE, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, ove
 from codegen.schedule import RT_PAUSE
 
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits (the link's requests' too)
-HOLD_VARIABLES = 16  # bytes of SRAM: D (2), F.frac16 (3), target, parked, paused, override step, keys, spill (6)
+HOLD_VARIABLES = 20  # bytes of SRAM: D (2), F.frac16 (3), target, parked, paused, override step, keys, the last
+# look's TCNT1 (2), the debounce's quiet (2), spill (6)
+DEBOUNCE_MS = 20  # a feed key's contacts bounce for a few ms: presses closer than this count once
 HOLD_STREAM_VARIABLES = 2  # the streaming firmware's: the link's requests, the catch-up's far flag
 PIN = re.compile(r"P[A-L][0-7]")
 LINK_BITS = (6, 7)  # GPIOR0 bits the streaming firmware's link keeps (link.h: RX_STORE_BIT, RX_KEEP_BIT)
@@ -33,7 +35,7 @@ def dilate_bit(motors: list[dict], stream: bool) -> int:
     return free[0]
 
 
-def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool) -> dict:
+def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool, tick_hz: int) -> dict:
     """The templates' `hold` (None without feed_hold). Call after the player's registers are allocated."""
     plan = config.hold
     if plan is None:
@@ -57,5 +59,6 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool) -> di
         "bit": dilate_bit(motors, stream), "key_list": keys,
         "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "resume_ticks": RESUME_TICKS,
         "clamp_bytes": [CLAMP >> 8 * k & 0xFF for k in range(3)],
+        "debounce_ms": DEBOUNCE_MS, "debounce_ticks": DEBOUNCE_MS * tick_hz // 1000,
         "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),
         "table": plan.table, "rt_pause": RT_PAUSE}}
