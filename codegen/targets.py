@@ -107,6 +107,8 @@ def target_info(board: str, stream: bool = False, laser: bool = False, hold: boo
         mcu_data.update(_load(mcu).get("stream_player_costs") or {})
         mcu_data.update(board_data.get("stream_player_costs") or {})
     extra = int(mcu_data.get("laser_record_cycles", 0)) * laser + int(mcu_data.get("hold_cycles", 0)) * hold
+    if hold and stream:  # main's poll, interrupts off, may come after a link interrupt: in a pulse's way
+        mcu_data["isr_latency_cycles"] = int(mcu_data["isr_latency_cycles"]) + int(mcu_data.get("hold_poll_cycles", 0))
     if extra:
         grows = ("min_event_cycles", "block_dir_write_cycles")
         mcu_data.update({k: v + extra for k, v in mcu_data.items()
