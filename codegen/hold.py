@@ -13,7 +13,8 @@ F_FREE (f^2 + RAMP_SHARE <= 1) the factor falls only while the pending event's r
 <= 0) and rises only while it does not accelerate (add >= 0); at or below F_FREE it moves freely. On curves the
 planner leaves a share of 1 - centripetal_share (RAMP_SHARE) of every motor's acceleration for this. A delta's
 motors speed up and slow down along a straight line (its blocks' ratios change), which the master's add cannot
-tell: a delta has no feed hold yet (random deltas broke the limits by 9 to 12 %).
+tell (a gated ramp let random deltas break the limits by 9 to 12 %): a delta's plan keeps RAMP_SHARE of every
+motor's acceleration instead (planner_limits' accel_share), and its factor moves freely (no gate).
 
 At F 0 the player parks before the pending event (its timer's interrupt off); resume re-arms it RESUME_TICKS
 after main reads the timer, at F 1, and the ramp goes on up. An M0/M1 pause (a runtime record RT_PAUSE) sets F 0
@@ -40,6 +41,7 @@ RESUME_TICKS = 0xFEFF  # from main's read of the timer at resume to the pending 
 # (a parked event is never a long wait), so no step comes sooner after the one before than the plan's
 OVERRIDE_STEPS = 10  # the override keys step by 10 %: target F = floor(step x 25.5), 1..10
 FRAC16 = 1 << 16
+PARKED = -1  # Dilation.factor after the event the player parked behind
 
 
 def dilation_table() -> np.ndarray:
@@ -58,6 +60,7 @@ class HoldPlan:
     """What the firmware's feed hold needs: the ramp's K (F.frac16 per tick) and the board's keys."""
 
     ramp_k: int  # F.frac16 per dilated tick
+    gate_above: int  # above this F the ramp waits for the plan's add (F_FREE); F_ONE: never (a delta's)
     keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2)
     table: tuple[int, ...]  # dilation_table()
 
@@ -68,12 +71,6 @@ class HoldPlan:
 
 def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:`."""
-    if job.machine.kinematics == "delta":
-        raise BuildError("machine.feed_hold: a delta cannot hold yet (its motors' own acceleration along a line is "
-                         "not what the player's ramp watches)")
-    if job.machine.laser is not None:  # a held laser must go dark, and M4 follow the factor: not built yet
-        raise BuildError("machine.feed_hold: a machine with a laser cannot hold yet (its power does not follow the "
-                         "dilated clock, nor go off at rest)")
     keys = board.get("hold_keys")
     if not keys:
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
@@ -83,7 +80,13 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     if not 1 <= ramp_k < FRAC16:
         raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
                          f"player's 16-bit step per tick ({ramp_k})")
-    return HoldPlan(ramp_k, {str(k): str(v) for k, v in keys.items()}, tuple(int(d) for d in dilation_table()))
+    gate_above = F_ONE if plans_ramp_share(job) else F_FREE
+    return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()}, tuple(int(d) for d in dilation_table()))
+
+
+def plans_ramp_share(job) -> bool:
+    """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp (a delta with feed_hold)."""
+    return job.machine.feed_hold is not None and job.machine.kinematics == "delta"
 
 
 def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
@@ -96,20 +99,23 @@ def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class Dilation:
-    """A held, paused or overridden run as the player plays it: every event's tick (-1: never played), and where
-    it parked: (the pending event, the tick of the event played last, whether an M0/M1 pause parked it)."""
+    """A held, paused or overridden run as the player plays it: every event's tick (-1: never played), the feed
+    factor its interrupt leaves (what a laser's M4 power follows until the next event; PARKED where the player
+    parked after it, the laser dark), and where it parked: (the pending event, the tick of the event played last,
+    whether an M0/M1 pause parked it)."""
 
     tick: np.ndarray  # (E,) int64
+    factor: np.ndarray  # (E,) int64, 0..F_ONE or PARKED
     parks: list[tuple[int, int, bool]]
 
 
-def _ramp(ffx: int, target: int, ticks: int, add: int, k: int) -> int:
+def _ramp(ffx: int, target: int, ticks: int, add: int, k: int, gate_above: int) -> int:
     """F.frac16 after a dilated delta of `ticks`, moving towards `target` where the gate lets it."""
     f = ffx >> 16
     if f == target:
         return ffx
     down = f > target
-    if f > F_FREE and ((add > 0) if down else (add < 0)):
+    if f > gate_above and ((add > 0) if down else (add < 0)):
         return ffx  # the plan brakes (a hold) or accelerates (a resume): the factor waits
     step = ticks * k
     goal = target << 16
@@ -135,11 +141,12 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
     pos = np.zeros(len(delta) + 1, dtype=np.int64)
     np.cumsum(delta, out=pos[1:])
     out = pos[1:] >> FRAC_BITS
+    factor = np.full(len(delta), F_ONE, dtype=np.int64)  # event e's delta and ramp come in e - 1's interrupt
     pauses, pending, resumes = pause_events(schedule), list(changes), list(resumes)
     marks = sorted([e for e, _ in pending] + pauses)
     parks: list[tuple[int, int, bool]] = []
     if not marks:
-        return Dilation(out, parks)
+        return Dilation(out, factor, parks)
     table, k = plan.table, plan.ramp_k
     e = marks[0]
     here = int(pos[e])  # 24.8: where event e - 1 played
@@ -157,21 +164,26 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
             step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
             ends = here + np.cumsum(step)
             out[e:end] = ends >> FRAC_BITS
+            factor[max(e - 1, 0):end - 1] = f
             here, e = int(ends[-1]), end
             continue
         if d >= LONG:
             here += d  # a long wait: undilated, and no ramp
         elif f == 0:
             parks.append((e, here >> FRAC_BITS, paused))
+            factor[max(e - 1, 0)] = PARKED
             if not resumes:
                 out[e:] = -1
+                factor[e:] = PARKED
                 break
             here = resumes.pop(0) << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
             ffx, target, paused = (F_ONE if paused else 1) << 16, resume_target, False
         else:
             d = min((d * table[f]) >> 8, CLAMP)
             here += d
-            ffx = _ramp(ffx, target, d >> FRAC_BITS, int(add[e]), k)
+            ffx = _ramp(ffx, target, d >> FRAC_BITS, int(add[e]), k, plan.gate_above)
+        if e and f:
+            factor[e - 1] = ffx >> 16
         out[e] = here >> FRAC_BITS
         e += 1
-    return Dilation(out, parks)
+    return Dilation(out, factor, parks)

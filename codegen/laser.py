@@ -10,6 +10,11 @@ event where the power changes: `with_power` splits a run there (exactly: the run
 the same add), which changes no event's time. The player latches the record when it loads the run and writes
 the PWM's compare register right after that event's STEP edge (templates/avr/player_isr.S.j2); the PWM takes
 the new duty at its next period (phase-correct PWM: its compare register is double-buffered).
+
+With feed_hold (codegen/hold.py) M4's power must follow the feed factor F as well: its records carry DYNAMIC_FLAG
+(bit 15; TOP stays below it), and while the clock is dilated the player writes counts x G >> 8 with
+G = F + (F >> 7) (`follow`: G 256 at F_ONE, 0 at F 0), at the event and again whenever F changes; at rest the
+laser is dark whatever the mode.
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from codegen.stepgen import Events
 
 POWER_STEP = 0.01  # of full scale: M4's power steps
 PWM_PRESCALERS = (1, 8, 64, 256, 1024)  # Timer5's
+DYNAMIC_FLAG = 0x8000  # a power record's M4 mark, where the power follows the feed factor (feed_hold)
+COUNTS = 0x7FFF  # a record's counts under the flag
 
 
 @dataclass(frozen=True)
@@ -38,6 +45,11 @@ class LaserPwm:
     prescaler: int
     top: int  # counts of full power
     f_cpu: int
+    follows_feed: bool = False  # M4's records carry DYNAMIC_FLAG (a machine with feed_hold)
+
+    @property
+    def dynamic_flag(self) -> int:
+        return DYNAMIC_FLAG if self.follows_feed else 0
 
     @property
     def actual_hz(self) -> float:
@@ -53,10 +65,11 @@ def laser_pwm(job, board: dict, f_cpu: int) -> LaserPwm | None:
     if pin is None or board.get("target") != "avr":
         raise BuildError(f"machine.laser: board {job.board} has no laser PWM output (`laser_pwm` in its file); "
                          f"only the tool pin's on and off")
+    follows_feed = job.machine.feed_hold is not None
     for prescaler in PWM_PRESCALERS:
         top = round(f_cpu / (2.0 * prescaler * laser.pwm_hz))
-        if top <= 0xFFFF:
-            return LaserPwm(str(pin), float(laser.pwm_hz), prescaler, top, f_cpu)
+        if top <= (COUNTS if follows_feed else 0xFFFF):
+            return LaserPwm(str(pin), float(laser.pwm_hz), prescaler, top, f_cpu, follows_feed)
     raise BuildError(f"machine.laser.pwm_hz {laser.pwm_hz:g} is below what Timer5 makes")
 
 
@@ -88,13 +101,25 @@ def event_power(events: Events, plan: Plan, segments: Segments, segment: np.ndar
     return power
 
 
-def event_counts(events: Events, plan: Plan, segments: Segments, top: int) -> tuple[np.ndarray, np.ndarray]:
-    """(E,) the PWM counts the player sets at every event (M4's power in POWER_STEP steps, M3's as it is), and
-    (E,) every event's ideal power (0..1)."""
+def event_counts(events: Events, plan: Plan, segments: Segments, laser: LaserPwm) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) the power records' values at every event: the PWM counts (M4's power in POWER_STEP steps, M3's as
+    it is), M4's with the laser's dynamic_flag; and (E,) every event's ideal power (0..1)."""
     segment = _event_segments(events)
     power = event_power(events, plan, segments, segment)
-    stepped = np.where(segments.dynamic[segment], np.round(power / POWER_STEP) * POWER_STEP, power)
-    return np.round(np.clip(stepped, 0.0, 1.0) * top).astype(np.int64), power
+    dynamic = segments.dynamic[segment]
+    stepped = np.where(dynamic, np.round(power / POWER_STEP) * POWER_STEP, power)
+    counts = np.round(np.clip(stepped, 0.0, 1.0) * laser.top).astype(np.int64)
+    return np.where(dynamic & (counts > 0), counts | laser.dynamic_flag, counts), power
+
+
+def follow(records: np.ndarray, factor: np.ndarray | int) -> np.ndarray:
+    """The counts the player writes for power records (DYNAMIC_FLAG: M4's) at feed factor F (codegen/hold.py
+    Dilation.factor): M4's times G = F + (F >> 7) over 256 (all of it at F_ONE), the rest as they are; none
+    where the player parked (a negative factor)."""
+    counts = records & COUNTS
+    f = np.maximum(np.asarray(factor, dtype=np.int64), 0)
+    scaled = np.where((records & DYNAMIC_FLAG) > 0, (counts * (f + (f >> 7))) >> 8, counts)
+    return np.where(np.asarray(factor) < 0, 0, scaled)
 
 
 def with_power(schedule: Schedule, counts: np.ndarray, before: int) -> Schedule:
@@ -131,5 +156,6 @@ def played_counts(schedule: Schedule, before: int = 0) -> np.ndarray:
 
 
 def power_error_of(counts: np.ndarray, ideal: np.ndarray, top: int) -> float:
-    """The largest distance (of full scale) of the played power from the ideal, over the events."""
-    return float(np.max(np.abs(counts / top - ideal), initial=0.0))
+    """The largest distance (of full scale) of the played power (records' counts) from the ideal, over the
+    events."""
+    return float(np.max(np.abs((counts & COUNTS) / top - ideal), initial=0.0))

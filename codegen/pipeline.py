@@ -18,7 +18,7 @@ from codegen.errors import BuildError, Diagnostic
 from codegen.firmware import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPins
 from codegen.firmware.avr_heaters import job_heaters, stream_heaters
 from codegen.heaters.program import HeaterProgram, heater_diagnostics
-from codegen.hold import HoldPlan, hold_plan
+from codegen.hold import RAMP_SHARE, HoldPlan, hold_plan, plans_ramp_share
 from codegen.homing import homes, homing_axes
 from codegen.jog import jog_plan
 from codegen.join import join_compressed, join_events, join_plan, join_pulses, join_segments
@@ -128,7 +128,8 @@ def planner_limits(job, kin: Kinematics, target: TargetInfo, heaters: bool = Fal
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     return PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
                          block_overhead=target.block_overhead_s(motors, pulse_us, setup_us),
-                         pulse_jitter_s=target.pulse_jitter_s(heaters), tool_stops=job.machine.laser is None)
+                         pulse_jitter_s=target.pulse_jitter_s(heaters), tool_stops=job.machine.laser is None,
+                         accel_share=1.0 - RAMP_SHARE if plans_ramp_share(job) else 1.0)
 
 
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,

@@ -29,6 +29,7 @@ class PlannerLimits:
     pulse_jitter_s: float = 0.0  # how much closer than planned the player may put 8 steps (TargetInfo)
     tool_stops: bool = True  # the tool switching on or off is a stop (a pen); a laser's power follows at its step
     centripetal_share: float = 0.8  # largest share of a motor's acceleration a curve may use sideways
+    accel_share: float = 1.0  # share of every motor's acceleration the plan may use (the rest: a feed hold's ramp)
 
 
 @dataclass
@@ -153,7 +154,7 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     motor = kin.limits
     keep = 1.0 - limits.margin
     vmax = motor.max_velocity * keep * jitter_rate(motor.max_rate, limits.pulse_jitter_s) / motor.max_rate
-    amax = motor.max_accel * keep
+    amax = motor.max_accel * keep * limits.accel_share
     # (n, M) motor mm per path mm: the larger of the two ends (they differ where the kinematics is not linear)
     factors = np.maximum(kin.motor_factors(u, segments.start), kin.motor_factors(u, segments.end))
     factors = np.maximum(factors, bresenham_factors(factors, steps, motor.steps_per_mm))

@@ -98,7 +98,8 @@ def target_info(board: str, stream: bool = False, laser: bool = False, hold: boo
     """`stream`: the costs of the streaming player (records from the link's ring buffer, the link's interrupts
     beside it), where the MCU's or board's file has them (`stream_player_costs`). `laser`: a player with a PWM
     laser, whose every event may read a power record and write the PWM (laser_record_cycles more). `hold`: a
-    player with feed hold, whose every event may take the dilated path and main's key poll (hold_cycles more)."""
+    player with feed hold, whose every event may take the dilated path and main's key poll (hold_cycles more;
+    with a laser, its power follows the feed factor: laser_hold_cycles more)."""
     board_data = _load(board)
     mcu = board_data["mcu"]
     # A board may carry its own measured player costs (a display makes the interrupt save main's registers).
@@ -106,7 +107,8 @@ def target_info(board: str, stream: bool = False, laser: bool = False, hold: boo
     if stream:
         mcu_data.update(_load(mcu).get("stream_player_costs") or {})
         mcu_data.update(board_data.get("stream_player_costs") or {})
-    extra = int(mcu_data.get("laser_record_cycles", 0)) * laser + int(mcu_data.get("hold_cycles", 0)) * hold
+    extra = (int(mcu_data.get("laser_record_cycles", 0)) * laser + int(mcu_data.get("hold_cycles", 0)) * hold
+             + int(mcu_data.get("laser_hold_cycles", 0)) * (laser and hold))
     if hold and stream:  # main's poll, interrupts off, may come after a link interrupt: in a pulse's way
         mcu_data["isr_latency_cycles"] = int(mcu_data["isr_latency_cycles"]) + int(mcu_data.get("hold_poll_cycles", 0))
     if extra:

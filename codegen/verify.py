@@ -85,11 +85,11 @@ class Verdict:
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
-            dilated: Pulses | None = None, warp=None) -> Verdict:
+            dilated: Pulses | None = None, warp=None, dilation=None) -> Verdict:
     """The simulated run (the table's steps, after any homing) against the twin; homing on its own. A streaming
     firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the machine.
     A held or overridden run (codegen/verify_hold.py) is compared with the `dilated` twin; `warp` maps the
-    plan's times onto its clock (seconds to seconds)."""
+    plan's times onto its clock (seconds to seconds); `dilation` (codegen/hold.py) has its feed factors."""
     homing, homing_problems = homing_report(host, full_trace, switches)
     trace = full_trace.run_only()
     names = host.kin.motors
@@ -167,7 +167,7 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
     problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
     problems.extend(display_problems(host, trace, streamed))
-    laser = laser_verdict(host, trace, cycle[new_event], twin_event if matched else None)
+    laser = laser_verdict(host, trace, cycle[new_event], twin_event if matched else None, dilation)
     problems.extend(laser.problems if laser else [])
     display = None if trace.display is None else list(trace.display.lines)
     return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,

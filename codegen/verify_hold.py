@@ -116,7 +116,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     resume_arrived = arrived[len(actions):]
 
     # The resumed events' ticks, then each request's first dilated event: the candidate the pulses agree with.
-    sim = _event_cycles(host, trace)
+    sim = _event_cycles(host, trace.run_only())  # homing steps are not the table's
 
     def resumed(events: list[int]) -> list[int]:
         """Each park's resumed tick: the one that puts the first pulse after its resume in place (everything
@@ -158,7 +158,8 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     def warp(t):
         return t + np.interp(t, plan_time, delay)
 
-    verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp)
+    verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
+                      dilation=final)
     result = runner.result(verdict, trace)
     result["hold"] = _report(host, actions, final, tick0, resume_arrived, override)
     if len(final.parks) != len(resume_presses) or (hold_s is not None and all(p for *_, p in final.parks)):

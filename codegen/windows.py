@@ -199,7 +199,7 @@ class Stages:
         laser_counts, power_error = before.laser_counts, 0.0
         if self.laser is not None and len(events.time):
             with watch("laser power"):
-                counts, ideal = event_counts(events, window.plan, window.segments, self.laser.top)
+                counts, ideal = event_counts(events, window.plan, window.segments, self.laser)
                 compressed.schedule = with_power(compressed.schedule, counts, before.laser_counts)
                 power_error = power_error_of(counts, ideal, self.laser.top)
                 laser_counts = int(counts[-1])

@@ -20,7 +20,7 @@ from codegen.checks import check
 from codegen.firmware.avr import render_sources
 from codegen.cli import _build, main
 from codegen.errors import BuildError, JobError
-from codegen.hold import F_ONE, RESUME_TICKS, dilate, dilation_table, override_target
+from codegen.hold import F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
 from codegen.job import load_job
 from codegen.pipeline import host_build, trains_from
 from codegen.streaming import stream_setup
@@ -138,13 +138,25 @@ def test_a_hold_key_on_a_pin_the_board_uses_is_an_error():
         render_sources(host.schedule, config)
 
 
-def test_no_hold_yet_on_a_delta_nor_with_a_laser(tmp_path):
-    for name, refusal in (("kossel-mini.yaml", "a delta cannot hold yet"),
-                          ("laser/power.yaml", "a machine with a laser cannot hold yet")):
-        path = tmp_path / "job.yaml"
-        path.write_text(_with_hold((ROOT / "examples" / name).read_text()))
-        with pytest.raises(BuildError, match=f"machine.feed_hold: {refusal}"):
-            host_build(load_job(path))
+@needs_simavr
+def test_a_delta_held_mid_job_comes_to_rest_within_its_limits_and_ends_exact(tmp_path):
+    """A delta's motors speed up and slow down along a straight line: its plan keeps RAMP_SHARE of every motor's
+    acceleration for the ramp (the player's ramp is not gated), and a hold anywhere keeps every motor within its
+    limits. The Kossel homes first: the verification finds the table's pulses after the homing's."""
+    path = tmp_path / "kossel.yaml"
+    path.write_text(_with_hold((ROOT / "examples" / "kossel-mini.yaml").read_text()))
+    job = load_job(path)
+    host, image, _ = _build(job, str(tmp_path / "out"), reuse=False, strict=False)
+    assert host.hold_plan.gate_above == F_ONE
+    assert max(host.findings.accel_ratio.values()) <= 1.0 - RAMP_SHARE + 0.01  # the plan's own share
+    at = random.Random(4).uniform(0.5, host.plan.total - 1.0)
+    result, _ = hold_verify(host, image, at, None)
+    assert result["pass"], result["problems"]
+    hold = result["hold"]
+    assert hold["ramp_s"] - 0.001 < hold["stopping_s"] < hold["ramp_s"] + 0.15
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
 
 
 def test_no_hold_yet_on_the_8051_nor_beside_heaters(tmp_path):
@@ -178,7 +190,7 @@ HOST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
 
 
 @HOST
-@given(st.sampled_from(["cartesian", "corexy"]).flatmap(lambda k: jobs(k, "avr")),
+@given(st.sampled_from(["cartesian", "corexy", "delta"]).flatmap(lambda k: jobs(k, "avr")),
        st.floats(0.05, 0.95), st.integers(0, 3))
 def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_factory, text, where, override):
     """The host model of a hold (and a lower override before it) over random machines and programs: the dilated

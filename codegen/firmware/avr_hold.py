@@ -14,7 +14,7 @@ import re
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, board_pin_uses
 from codegen.firmware.avr_player import NEED_BIT0
-from codegen.hold import CLAMP, F_FREE, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
+from codegen.hold import CLAMP, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
 from codegen.schedule import RT_PAUSE
 
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits (the link's requests' too)
@@ -57,7 +57,8 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool, tick_
     start = config.hold_override // 10
     return {"hold": {
         "bit": dilate_bit(motors, stream), "key_list": keys,
-        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": F_FREE, "resume_ticks": RESUME_TICKS,
+        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": plan.gate_above, "gated": plan.gate_above < F_ONE,
+        "resume_ticks": RESUME_TICKS,
         "clamp_bytes": [CLAMP >> 8 * k & 0xFF for k in range(3)],
         "debounce_ms": DEBOUNCE_MS, "debounce_ticks": DEBOUNCE_MS * tick_hz // 1000,
         "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),

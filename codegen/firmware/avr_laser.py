@@ -1,6 +1,7 @@
 """The ATmega2560's laser PWM (codegen/laser.py): Timer5 in phase-correct PWM with TOP in ICR5, the laser on one of
 its compare outputs. The step interrupt (templates/avr/player_isr.S.j2) latches each power record's counts with
-the run it comes before and writes them to the compare register right after that run's first STEP edge;
+the run it comes before and writes them to the compare register right after that run's first STEP edge (with feed
+hold, M4's scaled by the feed factor there and after every dilated event: codegen/laser.py follow);
 laser.h (templates/avr/laser.h.j2) sets the timer up and turns the laser off at every stop."""
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from codegen.firmware.avr_player import PRESCALERS
 LASER_CHANNELS = {"PL4": "B", "PL5": "C"}
 OCR_ADDRESS = {"B": 0x12A, "C": 0x12C}  # data-space addresses of OCR5BL and OCR5CL (the high byte follows)
 LASER_VARIABLES = 3  # bytes of SRAM: the latched counts (u16) and whether they wait for the next event (u8)
+LASER_HOLD_VARIABLES = 4  # beside feed hold: the counts in force (u16) and a spill of two registers
 
 
 def laser_ocr_address(pin: str) -> int:

@@ -17,7 +17,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image
 from codegen.firmware.avr import _run, build_image, load_target, player_context
 from codegen.firmware.avr_hold import HOLD_STREAM_VARIABLES, HOLD_VARIABLES
-from codegen.firmware.avr_laser import LASER_VARIABLES
+from codegen.firmware.avr_laser import LASER_HOLD_VARIABLES, LASER_VARIABLES
 from codegen.link import protocol
 from codegen.render import render
 
@@ -111,6 +111,7 @@ def ring_layout(config: FirmwareConfig) -> RingLayout:
     variables += LASER_VARIABLES if config.laser else 0
     variables += JOG_PER_MOTOR * len(config.jog.motors) if config.jog else 0
     variables += HOLD_VARIABLES + HOLD_STREAM_VARIABLES if config.hold else 0
+    variables += LASER_HOLD_VARIABLES if config.hold and config.laser else 0
     record_max = protocol.max_record_bytes(len(config.motors))
     start = SRAM_START + variables
     stack = SRAM_START + int(mcu["ram"]) - RING_END - record_max
