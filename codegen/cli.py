@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from codegen import __version__, cli_config, cli_flash, cli_stream, cli_tune
+from codegen import __version__, cli_config, cli_flash, cli_stream, cli_tune, progress
 from codegen.errors import BuildError, Diagnostic, JobError, SourceRef, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
@@ -20,6 +20,7 @@ from codegen.verify import compare, simulated_switches
 from codegen.report import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
 from codegen.verify_heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify_hold import hold_lines, hold_verify, pauses
+from codegen.waveform import write_vcd
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -140,6 +141,11 @@ def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[
     """verify's output: the trace file, then the JSON, or `headline` and the verdict's lines."""
     if args.trace:
         write_trace(Path(args.trace), host, trace)
+    if args.vcd:
+        write_vcd(Path(args.vcd), host.job.name, trace)
+    if args.report:  # codegen/report_html.py, with matplotlib: imported only here
+        from codegen.report_html import write_verify_report
+        write_verify_report(Path(args.report), host, result, trace)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0 if result["pass"] else 1
@@ -183,21 +189,25 @@ def cmd_plan(args) -> int:
     if args.stream:
         return cli_stream.cmd_plan_stream(args)
     job = load_job(Path(args.job), args.target)
+    keep = args.report is not None  # the report draws the whole plan
     if args.tables is None:
-        host = _host(job, args.strict, keep=False)
+        host = _host(job, args.strict, keep=keep)
     else:
-        host = _plan_writing_tables(job, args.strict, Path(args.tables))
+        host = _plan_writing_tables(job, args.strict, Path(args.tables), keep)
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
+    if args.report:  # codegen/report_html.py, with matplotlib: imported only here
+        from codegen.report_html import write_plan_report
+        write_plan_report(Path(args.report), host, summary)
     return 0 if summary["pass"] else 1
 
 
-def _plan_writing_tables(job, strict: bool, path: Path) -> HostBuild:
+def _plan_writing_tables(job, strict: bool, path: Path, keep: bool = False) -> HostBuild:
     """The plan, its table stream written to `path` as it is made; no file unless every check passes."""
     partial = path.with_name(f".{path.name}.partial")
     try:
         with open(partial, "wb") as tables:
-            host = host_build(job, strict, keep=False, tables=tables)
+            host = host_build(job, strict, keep=keep, tables=tables)
         if host.warnings:
             print(render_all(host.warnings), file=sys.stderr)
         if host.findings.ok:
@@ -231,17 +241,23 @@ def parser() -> argparse.ArgumentParser:
             v.add_argument("--out", help="output folder (default build/<name>/)")
         if name in ("plan", "verify"):
             v.add_argument("--json", action="store_true", help="print one JSON object")
+            v.add_argument("--report", metavar="FILE.html", help="write one self-contained HTML page of plots: the "
+                           "tool path, each motor against its limits, timing, a stream's ring fill, heaters")
         if name != "stream":
             v.add_argument("--stream", action="store_true",
                            help="the machine's streaming firmware (no tables inside): the job goes over the link")
         if name != "build":
             v.add_argument("--baud", type=int, help="the link's baud rate (default machine.link.baud, or the "
                                                    "target's: AVR 250000, 8051 9600)")
+        v.add_argument("--quiet", action="store_true",
+                       help="no progress bars (they show on stderr where it is a terminal, for stages over 2 s)")
         if name == "stream":
             v.add_argument("--port", required=True, help="the board's serial port, e.g. /dev/ttyACM0")
-            v.add_argument("--quiet", action="store_true", help="no progress bar")
         if name == "verify":
             v.add_argument("--trace", help="write every simulated step pulse to this CSV file")
+            v.add_argument("--vcd", metavar="FILE.vcd",
+                           help="write the simulated pins (STEP, DIR, tool, enable, endstops, ...) as a waveform for "
+                                "GTKWave; timescale 1 ns: each change at cycle x 1e9 / F_CPU from reset, rounded")
             v.add_argument("--hold", type=float, metavar="SECONDS",
                            help="press the feed hold key SECONDS into the job, resume once the machine is at "
                                 "rest (machine.feed_hold; an ATmega2560 flash image)")
@@ -278,6 +294,7 @@ def keep_freed_memory() -> None:
 def main(argv: list[str] | None = None) -> int:
     keep_freed_memory()
     args = parser().parse_args(argv)
+    progress.enable(sys.stderr.isatty() and not getattr(args, "quiet", False))  # config and flash have no --quiet
     try:
         return args.handler(args)
     except JobError as error:

@@ -8,7 +8,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from codegen import __version__, tables
+from codegen import __version__, progress, tables
 from codegen.cli_config import job_fingerprint
 from codegen.errors import BuildError, render_all
 from codegen.job import load_job
@@ -70,9 +70,12 @@ def streamed_host(job, setup: StreamSetup, strict: bool, keep: bool, tables_out=
 
 def cmd_plan_stream(args) -> int:
     job = load_job(Path(args.job), args.target)
-    host = streamed_host(job, stream_setup(job, args.baud), args.strict, keep=False)
+    host = streamed_host(job, stream_setup(job, args.baud), args.strict, keep=args.report is not None)
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
+    if args.report:  # codegen/report_html.py, with matplotlib: imported only here
+        from codegen.report_html import write_plan_report
+        write_plan_report(Path(args.report), host, summary)
     return 0 if summary["pass"] else 1
 
 
@@ -111,15 +114,34 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
     simulator = importlib.import_module(SIM_MODULES[setup.target.target])
     budget = session_budget_s(host, setup)
     switches = simulated_switches(host)
+    cycles = int(budget * setup.target.f_cpu)
+    with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+        shown = _ShownSession(link, bar)
+        if config.heaters:
+            run, figures = simulator.simulate_stream_heaters(image.hex_path, config, shown, cycles,
+                                                             job_plants(host.job, config), faults, switches)
+        else:
+            trace, figures = simulator.simulate_stream(image.hex_path, config, shown, cycles, switches=switches)
     if config.heaters:
-        run, figures = simulator.simulate_stream_heaters(image.hex_path, config, link, int(budget * setup.target.f_cpu),
-                                                         job_plants(host.job, config), faults, switches)
         result, trace = heater_result(host, run, image, faults, switches, streamed=True)
     else:
-        trace, figures = simulator.simulate_stream(image.hex_path, config, link, int(budget * setup.target.f_cpu),
-                                                   switches=switches)
         result = verify_json(host, compare(host, trace, switches, streamed=True), image)
     return stream_result(host, link, figures, trace, result), trace
+
+
+class _ShownSession:
+    """A simulated session's host (HostLink's interface) whose stream bytes, as the firmware acknowledges them, move
+    a progress bar; the session finds the HostLink itself as `link`."""
+
+    def __init__(self, link: HostLink, bar):
+        self.link, self.bar = link, bar
+
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)  # only for what this class does not define itself
+
+    def receive(self, data: bytes, now: float) -> None:
+        self.link.receive(data, now)
+        progress.move_to(self.bar, self.link.stats.data_bytes)
 
 
 def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:

@@ -69,7 +69,11 @@ def pieces(job, kin: Kinematics, program: Program,
                 found = reach_problems(job, kin, batch, first, segments)  # a carriage may peak between samples
             problems += found
             parts = [] if problems or not len(segments) else _parts(segments, segment_steps(segments, kin))
-        yield from parts
+        was, now = program.handed_on, program.read_share
+        for part in parts:  # each hands on the batch's share up to its last item
+            program.handed_on = was + (now - was) * (int(part[0].item[-1]) + 1 - first) / (flattener.items - first)
+            yield part
+        program.handed_on = now
     if problems:
         raise JobError(sorted(problems, key=lambda d: (d.where.file, d.where.line, d.where.col))[:MAX_REACH_ERRORS])
 

@@ -12,6 +12,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+from codegen import progress
 from codegen.checks import Findings, MotorTrain
 from codegen.compress import Compressed
 from codegen.errors import BuildError, Diagnostic
@@ -139,8 +140,13 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
     the windows' results into the whole program's (for an image and its verification), otherwise only their
     totals are kept and memory stays bounded whatever the program's size. `tables` gets the table stream as
     its windows are made. With `link`, the job is planned for the streaming player: its costs, and a ring that
-    the link keeps fed (host.link_plan)."""
-    watch = watch or Stopwatch()
+    the link keeps fed (host.link_plan). A bar shows the share of the program planned (codegen/progress.py)."""
+    with progress.stage("plan", 1.0) as bar:
+        return _host_build(job, strict, watch or Stopwatch(), keep, tables, link, bar)
+
+
+def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryIO | None, link: LinkBudget | None,
+                bar) -> HostBuild:
     try:
         target = target_info(job.board, stream=link is not None, laser=job.machine.laser is not None,
                              hold=job.machine.feed_hold is not None)
@@ -174,6 +180,8 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
             final = stages.play(window, None if chunk is None else ahead.next_segment(), chunk is None)
             if keep:
                 played += final
+        progress.move_to(bar, program.handed_on)
+        bar.set_postfix_str(f"{stages.totals.duration_s:.1f} s of motion", refresh=False)
         if chunk is None:
             break
     homing: tuple[HomingAxis, ...] = ()
@@ -195,6 +203,7 @@ def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: 
         host.runtime = runtime()
         stages.totals.table_bytes += RUNTIME_BYTES * len(host.runtime)
     if keep:
+        bar.set_postfix_str("joining the windows")
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)
             host.pulses = join_pulses(played)

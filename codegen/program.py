@@ -33,7 +33,8 @@ class Program:
     """`batches()` yields the items; `start`, `homes_first` and `end` are known once the first batch (for
     `end`: the last) is out, `warnings` and `heater_program` (its heater settings) once every batch is.
     `plays_runtime`: the player plays heater and fan settings at their place (codegen/pieces.py gathers them
-    into `settings` as (item index, Output) while it flattens, and a wait rests the plan)."""
+    into `settings` as (item index, Output) while it flattens, and a wait rests the plan). `handed_on`: the
+    share of the program (0..1) whose segments codegen/pieces.py has handed on, for a progress bar."""
 
     def __init__(self, job, kin: Kinematics, strict: bool = False):
         self.job, self.kin = job, kin
@@ -53,6 +54,7 @@ class Program:
         self.heater_program = HeaterProgram()
         self.plays_runtime = False
         self.settings: list = []  # (item index, Output), in program order
+        self.handed_on = 0.0
         self._warnings: list[Diagnostic] | None = None  # as a child process read them (`restore`)
 
     @property
@@ -63,10 +65,17 @@ class Program:
 
     def state(self) -> tuple:
         """What the batches have found out so far, for a copy of the program in another process."""
-        return self.start, self.end, self.homes_first, self.heater_program, list(self.warnings), self.settings
+        return (self.start, self.end, self.homes_first, self.heater_program, list(self.warnings), self.settings,
+                self.handed_on)
 
     def restore(self, state: tuple) -> None:
-        self.start, self.end, self.homes_first, self.heater_program, self._warnings, self.settings = state
+        (self.start, self.end, self.homes_first, self.heater_program, self._warnings, self.settings,
+         self.handed_on) = state
+
+    @property
+    def read_share(self) -> float:
+        """The share of the program's text read into the batches so far (shapes: all of it, in one batch)."""
+        return 1.0 if self.gcode is None else self.gcode.read_share
 
     def batches(self) -> Iterator[list]:
         raw = self._raw()

@@ -25,7 +25,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -45,6 +45,13 @@ HEAT_LIMIT_S = 600.0  # simulated: the start sequence's waits are over by then, 
 HELD_AFTER_FACTOR, HELD_AFTER_S = 1.2, 1.0  # a holding image's run ends the table's planned duration x 1.2 + 1 s
 #                                            after the player started its timer (verify's budget for any table)
 FAULT_FORM = f"NAME[:HEATER]@SECONDS (NAME: {', '.join(FAULTS)})"
+
+
+@dataclass
+class HeatedTrace(SimTrace):
+    """A run's trace with its plants' (codegen/sim/avr_plant.py HeaterTrace by heater): verify --report draws them."""
+
+    plants: dict = field(default_factory=dict)
 
 
 def fault_spec(text: str) -> tuple[str, str | None, float]:
@@ -111,7 +118,7 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
     cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
     waits = wait_ticks(host.schedule, host.pulses.event_tick)
     table_start_s = _table_start_s(run.steps)
-    simulated = run.steps  # the trace on the simulated clock, holds in it
+    simulated = HeatedTrace(**vars(run.steps), plants=run.heaters)  # on the simulated clock, holds in it
     run.steps = on_twin_clock(run.steps, waits, cycles_per_tick)
     if run.trip is not None:
         result = trip_result(host, run, image)

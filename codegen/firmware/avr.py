@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from codegen import tables
+from codegen import progress, tables
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, Image, board_socket, run_tool
 from codegen.firmware.avr_heaters import heaters_context
@@ -334,15 +334,20 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
     mcu = load_target("atmega2560")
     flash, ram = int(mcu["flash"]), int(mcu["ram"])
     arch = [f"-mmcu={mcu['name']}", f"-DF_CPU={int(mcu['f_cpu'])}UL"]
-    with tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp:
+    compiled = sorted(n for n in sources if n.endswith((".c", ".S")))
+    with (tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp,
+          progress.stage("compile", len(compiled) + 1, "steps") as bar):
         work = Path(tmp)
         objects = []
         for name, text in sorted(sources.items()):
             (work / name).write_text(text, encoding="utf-8")
-        for name in sorted(n for n in sources if n.endswith((".c", ".S"))):
+        for name in compiled:
+            bar.set_postfix_str(name)
             objects.append(name[:-2] + ".o")
             flags = CFLAGS if name.endswith(".c") else ASFLAGS
             _run(["avr-gcc", *arch, *flags, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
+            bar.update()
+        bar.set_postfix_str("link and checks")
         done = _link(arch, objects, "firmware.elf", flash, ram, work)
         if done.returncode != 0:
             if _TEXT_FULL.search(done.stderr):

@@ -12,6 +12,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware import Image, run_tool
 
@@ -136,17 +137,21 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int, plan: 
     mem = memories(board.group(1))
     mem.update({"model": plan.model or mem["model"], "xram": mem["xram"] if plan.xram is None else plan.xram,
                 "iram_limit": plan.iram or mem["iram"]})
-    with tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp:
+    # main() is in player.c, which must come first on the link line.
+    names = sorted((n for n in sources if n.endswith(".c")), key=lambda n: (n != "player.c", n))
+    with (tempfile.TemporaryDirectory(prefix=".build-", dir=out_dir) as tmp,
+          progress.stage("compile", len(names) + 1, "steps") as bar):
         work = Path(tmp)
         for name, text in sorted(sources.items()):
             (work / name).write_text(text, encoding="utf-8")
-        # main() is in player.c, which must come first on the link line.
-        names = sorted((n for n in sources if n.endswith(".c")), key=lambda n: (n != "player.c", n))
         objects = []
         for name in names:
+            bar.set_postfix_str(name)
             objects.append(name[:-2] + ".rel")
             run_tool(["sdcc", *_sdcc_flags(mem, int(mem["flash"]), int(mem["xram"])), "-c", name], work,
                      f"sdcc on {name}", "sdcc")
+            bar.update()
+        bar.set_postfix_str("link and checks")
         done = _link(mem, objects, int(mem["flash"]), int(mem["xram"]), work)
         if done.returncode != 0 or "?ASlink-Error" in done.stderr + done.stdout:
             raise _overflow(done, mem, objects, table_bytes, work)

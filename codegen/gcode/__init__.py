@@ -9,6 +9,7 @@ reader.py turns text into words; interpreter.py (with mcodes.py) runs them; arcs
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, TextIO
@@ -37,6 +38,7 @@ class GcodeStream:
         self.source, self.origin = _source(job)
         self.interpreter = Interpreter(job, self.origin, strict)
         self.start = np.array(self.interpreter.flat[:4], dtype=float)
+        self.read_share = 0.0  # of the text read into the batches so far: for a progress bar
 
     def batches(self, size: int = BATCH_LINES) -> Iterator[list]:
         """The items of `size` blocks (lines with code) at a time."""
@@ -44,7 +46,10 @@ class GcodeStream:
         native = interpreter.native = NativeLines.load(size)
         pending, going = 0, True  # blocks read into this batch; False once the program has ended
         with self._lines() as text:
-            for first, lines in _chunks(text):
+            # A file's size in bytes counts its characters, near enough.
+            chars = max(len(text) if isinstance(text, str) else os.fstat(text.fileno()).st_size, 1)
+            begin = 0  # characters before the chunk
+            for first, lines, end in _chunks(text):
                 if native is not None:
                     native.read(lines, first)
                 at = 0
@@ -62,9 +67,12 @@ class GcodeStream:
                             going = interpreter.run(block)
                     if pending == size or not going:
                         pending = 0
+                        self.read_share = min((begin + (end - begin) * at / len(lines)) / chars, 1.0)
                         yield from self._items()
+                begin = end
                 if not going:
                     break
+        self.read_share = 1.0
         yield from self._items()
         if interpreter.errors:
             raise JobError(interpreter.errors)
@@ -93,27 +101,28 @@ class GcodeStream:
         return self.interpreter.warnings()
 
 
-def _chunks(text: str | TextIO) -> Iterator[tuple[int, list[str]]]:
+def _chunks(text: str | TextIO) -> Iterator[tuple[int, list[str], int]]:
     """The text's lines (without their line ends), a file's CHUNK_CHARS or so at a time, each chunk with the index
-    of its first line."""
+    of its first line and the characters read up to its end."""
     if isinstance(text, str):
         lines = text.split("\n")
         if lines and not lines[-1]:
             lines.pop()
-        yield 0, lines
+        yield 0, lines, len(text)
         return
-    first, rest = 0, []  # the text of a line not yet ended
+    first, rest, read = 0, [], 0  # rest: the text of a line not yet ended
     while piece := text.read(CHUNK_CHARS):
+        read += len(piece)
         lines = piece.split("\n")
         if len(lines) > 1:
             lines[0] = "".join(rest) + lines[0]
             rest = [lines.pop()]
-            yield first, lines
+            yield first, lines, read
             first += len(lines)
         else:
             rest.append(piece)
     if any(rest):
-        yield first, ["".join(rest)]
+        yield first, ["".join(rest)], read
 
 
 def _source(job) -> tuple[str | Path, Origin]:

@@ -15,13 +15,14 @@ import subprocess
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr import board_pins, load_target
+from codegen.firmware.avr import Pin, board_pins, load_target
 from codegen.firmware.avr_homing import homing_ticks_bound
 from codegen.firmware.avr_laser import laser_ocr_address
 from codegen.firmware.avr_player import START_TICKS
@@ -40,6 +41,14 @@ EXIT_STATES = {0: "done", 1: "crashed", 2: "budget", 4: "held"}  # held: a plant
 PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
 HOMING_FAILED = 0x02  # GPIOR0 bit set by homing.c's error state (GPIOR1: the motor bits, GPIOR2: the phase)
 HOMING_PHASES = {1: "fast approach", 2: "back off", 3: "slow approach"}
+
+
+class PinWave(NamedTuple):
+    """One recorded pin's levels: at reset, then each change."""
+
+    initial: int
+    cycle: np.ndarray  # (E,) int64
+    level: np.ndarray  # (E,) 0 / 1
 
 
 @dataclass
@@ -65,6 +74,10 @@ class SimTrace:
     display: Any = None  # a board's status display, decoded (codegen.sim.hd44780.Display); None without one
     resumes: tuple[int, ...] = ()  # tick 0 of each restart of the player's timer after a hold (a WAIT record)
     laser_duty: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, counts
+    ring_fill: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, bytes held
+    # Every recorded pin as it was, by signal name: "x.step", "x.dir", "tool", and where recorded "x.enable",
+    # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/waveform.py writes them for GTKWave).
+    pins: dict[str, PinWave] = field(default_factory=dict)
 
     def run_only(self) -> SimTrace:
         """The same trace with the step table's pulses only (phase "run")."""
@@ -182,7 +195,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges_path), str(int(cycle_budget)),
                *switch_args(config, switches), *keyed[0], *(f"key={pin[1:]},{a},{b}" for pin, a, b in presses),
                *watched_pins(config)]
-        done = subprocess.run(cmd, capture_output=True, text=True)
+        with progress.stage("simulate", cycle_budget / f_cpu, "s simulated", 1) as bar:
+            done = progress.run_watched(cmd, bar, lambda _: simulated_s(edges_path, f_cpu))
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
         rec = read_edges(edges_path)
@@ -214,6 +228,19 @@ def timer_ticks0(fields: dict, f_cpu: int, tick_hz: int) -> list[int]:
 
 def read_edges(path: Path) -> np.ndarray:
     return np.fromfile(path, dtype=EDGE_RECORD)
+
+
+def simulated_s(path: Path, f_cpu: int) -> float | None:
+    """Simulated seconds at the last whole record of the edges file the harness is writing (None before one)."""
+    try:
+        with open(path, "rb") as edges:
+            count = edges.seek(0, os.SEEK_END) // EDGE_RECORD.itemsize
+            if not count:
+                return None
+            edges.seek((count - 1) * EDGE_RECORD.itemsize)
+            return int(np.frombuffer(edges.read(EDGE_RECORD.itemsize), EDGE_RECORD)["cycle"][0]) / f_cpu
+    except OSError:
+        return None
 
 
 def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: int, tick0: int | None,
@@ -254,13 +281,31 @@ def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: in
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
-                    homing_failed=fault is not None, homing_fault=fault, laser_duty=duty)
+                    homing_failed=fault is not None, homing_fault=fault, laser_duty=duty,
+                    pins=pin_waves(rec, [name for name, _ in watched(config)]))
+
+
+def pin_waves(rec: np.ndarray, names: list[str]) -> dict[str, PinWave]:
+    """Each watched pin's levels from the harness's records, by name (in the order of the harness's PIN list; pins
+    are low after reset)."""
+    order = np.argsort(rec["pin"], kind="stable")
+    bounds = np.searchsorted(rec["pin"][order], np.arange(len(names) + 1))
+    return {name: PinWave(0, rec["cycle"][order[a:b]].astype(np.int64), rec["level"][order[a:b]])
+            for name, a, b in zip(names, bounds[:-1], bounds[1:])}
+
+
+def watched(config: FirmwareConfig) -> list[tuple[str, Pin]]:
+    """The pins the harness records, by name: STEP and DIR of each motor, then the tool (decode_edges counts on
+    these places), then each motor's enable and the homed axes' endstops."""
+    pins = board_pins(config)
+    named = [(f"{w.name}.{role}", p) for w in pins.motors for role, p in (("step", w.step), ("dir", w.dir))]
+    named += [("tool", pins.tool)] + [(f"{w.name}.enable", w.enable) for w in pins.motors]
+    switches = dict.fromkeys(h.switch for h in config.homing)  # each once, in homing's order
+    return named + [(f"endstop.{e.name}", e.pin) for e in map(pins.endstop, switches) if e is not None]
 
 
 def watched_pins(config: FirmwareConfig) -> list[str]:
-    """The harness's PIN arguments: STEP and DIR of each motor, then the tool; before them, a laser's duty=
-    option (its compare register's writes)."""
-    pins = board_pins(config)
+    """The harness's PIN arguments (`watched`); before them, a laser's duty= option (its compare register's
+    writes)."""
     laser = [f"duty={laser_ocr_address(config.laser.pin)}"] if config.laser else []
-    return laser + [f"{p.port}{p.bit}" for w in pins.motors for p in (w.step, w.dir)] + \
-        [f"{pins.tool.port}{pins.tool.bit}"]
+    return laser + [f"{p.port}{p.bit}" for _, p in watched(config)]

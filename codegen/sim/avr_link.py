@@ -183,6 +183,7 @@ class StreamSim:
         link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
         counted = None  # the latest answer before the stream's last ring went out (the plan's lowest fill too)
         starts: list[int] = []  # every start of the player's timer: START's, then a resume after each hold
+        fills: list[tuple[int, int]] = []  # (cycle, ring bytes held) at each ACK: after every frame it took
         reset = True
         while not host.done:
             data = host.transmit(now)
@@ -197,6 +198,9 @@ class StreamSim:
             if answer.data:
                 for f in frames.feed(answer.data):
                     underruns += f.kind == protocol.UNDERRUN
+                    if f.kind == protocol.ACK:
+                        free = int.from_bytes(f.payload[:2], "little")
+                        fills.append((int(answer.arrived[-1]), self.ring_bytes - free))
                     if f.kind == protocol.HOMING_FAILED and f.payload:
                         fault = _homing_fault(self.config, HOMING_FAILED, f.payload[0] & 0x0F, f.payload[0] >> 4)
                 host.receive(answer.data, int(answer.arrived[-1]) / self.f_cpu)
@@ -208,7 +212,7 @@ class StreamSim:
         ticks0 = [s + START_TICKS * (self.f_cpu // self.tick_hz) for s in starts]
         trace = decode_edges(read_edges(self._edges), self.config, "done", answer.cycle, ticks0[0] if ticks0 else None,
                              fault, since=start)
-        trace = replace(trace, resumes=tuple(ticks0[1:]))
+        trace = replace(trace, resumes=tuple(ticks0[1:]), ring_fill=np.array(fills, dtype=np.int64).reshape(-1, 2))
         stats = link.stats
         counted = answer if counted is None or link.outcome != "finished" else counted
         figures = LinkFigures(baud=self.layout.baud, bytes=stats.bytes, frames=stats.frames,

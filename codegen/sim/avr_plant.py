@@ -16,6 +16,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr import board_pins, load_target, parse_pin
@@ -26,7 +27,7 @@ from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
 from codegen.sim.avr import EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges, \
-    switch_args, timer_ticks0, watched_pins
+    simulated_s, switch_args, timer_ticks0, watched_pins
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}
@@ -122,6 +123,14 @@ def _plant_file(config: FirmwareConfig, plants: dict[str, HeaterPlant], faults, 
     return "\n".join(lines) + "\n"
 
 
+def _logged_s(log: Path, f_cpu: int) -> float | None:
+    """Simulated seconds at the last whole line of the plant trace the harness is writing (a heat-up steps no
+    motor: its edges file stands still)."""
+    lines = progress.tail(log).split(b"\n")[:-1]
+    fields = lines[-1].split() if lines else []
+    return int(fields[1]) / f_cpu if len(fields) > 1 and fields[0] in (b"A", b"D", b"S", b"F") else None
+
+
 def read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
     rows: dict[str, list] = {"A": [], "D": [], "S": [], "F": []}
     end: dict = {"P": {}, "H": {}}
@@ -163,7 +172,9 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
         held = [] if held_after_s is None else [f"held={round(held_after_s * f_cpu)}"]
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges), str(round(seconds * f_cpu)),
                f"plant={spec}", *held, *switch_args(config, switches), *watched_pins(config)]
-        done = subprocess.run(cmd, capture_output=True, text=True)
+        with progress.stage("simulate", seconds, "s simulated", 1) as bar:
+            done = progress.run_watched(cmd, bar, lambda _: max(simulated_s(edges, f_cpu) or 0.0,
+                                                                 _logged_s(log, f_cpu) or 0.0))
         if done.returncode not in EXIT_STATES or done.returncode == 1:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
         rec = read_edges(edges)

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.avr_homing import homing_ticks_bound
@@ -40,7 +40,8 @@ from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
 from codegen.sim.mcs51_keys import POSITION_BYTES, TAG_JOG_POS, TAG_SCAN, jog_positions, key_model
-from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault, switch_thresholds
+from codegen.sim.avr import (HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault,
+                             switch_thresholds)
 
 TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT = 16, 17, 18, 19  # record tags beyond the port tags 0..3
 MAX_CONDITION = (1 << 32) - 1  # sim_ticks is 32-bit: longer budgets rely on the wall-clock timeout
@@ -85,6 +86,23 @@ def _script(hex_path: Path, ports: list[int], bits: list[int], sym: dict, budget
         brk(f"{VECTOR_TIMER0:#x} if sim_ticks>{budget}", str(TAG_BUDGET * 256), False)
     lines += ["run", "quit", ""]
     return "\n".join(lines)
+
+
+class _PrintedClock:
+    """Simulated seconds at the latest clock count in s51's output so far (progress.run_watched's `done`): the
+    largest number in its tail (the tags beside the clocks are far smaller), its 32-bit wraps counted."""
+
+    def __init__(self, f_cpu: int):
+        self.f_cpu, self.last, self.wraps = f_cpu, 0, 0
+
+    def __call__(self, stdout: Path) -> float | None:
+        numbers = [int(line) for line in progress.tail(stdout).split(b"\n")[1:-1] if line.strip().isdigit()]
+        if not numbers:
+            return None
+        clock = max(numbers)
+        self.wraps += clock < self.last - (1 << 31)
+        self.last = clock
+        return (clock + (self.wraps << 32)) / self.f_cpu
 
 
 def _records(stdout: str) -> np.ndarray:
@@ -204,8 +222,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget), **extra), encoding="utf-8")
         wall = 30 + cycle_budget / SIM_CLOCKS_PER_S
         try:
-            done = subprocess.run(["timeout", f"{wall:.0f}", "s51", "-X", str(f_cpu), "-C", str(script)],
-                                  stdin=subprocess.DEVNULL, capture_output=True, text=True)
+            with progress.stage("simulate", cycle_budget / f_cpu, "s simulated", 1) as bar:
+                done = progress.run_watched(["timeout", f"{wall:.0f}", "s51", "-X", str(f_cpu), "-C", str(script)],
+                                            bar, _PrintedClock(f_cpu))
         except FileNotFoundError as exc:
             raise BuildError("timeout or s51 not found") from exc
     rec = _records(done.stdout)
@@ -240,6 +259,10 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         trace.coil_writes = {f"P{p}": rec[rec[:, 1] == p][:, [0, 2]] for p in coil_ports}
     if lcd is not None:
         trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
+        w = lcd.wiring
+        named = [("lcd.rs", w.rs), ("lcd.e", w.e), ("lcd.rw", w.rw)]
+        named += [(f"lcd.d{k + 8 - len(w.data)}", d) for k, d in enumerate(w.data)]  # D4-D7 or D0-D7
+        trace.pins.update(pin_waves(rec, [(name, pin) for name, pin in named if pin is not None]))
     if keys is not None:
         trace.jog_positions = jog_positions(rec, len(config.jog.motors))
         trace.key_scans = rec[rec[:, 1] == TAG_SCAN][:, [0, 2]]
@@ -308,8 +331,16 @@ def trace_of(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: 
     tool_t, tool_level = _levels(rec, pins["tool"].port, pins["tool"].bit)
     tool_on = tool_level ^ (0 if pins["tool_active_high"] else 1)
     run = cyc[order] >= run_from if run_from is not None else np.zeros(len(order), dtype=bool)
+    named = [(f"{m['name']}.{role}", m[role]) for m in pins["motors"] for role in ("step", "dir") if m[role]]
+    named += [(f"{m['name']}.coil{k + 1}", c) for m in pins["motors"] for k, c in enumerate(m["coils"] or [])]
     return SimTrace(state="done", cycles=cycles, f_cpu=f_cpu, timer_start_cycle=timer_start,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool_t, tool_on)],
-                    step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"))
+                    step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
+                    pins=pin_waves(rec, named + [("tool", pins["tool"])]))
+
+
+def pin_waves(rec: np.ndarray, named: list[tuple[str, object]]) -> dict[str, PinWave]:
+    """Each named pin's levels from its port's records, by name (latches are 1 after reset)."""
+    return {name: PinWave(1, *_levels(rec, pin.port, pin.bit)) for name, pin in named}

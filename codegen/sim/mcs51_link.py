@@ -231,8 +231,9 @@ def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: 
     link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
     # As the plan counts it: a finished job's last ring of the stream drains the ring, and does not count.
     finished = link.outcome == "finished"
-    fills = [fill for fill, committed in run.fills
+    fills = [fill for fill, committed, _ in run.fills
              if not finished or committed - fill <= final_committed - layout.ring_bytes]
+    trace.ring_fill = np.array([(clock, fill) for fill, _, clock in run.fills], dtype=np.int64).reshape(-1, 2)
     figures = LinkFigures(baud=layout.baud, bytes=link.stats.bytes, frames=link.stats.frames,
                           retransmits=link.stats.retransmits, min_ring_fill_bytes=min(fills) if fills else None,
                           underruns=int(link.outcome == "underrun"), lost_bytes=run.lost_bytes(),
@@ -248,7 +249,7 @@ class _Run:
         self.f_cpu, self.byte_clocks, self.budget = f_cpu, byte_clocks, budget
         self.now = 0  # CPU clocks, unwrapped
         self.records: list[tuple[int, int, int]] = []  # (clock, tag, value): pins, timer start, fault
-        self.fills: list[tuple[int, int]] = []  # at each record the player went for: (ring bytes, bytes taken)
+        self.fills: list[tuple[int, int, int]] = []  # at each record the player reads: ring bytes, bytes taken, clock
         self.arrivals: list[int] = []  # when each byte sent to the firmware completes on a real line
         self.reads: list[int] = []  # when the firmware read SBUF
         self.tx_due: int | None = None  # when the frame going out will have gone
@@ -315,7 +316,7 @@ class _Run:
             tag, value = code >> 8, code & 0xFF
             i += 2
             if tag == TAG_FILL:
-                self.fills.append((value, numbers[i]))
+                self.fills.append((value, numbers[i], clock))
                 i += 1
             elif tag == TAG_RX:
                 self.reads.append(clock)
