@@ -1,5 +1,7 @@
 """End to end: the real avr-gcc and the real simavr, through the command line users run."""
 
+import contextlib
+import io
 import json
 import shutil
 from pathlib import Path
@@ -23,10 +25,25 @@ def run(capsys, *argv):
     return code, out.out, out.err
 
 
+@pytest.fixture(scope="module")
+def verified(tmp_path_factory):
+    """verify --json of an example, run once per module: (exit code, the JSON, the output folder)."""
+    done: dict[Path, tuple[int, dict, Path]] = {}
+
+    def get(example: Path) -> tuple[int, dict, Path]:
+        if example not in done:
+            out = tmp_path_factory.mktemp(example.stem)
+            buffer = io.StringIO()
+            with contextlib.redirect_stdout(buffer):
+                code = main(["verify", str(example), "--out", str(out), "--json"])
+            done[example] = code, json.loads(buffer.getvalue()), out
+        return done[example]
+    return get
+
+
 @pytest.mark.parametrize("example", EXAMPLES, ids=lambda p: p.stem)  # examples/printers: plan only
-def test_every_example_verifies_in_simavr(example, tmp_path, capsys):
-    code, out, err = run(capsys, "verify", example, "--out", tmp_path, "--json")
-    result = json.loads(out)
+def test_every_example_verifies_in_simavr(example, verified):
+    code, result, tmp_path = verified(example)
     assert code == 0, result["problems"]
     assert result["pass"] is True
     latency_us = target_info(result["board"]).isr_latency_us  # constant: the player's
@@ -39,6 +56,13 @@ def test_every_example_verifies_in_simavr(example, tmp_path, capsys):
     assert result["max_path_error_mm"] <= result["path_limit_mm"]
     assert abs(result["duration_s"] - result["planned_duration_s"]) <= 0.01 * result["planned_duration_s"]
     assert (tmp_path / "firmware.hex").is_file() and (tmp_path / "report.json").is_file()
+
+
+def test_the_laser_example_burns_at_its_power(verified):
+    code, result, _ = verified(ROOT / "examples" / "gcode" / "laser-hiking.yaml")
+    assert code == 0, result["problems"]
+    assert result["laser"]["max_power_error_pct"] == 0.0  # M3 S255 of 255: full power exactly, 0 in between
+    assert result["laser"]["cuts"] > 40
 
 
 def test_build_is_deterministic_and_reports_every_byte(tmp_path, capsys):
@@ -235,11 +259,10 @@ def test_trace_marks_homing_steps(tmp_path, capsys):
     assert len(phases) - homing == sum(m["steps"] for m in result["motors"].values())
 
 
-def test_delta_seed_51_homes_plays_and_shows_its_positions(tmp_path, capsys):
+def test_delta_seed_51_homes_plays_and_shows_its_positions(verified):
     """The seed delta on its 8051 board: keys as switches, L297 half-steps, the LCD decoded in s51 showing every
     carriage's final position (steps)."""
-    code, out, _ = run(capsys, "verify", ROOT / "examples" / "delta-seed-51.yaml", "--out", tmp_path, "--json")
-    result = json.loads(out)
+    code, result, tmp_path = verified(ROOT / "examples" / "delta-seed-51.yaml")
     assert code == 0, result["problems"]
     final = [result["motors"][m]["end_position"] for m in "abc"]  # the display shows absolute steps
     assert result["display"] == [f"A{final[0]:>6} B{final[1]:>6} ", f"C{final[2]:>6}" + " " * 9]
@@ -248,12 +271,12 @@ def test_delta_seed_51_homes_plays_and_shows_its_positions(tmp_path, capsys):
     assert report["image"]["flash_bytes"] <= 8192 and report["image"]["sections"]["iram_used"] <= 256
 
 
-def test_plotter_set_fits_one_8051_image(tmp_path, capsys):
+def test_plotter_set_fits_one_8051_image(verified, tmp_path, capsys):
     """The seed plotter's five drawings in one 8 KB image; with the default tolerance the tables alone are too big
     and the build says so."""
-    code, out, _ = run(capsys, "verify", ROOT / "examples" / "plotter-set-51.yaml", "--out", tmp_path, "--json")
+    code, _, out = verified(ROOT / "examples" / "plotter-set-51.yaml")
     assert code == 0
-    report = json.loads((tmp_path / "report.json").read_text())
+    report = json.loads((out / "report.json").read_text())
     assert report["image"]["flash_bytes"] <= 8192 and report["image"]["flash_parts"]["table"] > 5000
     fine = tmp_path / "fine.yaml"
     fine.write_text((ROOT / "examples" / "plotter-set-51.yaml").read_text().replace("tolerance: 0.0125", "tolerance: 0.002"))

@@ -116,15 +116,6 @@ def test_verify_fails_a_pwm_that_differs_from_the_tables(tmp_path, monkeypatch, 
     assert any(p.startswith("laser: at simulated event") and "differ" in p for p in result["problems"])
 
 
-def test_the_laser_example_burns_at_its_power(tmp_path, capsys):
-    job = ROOT / "examples" / "gcode" / "laser-hiking.yaml"
-    assert load_job(job).machine.laser is not None
-    assert main(["verify", str(job), "--json", "--out", str(tmp_path)]) == 0
-    laser = json.loads(capsys.readouterr().out)["laser"]
-    assert laser["max_power_error_pct"] == 0.0  # M3 S255 of 255: full power exactly, 0 in between
-    assert laser["cuts"] > 40
-
-
 def test_status_while_streaming_reports_the_pwm(tmp_path):
     """A STATUS answer mid-cut carries the power the PWM holds then (what `stream` shows live)."""
     from codegen import tables

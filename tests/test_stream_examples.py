@@ -66,11 +66,21 @@ def first_layers(gcode: str, layers: int) -> str:
 
 
 @needs_avr
-def test_the_laser_engraving_streams_to_ramps(tmp_path, capsys):
-    result = verify_stream(capsys, LASER, tmp_path)
+def test_the_laser_engravings_first_strokes_stream_to_ramps(tmp_path, capsys):
+    """The engraving's first 900 lines (its first strokes, 13 minutes of engraving, 180 KB of stream: 23 rings;
+    the whole engraving is 50 minutes, examples/gcode/laser-hiking.yaml)."""
+    gcode = (ROOT / "tests" / "data" / "gcode" / "laser" / "hiking.gcode").read_text().splitlines(keepends=True)
+    (tmp_path / "hiking-part.gcode").write_text("".join(gcode[:900]))
+    job, replaced = re.subn(r"(?m)^  gcode: .*$", "  gcode: hiking-part.gcode", LASER.read_text())
+    assert replaced == 1
+    (tmp_path / "hiking-part.yaml").write_text(job)
+    result = verify_stream(capsys, tmp_path / "hiking-part.yaml", tmp_path / "out")
     assert_streamed_as_planned(result, baud=250_000)
     assert result["image"]["table_bytes"] == 0  # the program came over the line, none of it in flash
-    assert (tmp_path / "firmware.hex").is_file()
+    ring = json.loads((tmp_path / "out" / "report.json").read_text())["link"]["ring_bytes"]
+    assert result["link"]["bytes"] > 8 * ring
+    assert result["laser"]["max_power_error_pct"] <= 1.0
+    assert (tmp_path / "out" / "firmware.hex").is_file()
 
 
 @needs_avr
