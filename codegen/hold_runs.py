@@ -5,6 +5,7 @@ a key at once, a frame once its last byte has arrived (it is sent when the line 
 
 from __future__ import annotations
 
+from codegen.errors import BuildError
 from codegen.link import protocol
 from codegen.pipeline import HostBuild
 from codegen.report import verify_json
@@ -42,6 +43,67 @@ class FlashRun:
 
     def result(self, verdict, trace) -> dict:
         return verify_json(self.host, verdict, self.image)
+
+
+class HeatedRun(FlashRun):
+    """A flash image with heaters in simavr against their thermal plants (codegen/verify_heaters.py), its keys
+    pressed after the heaters' last wait: the waits' holds are taken out of the trace (on_twin_clock), so the run
+    is on the twin's clock as a run without heaters is; the presses come in on that clock and go to the simulator
+    moved by the holds' time."""
+
+    def __init__(self, host: HostBuild, image):
+        super().__init__(host, image)
+        from codegen.verify_heaters import HEAT_LIMIT_S, job_plants, wait_ticks  # here: it builds on the CLI's
+
+        self.plants = job_plants(host.job, self.config)
+        self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
+        self.cycles_per_tick = self.f_cpu // host.target.tick_hz
+        self.held_after_s = host.plan.total * 1.2 + 1.0
+        self.seconds = HEAT_LIMIT_S + self.held_after_s
+        self.start = 0  # the job's tick 0 (cycles from reset)
+        self.shift = 0  # simulated cycles after the last wait's hold, less the twin's
+        self.after = 0  # the twin's cycle of the last wait: the presses come after it
+        self.heated = None
+
+    def _run(self, keys: list, slower: float):
+        from codegen.sim.avr_plant import simulate_heaters
+
+        return simulate_heaters(self.image.hex_path, self.config, self.seconds * slower, self.plants, (),
+                                self.switches, self.held_after_s * slower, presses=keys)
+
+    def tick0(self, pauses: bool) -> int:
+        held = [(self.host.hold_plan.keys["resume"], 1, 1 << 62)] if pauses else []
+        trace = self._run(held, 1.0).steps
+        if trace.timer_start_cycle is None:
+            raise BuildError("verify --hold/--override: the image's heaters did not settle; verify it without them")
+        self.start = start = trace.timer_start_cycle
+        if len(self.waits):
+            self.after = start + int(self.waits[-1]) * self.cycles_per_tick
+            self.shift = trace.resumes[len(self.waits) - 1] - self.after
+        return start
+
+    def run(self, presses: list[tuple[str, int, int]], slower: float) -> tuple[object, list[int]]:
+        from codegen.verify_heaters import on_twin_clock
+
+        early = [c for _, c in presses if c < self.after]
+        if early:
+            raise BuildError(f"verify --hold/--override: a key pressed {(early[0] - self.start) / self.f_cpu:.3f} s "
+                             f"into the job, before the heaters' last wait ({(self.after - self.start) / self.f_cpu:.3f}"
+                             " s): with heaters, verify holds and overrides after the waits")
+        pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
+        keys = [(pins[function], cycle + self.shift, cycle + self.shift + hold) for function, cycle in presses]
+        self.heated = self._run(keys, slower + max((c for _, c in presses), default=0) / self.f_cpu)
+        self.heated.steps = on_twin_clock(self.heated.steps, self.waits, self.cycles_per_tick)
+        return self.heated.steps, [cycle for _, cycle in presses]
+
+    def result(self, verdict, trace) -> dict:
+        from codegen.verify_heaters import heater_figures, hold_problems
+
+        result = verify_json(self.host, verdict, self.image)
+        result["problems"] += hold_problems(self.heated.steps, self.waits)
+        result["pass"] = result["pass"] and not result["problems"]
+        result.update(heater_figures(self.host, self.heated, self.waits, None), faults=[])
+        return result
 
 
 class Scripted:

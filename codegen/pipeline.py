@@ -216,20 +216,21 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
     that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
-    heater uses its pin); a flash image with feed_hold plays the program's pauses (M0/M1) alone (it has no heaters
-    yet: avr_hold.py); none elsewhere (codegen/runtime.py)."""
-    if target.target == "avr" and job.machine.feed_hold is not None:
-        return ("pause",)
-    if target.target != "avr" or not target.heater_pins:
+    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too; none elsewhere (codegen/runtime.py)."""
+    if target.target != "avr":
         return ()
+    pauses = ("pause",) if job.machine.feed_hold is not None else ()
+    if not target.heater_pins:
+        return pauses
     if streamed:
         heaters = tuple(h.name for h in stream_heaters(job, target.heater_pins))
         if not heaters:
-            return ()
+            return pauses
     else:
         heaters = tuple(name for name in heater_settings(job) if name in target.heater_pins)
     fan = target.board_data.get("fan")
-    return played_outputs(heaters, bool(fan) and fan not in {pwm for pwm, _ in target.heater_pins.values()})
+    played = played_outputs(heaters, bool(fan) and fan not in {pwm for pwm, _ in target.heater_pins.values()})
+    return played + pauses if played else pauses
 
 
 def _no_window(job, kin: Kinematics, program: Program) -> Window:

@@ -114,7 +114,6 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
                   switches: dict[int, int | None], streamed: bool = False) -> tuple[dict, SimTrace]:
     """verify_heaters' result for a run with heaters (a flash image's, or with `streamed` a stream's:
     codegen/sim/avr_link.py), and its trace on the simulated clock."""
-    config = host.firmware_config()
     cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
     waits = wait_ticks(host.schedule, host.pulses.event_tick)
     table_start_s = _table_start_s(run.steps)
@@ -128,12 +127,19 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
             result["problems"].insert(0, f"the heaters did not settle at their targets within {HEAT_LIMIT_S:g} s")
         result["problems"] += hold_problems(run.steps, waits)
         result["pass"] = result["pass"] and not result["problems"]
-    result["holds"] = holds(run.steps, host.schedule, waits, cycles_per_tick)
-    result["heaters"] = {h.name: _figures(host, run, h, waits, cycles_per_tick) for h in config.heaters}
-    result["table_start_s"] = table_start_s
-    result["fan"] = [{"at_s": round(float(t), 3), "duty": round(float(d), 4)} for t, d in run.fan[1:]]
+    result.update(heater_figures(host, run, waits, table_start_s))
     result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
     return result, simulated
+
+
+def heater_figures(host: HostBuild, run: HeaterRun, waits: np.ndarray, table_start_s: float | None) -> dict:
+    """verify's `holds`, `heaters`, `table_start_s` and `fan` of a run with heaters (its steps on the twin's clock)."""
+    cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
+    return {"holds": holds(run.steps, host.schedule, waits, cycles_per_tick),
+            "heaters": {h.name: _figures(host, run, h, waits, cycles_per_tick)
+                        for h in host.firmware_config().heaters},
+            "table_start_s": table_start_s,
+            "fan": [{"at_s": round(float(t), 3), "duty": round(float(d), 4)} for t, d in run.fan[1:]]}
 
 
 def wait_ticks(schedule: Schedule, event_tick: np.ndarray) -> np.ndarray:

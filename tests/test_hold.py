@@ -159,21 +159,13 @@ def test_a_delta_held_mid_job_comes_to_rest_within_its_limits_and_ends_exact(tmp
         assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
 
 
-def test_no_hold_yet_on_the_8051_nor_beside_heaters(tmp_path):
+def test_no_hold_yet_on_the_8051(tmp_path):
     path = tmp_path / "star.yaml"
     path.write_text(_with_hold((ROOT / "examples" / "star.yaml").read_text()))
     for stream in (False, True):
         job = load_job(path, "mcs51")
         with pytest.raises(BuildError, match="machine.feed_hold: the 8051's player has no feed hold yet"):
             stream_setup(job) if stream else host_build(job)
-    hot = tmp_path / "hot.yaml"
-    hot.write_text("name: hot\nmachine:\n  kinematics: cartesian\n  steppers:\n"
-                   "    x: {steps_per_mm: 80, max_velocity: 100, max_accel: 1000}\n"
-                   "    y: {steps_per_mm: 80, max_velocity: 100, max_accel: 1000}\n  feed_hold: {}\n"
-                   "program:\n  gcode: |\n    M104 S200\n    G1 X10 F600\n")
-    host = host_build(load_job(hot))
-    with pytest.raises(BuildError, match="machine.feed_hold: an image with heaters cannot hold yet"):
-        render_sources(host.schedule, host.firmware_config())
 
 
 def test_an_override_the_keys_cannot_reach_is_an_error(tmp_path):

@@ -40,9 +40,6 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool, tick_
     plan = config.hold
     if plan is None:
         return {"hold": None}
-    if config.heaters:
-        raise BuildError("machine.feed_hold: an image with heaters cannot hold yet (its idle loop runs the heaters' "
-                         "stages); build it without feed_hold")
     from codegen.firmware.avr import load_target  # here: that module builds on this one
 
     taken = board_pin_uses(load_target(config.board), PIN, {"name", "target", "mcu", "hold_keys"})

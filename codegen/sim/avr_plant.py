@@ -158,10 +158,11 @@ def read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
 
 def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, plants: dict[str, HeaterPlant],
                      faults: tuple[Fault, ...] = (), switches: dict[int, int | None] | None = None,
-                     held_after_s: float | None = None) -> HeaterRun:
+                     held_after_s: float | None = None, presses: list[tuple[str, int, int]] = ()) -> HeaterRun:
     """Run `hex_path` with a plant behind each heater for `seconds` of simulated time, or until it halts (the
     table played and the heaters off, a protection trip, a failed homing), or with `held_after_s` until that long
-    after the player started its timer (state "held": an image that holds its heaters after the table)."""
+    after the player started its timer (state "held": an image that holds its heaters after the table).
+    `presses`: keys to ground held down, (pin such as PL2, from cycle, to cycle), as codegen/sim/avr.py's."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu, tick_hz = int(mcu["f_cpu"]), int(mcu["tick_hz"])
@@ -171,7 +172,8 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
         spec.write_text(_plant_file(config, plants, faults, f_cpu, log, _stage_address(hex_path)))
         held = [] if held_after_s is None else [f"held={round(held_after_s * f_cpu)}"]
         cmd = [str(harness_binary()), pins.mcu, str(f_cpu), str(hex_path), str(edges), str(round(seconds * f_cpu)),
-               f"plant={spec}", *held, *switch_args(config, switches), *watched_pins(config)]
+               f"plant={spec}", *held, *switch_args(config, switches),
+               *(f"key={pin[1:]},{a},{b}" for pin, a, b in presses), *watched_pins(config)]
         with progress.stage("simulate", seconds, "s simulated", 1) as bar:
             done = progress.run_watched(cmd, bar, lambda _: max(simulated_s(edges, f_cpu) or 0.0,
                                                                  _logged_s(log, f_cpu) or 0.0))

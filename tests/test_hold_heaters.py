@@ -1,0 +1,81 @@
+"""Feed hold beside heaters (an ATmega2560 flash image that runs its heaters from main's idle loop): main polls
+the hold keys right after every step interrupt there too; verify heats the simulated plants, takes the waits'
+holds out of the run (codegen/hold_runs.py HeatedRun) and compares every pulse of a held, overridden or paused
+run with the dilated twin."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from codegen.cli import _build, main
+from codegen.errors import BuildError
+from codegen.job import load_job
+from codegen.verify_hold import hold_verify
+
+pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
+                                reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
+
+PRINTER = """name: {name}
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 100, max_accel: 1000}}
+    y: {{steps_per_mm: 80, max_velocity: 100, max_accel: 1000}}
+  feed_hold: {{}}
+program:
+  gcode: |
+    M104 S200
+    M109 S200
+    G1 X10 F600
+    G1 X40 Y20 F3000
+{middle}    G1 X0 Y30
+    G1 X30 Y0
+    G1 X0 Y0
+"""
+
+
+def _built(tmp_path: Path, name: str, middle: str = ""):
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(PRINTER.format(name=name, middle=middle))
+    return _build(load_job(path), str(tmp_path / name), reuse=False, strict=False)[:2]
+
+
+def _exact_and_within_limits(result: dict) -> None:
+    assert result["pass"], result["problems"]
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_timing_error_us"] <= 1.0
+        assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
+
+
+def test_a_printer_held_mid_move_after_heating_rests_and_resumes_exactly(tmp_path):
+    host, image = _built(tmp_path, "hot")
+    assert host.hold_plan is not None and "hotend" in [h.name for h in host.heaters]
+    result, _ = hold_verify(host, image, 1.5, None)
+    _exact_and_within_limits(result)
+    hold = result["hold"]
+    assert hold["ramp_s"] - 0.001 < hold["stopping_s"] < hold["ramp_s"] + 0.15
+    assert result["heaters"]["hotend"]["target_c"] == 200.0
+    assert [h["heaters"] for h in result["holds"]] == [["hotend"]] and result["holds"][0]["waited_s"] > 10
+    # the run took the plan's time, the hold's stop and stand and its speeding up again
+    assert result["duration_s"] > host.plan.total + (hold["resume_s"] - hold["at_rest_s"])
+
+
+def test_m0_in_a_heated_job_parks_until_resume(tmp_path):
+    host, image = _built(tmp_path, "hot-pause", "    M0\n")
+    result, _ = hold_verify(host, image, None, None)
+    _exact_and_within_limits(result)
+    assert [r["kind"] for r in result["hold"]["rests"]] == ["pause"]
+
+
+def test_a_hold_before_the_heaters_last_wait_is_refused_with_its_times(tmp_path, capsys):
+    host, image = _built(tmp_path, "hot-twice", "    M109 S210\n")
+    with pytest.raises(BuildError, match=r"a key pressed 0\.500 s into the job, before the heaters' last wait"):
+        hold_verify(host, image, 0.5, None)
+    job = tmp_path / "hot-twice.yaml"
+    assert main(["verify", str(job), "--out", str(tmp_path / "hot-twice"), "--hold", "3.0"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("PASS hot-twice") and "hold: at rest" in out and "heater hotend" in out
