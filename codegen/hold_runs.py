@@ -76,20 +76,15 @@ class HeatedRun(FlashRun):
         trace = self._run(held, 1.0).steps
         if trace.timer_start_cycle is None:
             raise BuildError("verify --hold/--override: the image's heaters did not settle; verify it without them")
-        self.start = start = trace.timer_start_cycle
+        self.start = trace.timer_start_cycle
         if len(self.waits):
-            self.after = start + int(self.waits[-1]) * self.cycles_per_tick
-            self.shift = trace.resumes[len(self.waits) - 1] - self.after
-        return start
+            self.after, self.shift = waits_shift(trace, self.waits, self.cycles_per_tick)
+        return self.start
 
     def run(self, presses: list[tuple[str, int, int]], slower: float) -> tuple[object, list[int]]:
         from codegen.verify_heaters import on_twin_clock
 
-        early = [c for _, c in presses if c < self.after]
-        if early:
-            raise BuildError(f"verify --hold/--override: a key pressed {(early[0] - self.start) / self.f_cpu:.3f} s "
-                             f"into the job, before the heaters' last wait ({(self.after - self.start) / self.f_cpu:.3f}"
-                             " s): with heaters, verify holds and overrides after the waits")
+        refuse_before(presses, self.start, self.after, self.f_cpu)
         pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
         keys = [(pins[function], cycle + self.shift, cycle + self.shift + hold) for function, cycle in presses]
         self.heated = self._run(keys, slower + max((c for _, c in presses), default=0) / self.f_cpu)
@@ -97,13 +92,7 @@ class HeatedRun(FlashRun):
         return self.heated.steps, [cycle for _, cycle in presses]
 
     def result(self, verdict, trace) -> dict:
-        from codegen.verify_heaters import heater_figures, hold_problems
-
-        result = verify_json(self.host, verdict, self.image)
-        result["problems"] += hold_problems(self.heated.steps, self.waits)
-        result["pass"] = result["pass"] and not result["problems"]
-        result.update(heater_figures(self.host, self.heated, self.waits, None), faults=[])
-        return result
+        return with_heaters(verify_json(self.host, verdict, self.image), self.host, self.heated, self.waits)
 
 
 class Scripted:
@@ -149,21 +138,36 @@ class Scripted:
 
 
 class StreamRun:
-    """A streaming firmware in simavr, the job streamed to it, its requests sent over the link."""
+    """A streaming firmware in simavr, the job streamed to it, its requests sent over the link; with heaters,
+    against their plants, its requests after the heaters' last wait and the run on the twin's clock (as
+    HeatedRun's)."""
 
     def __init__(self, host: HostBuild, image, setup):
         self.host, self.image, self.setup = host, image, setup
         self.switches = simulated_switches(host)
         self.f_cpu = host.target.f_cpu
         self.streamed = True
-        self.link = self.figures = None
+        self.link = self.figures = self.heated = None
+        self.waits = None
+        if host.heaters:
+            from codegen.verify_heaters import wait_ticks  # here: it builds on the CLI's
+
+            self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
+        self.cycles_per_tick = self.f_cpu // host.target.tick_hz
+        self.start = self.shift = self.after = 0  # as HeatedRun's
 
     def _session(self, scripted: Scripted, slower: float):
         from codegen.cli_stream import session_budget_s  # here: the CLI builds on this module
-        from codegen.sim.avr_link import simulate_stream
+        from codegen.sim.avr_link import simulate_stream, simulate_stream_heaters
+        from codegen.verify_heaters import job_plants
 
         budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
-        return simulate_stream(self.image.hex_path, self.setup.config, scripted, budget, switches=self.switches)
+        config = self.setup.config
+        if self.waits is None:
+            return simulate_stream(self.image.hex_path, config, scripted, budget, switches=self.switches)
+        self.heated, figures = simulate_stream_heaters(self.image.hex_path, config, scripted, budget,
+                                                       job_plants(self.host.job, config), (), self.switches)
+        return self.heated.steps, figures
 
     def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:
         from codegen.cli_stream import new_link  # here: the CLI builds on this module
@@ -173,15 +177,52 @@ class StreamRun:
     def tick0(self, pauses: bool) -> int:
         scripted = self._scripted([], RESUME_EVERY_S if pauses else None)
         trace, _ = self._session(scripted, 1.0)
-        return trace.timer_start_cycle
+        if trace.timer_start_cycle is None:
+            raise BuildError("verify --hold/--override: the player never started (did its heaters settle?)")
+        self.start = trace.timer_start_cycle
+        if self.waits is not None and len(self.waits):
+            self.after, self.shift = waits_shift(trace, self.waits, self.cycles_per_tick)
+        return self.start
 
     def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
-        scripted = self._scripted([(cycle, KINDS[function]) for function, cycle in presses])
+        refuse_before(presses, self.start, self.after, self.f_cpu)
+        scripted = self._scripted([(cycle + self.shift, KINDS[function]) for function, cycle in presses])
         trace, self.figures = self._session(scripted, slower + sum(c for _, c in presses) / self.f_cpu)
         self.link = scripted.link
-        return trace, scripted.arrived + [-1] * (len(presses) - len(scripted.arrived))
+        arrived = [c - self.shift for c in scripted.arrived]
+        if self.heated is not None:
+            from codegen.verify_heaters import on_twin_clock
+
+            trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
+        return trace, arrived + [-1] * (len(presses) - len(arrived))
 
     def result(self, verdict, trace) -> dict:
         from codegen.cli_stream import stream_result
 
-        return stream_result(self.host, self.link, self.figures, trace, verify_json(self.host, verdict, self.image))
+        result = stream_result(self.host, self.link, self.figures, trace, verify_json(self.host, verdict, self.image))
+        return result if self.heated is None else with_heaters(result, self.host, self.heated, self.waits)
+
+
+def waits_shift(trace, waits, cycles_per_tick: int) -> tuple[int, int]:
+    """The twin's cycle of the heaters' last wait, and how much later the run goes on after its hold."""
+    after = trace.timer_start_cycle + int(waits[-1]) * cycles_per_tick
+    return after, trace.resumes[len(waits) - 1] - after
+
+
+def refuse_before(presses: list[tuple[str, int]], start: int, after: int, f_cpu: int) -> None:
+    """BuildError for a key pressed before the heaters' last wait (`after`; `start`: the job's tick 0)."""
+    early = [c for _, c in presses if c < after]
+    if early:
+        raise BuildError(f"verify --hold/--override: a key pressed {(early[0] - start) / f_cpu:.3f} s into the job, "
+                         f"before the heaters' last wait ({(after - start) / f_cpu:.3f} s): with heaters, verify "
+                         "holds and overrides after the waits")
+
+
+def with_heaters(result: dict, host: HostBuild, run, waits) -> dict:
+    """verify's result with the heaters' figures and the waits' holds (codegen/verify_heaters.py)."""
+    from codegen.verify_heaters import heater_figures, hold_problems
+
+    result["problems"] += hold_problems(run.steps, waits)
+    result["pass"] = result["pass"] and not result["problems"]
+    result.update(heater_figures(host, run, waits, None), faults=[])
+    return result

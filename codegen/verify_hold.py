@@ -93,9 +93,6 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     if hold_s is not None and not 0 <= hold_s < host.plan.total:
         raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
     if setup is not None:
-        if host.heaters:
-            raise BuildError("verify --stream --hold/--override: a streaming firmware with heaters is not verified "
-                             "with holds yet (its flash image is)")
         runner = StreamRun(host, image, setup)
     else:
         runner = HeatedRun(host, image) if host.heaters else FlashRun(host, image)
