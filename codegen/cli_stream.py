@@ -212,7 +212,7 @@ def cmd_stream(args) -> int:
             with serial_port.terminal_keys(setup.config.hold is not None) as keys:
                 if setup.config.hold is not None and sys.stdin.isatty():
                     print("keys: ! hold, ~ resume, - and + the feed override", file=sys.stderr)
-                interrupted = serial_port.run(link, port, plan.stream_bytes, progress=not args.quiet,
+                interrupted = serial_port.run(link, port, plan.stream_bytes, progress=progress.enabled(),
                                               motors=tuple(m.name for m in setup.config.motors), keys=keys)
         finally:
             port.close()

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware.avr_tune import build_tune_image, tune_setup
 from codegen.heaters.control import PID_PERIOD_S, fixed_gains, max_duty
@@ -67,7 +68,7 @@ def _session(args, image, hex_path: Path, host: TuneHost) -> dict:
         print(f"the board must run the tune firmware: flash {hex_path} (or add --flash)", file=sys.stderr)
     port = open_port(args.port, image.baud)
     try:
-        run_serial(host, port, progress=not (args.quiet or args.json))
+        run_serial(host, port, progress=progress.enabled() and not args.json)
     finally:
         port.close()
     return {}

@@ -29,6 +29,11 @@ def enable(on: bool) -> None:
     _on = on
 
 
+def enabled() -> bool:
+    """Bars are on (a terminal on stderr, no --quiet)."""
+    return _on
+
+
 def stage(name: str, total: float, unit: str | None = None, digits: int = 0):
     """The bar of stage `name`, from 0 to `total`, to use as a context manager: the percentage, then `n/total
     unit` with `digits` decimals (none with `unit` None), elapsed time, ETA and any postfix. While bars are off,

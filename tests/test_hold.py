@@ -74,6 +74,19 @@ def test_star_held_at_a_random_point_comes_to_rest_within_its_limits_and_ends_ex
 
 
 @needs_simavr
+def test_a_hold_too_late_to_stop_before_the_end_slows_the_rest_and_passes(star):
+    """The star's last 0.1 s are shorter than the ramp to rest (0.25 s), and it brakes at its end: the machine
+    slows down and the job ends before it stands; every pulse is still the dilated twin's."""
+    host, image = star
+    result, _ = hold_verify(host, image, host.plan.total - 0.1, None)
+    assert result["pass"], result["problems"]
+    assert result["hold"]["ended_before_rest"] is True and "at_rest_s" not in result["hold"]
+    assert result["hold"]["rests"] == [] and result["hold"]["keys"][0]["first_dilated_event"] > 0
+    plain, _ = hold_verify(host, image, None, 100)  # no key at all: the plan's own time
+    assert result["duration_s"] > plain["duration_s"] + 0.01  # the last pulses came later
+
+
+@needs_simavr
 def test_the_feed_keys_override_the_whole_star_to_half_speed(star):
     host, image = star
     result, _ = hold_verify(host, image, None, 50)

@@ -7,10 +7,15 @@ where the command says it stopped.
 
 from __future__ import annotations
 
+import fcntl
+import os
 import re
 import shutil
+import struct
 import subprocess
 import sys
+import termios
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,16 +100,18 @@ def wave_host(wave):
 
 
 def stream(job_path: Path, firmware: Machine, interrupt: tuple[int, float] | None = None,
-           quiet: bool = True) -> Streamed:
+           quiet: bool = True, terminal: bool | None = None) -> Streamed:
     """`printer-codegen stream job_path --port <pty> [--quiet]` against `firmware` in simavr, until it exits;
-    `interrupt` as PtyBridge's: Ctrl-C that long after a frame of the firmware."""
+    `interrupt` as PtyBridge's: Ctrl-C that long after a frame of the firmware. Its stderr is a terminal (a
+    pseudo-terminal, read as it writes) with `terminal`, by default without `quiet`: a bar shows only there."""
     config = firmware.setup.config
     f_cpu = firmware.setup.target.f_cpu
+    terminal = Terminal() if (not quiet if terminal is None else terminal) else None
     with StreamSim(firmware.hex_path, config) as sim, \
             PtyBridge(len(config.motors), DEADLINE_S, interrupt) as bridge:
         process = subprocess.Popen([sys.executable, "-m", "codegen", "stream", str(job_path), "--port", bridge.port,
-                                    *(["--quiet"] if quiet else [])],
-                                   cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    *(["--quiet"] if quiet else [])], cwd=ROOT, stdout=subprocess.PIPE,
+                                   stderr=subprocess.PIPE if terminal is None else terminal.slave, text=True)
         try:
             bridge.attach(process)
             trace, figures = sim.session(bridge, int((DEADLINE_S + 1) * f_cpu))  # the bridge's deadline first
@@ -113,7 +120,36 @@ def stream(job_path: Path, firmware: Machine, interrupt: tuple[int, float] | Non
             if process.poll() is None:
                 process.kill()
                 process.communicate()
+    if terminal is not None:
+        err = terminal.close()
     return Streamed(process.returncode, out, err, trace, figures, bridge)
+
+
+class Terminal:
+    """A pseudo-terminal of 120 columns for a child's stderr, drained by a thread (a full one would block it)."""
+
+    def __init__(self):
+        self.master, self.slave = os.openpty()
+        fcntl.ioctl(self.slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))  # tqdm draws nothing 0 wide
+        self.chunks: list[bytes] = []
+        self.reader = threading.Thread(target=self._drain, daemon=True)
+        self.reader.start()
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                chunk = os.read(self.master, 1 << 16)
+            except OSError:  # EIO: every writer has closed its end
+                return
+            if not chunk:
+                return
+            self.chunks.append(chunk)
+
+    def close(self) -> str:
+        os.close(self.slave)
+        self.reader.join(timeout=5)
+        os.close(self.master)
+        return b"".join(self.chunks).decode(errors="replace")
 
 
 def net_steps(trace: SimTrace, motors: int) -> list[int]:
@@ -190,6 +226,12 @@ def test_ctrl_c_as_the_job_ends_reports_the_finished_job(wave):
     assert re.fullmatch(rf"streamed line to {re.escape(run.bridge.port)}: 187 stream bytes in \d+\.\d s, \d+ frames "
                         rf"retransmitted; positions \[7200, 4400\] as planned\n", run.out), run.out
     assert net_steps(run.trace, 2) == [7200, 4400]
+
+
+def test_no_progress_bar_when_stderr_is_not_a_terminal(wave):
+    run = stream(wave.job_path, wave, quiet=False, terminal=False)
+    assert run.code == 0 and run.out.startswith("streamed wave")
+    assert "streaming:" not in run.err and "playing, ring" not in run.err and "\r" not in run.err, run.err[-300:]
 
 
 def test_the_progress_bar_shows_the_firmwares_status_as_it_plays(wave, wave_host):
