@@ -116,7 +116,7 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
     switches = simulated_switches(host)
     cycles = int(budget * setup.target.f_cpu)
     with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
-        shown = _ShownSession(link, bar)
+        shown = ShownSession(link, bar)
         if config.heaters:
             run, figures = simulator.simulate_stream_heaters(image.hex_path, config, shown, cycles,
                                                              job_plants(host.job, config), faults, switches)
@@ -129,9 +129,10 @@ def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tupl
     return stream_result(host, link, figures, trace, result), trace
 
 
-class _ShownSession:
-    """A simulated session's host (HostLink's interface) whose stream bytes, as the firmware acknowledges them, move
-    a progress bar; the session finds the HostLink itself as `link`."""
+class ShownSession:
+    """A simulated session's host (HostLink's interface, or a wrapper of it such as codegen/hold_runs.py's
+    Scripted) whose stream bytes, as the firmware acknowledges them, move a progress bar; the session finds the
+    wrapped host as `link`."""
 
     def __init__(self, link: HostLink, bar):
         self.link, self.bar = link, bar

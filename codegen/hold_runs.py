@@ -5,6 +5,7 @@ a key at once, a frame once its last byte has arrived (it is sent when the line 
 
 from __future__ import annotations
 
+from codegen import progress
 from codegen.errors import BuildError
 from codegen.link import protocol
 from codegen.pipeline import HostBuild
@@ -157,16 +158,18 @@ class StreamRun:
         self.start = self.shift = self.after = 0  # as HeatedRun's
 
     def _session(self, scripted: Scripted, slower: float):
-        from codegen.cli_stream import session_budget_s  # here: the CLI builds on this module
+        from codegen.cli_stream import ShownSession, session_budget_s  # here: the CLI builds on this module
         from codegen.sim.avr_link import simulate_stream, simulate_stream_heaters
         from codegen.verify_heaters import job_plants
 
         budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
         config = self.setup.config
-        if self.waits is None:
-            return simulate_stream(self.image.hex_path, config, scripted, budget, switches=self.switches)
-        self.heated, figures = simulate_stream_heaters(self.image.hex_path, config, scripted, budget,
-                                                       job_plants(self.host.job, config), (), self.switches)
+        with progress.stage("stream (simulated)", self.host.link_plan.stream_bytes, "bytes") as bar:
+            shown = ShownSession(scripted, bar)
+            if self.waits is None:
+                return simulate_stream(self.image.hex_path, config, shown, budget, switches=self.switches)
+            self.heated, figures = simulate_stream_heaters(self.image.hex_path, config, shown, budget,
+                                                           job_plants(self.host.job, config), (), self.switches)
         return self.heated.steps, figures
 
     def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:

@@ -117,6 +117,14 @@ def test_verify_stream_shows_the_simulated_stream(tmp_path):
     assert "bytes" in err
 
 
+@needs_simavr
+def test_a_held_stream_shows_its_simulated_streams(tmp_path):
+    """verify --stream --hold simulates the stream twice (where tick 0 falls, then with the requests): a bar each."""
+    code, err = on_terminal("verify", ROOT / "examples" / "star.yaml", "--stream", "--hold", "1.0", "--out", tmp_path)
+    assert code == 0, err
+    assert len(bars(err).get("stream (simulated)", [])) >= 2 and err.count("stream (simulated):   0%") >= 2, err
+
+
 def test_the_plan_counts_the_share_of_the_gcode_read_and_cut():
     job = load_job(HIKING, None)
     stream = GcodeStream(job)
