@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from codegen import __version__, cli_config, cli_flash, cli_stream, cli_tune, progress
-from codegen.errors import BuildError, Diagnostic, JobError, SourceRef, render_all
+from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware import Image
 from codegen.job import load_job
 from codegen.pipeline import HostBuild, host_build

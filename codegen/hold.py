@@ -81,7 +81,8 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
         raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
                          f"player's 16-bit step per tick ({ramp_k})")
     gate_above = F_ONE if plans_ramp_share(job) else F_FREE
-    return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()}, tuple(int(d) for d in dilation_table()))
+    return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()},
+                    tuple(int(d) for d in dilation_table()))
 
 
 def plans_ramp_share(job) -> bool:

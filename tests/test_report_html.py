@@ -132,7 +132,8 @@ def test_the_header_has_the_verdict_and_the_figures_of_the_json(pages):
 def test_the_paths_are_drawn_in_the_planes_the_jobs_move_in(pages):
     """verify draws the planned and the simulated path side by side, plan the planned one alone; the star moves in
     x and y, the delta mostly in z (down from the top, then across)."""
-    star, delta, plan = (assert_drawn("path", plots_of(pages[name][0])["path"][1]) for name in ("star", "delta", "plan"))
+    star, delta, plan = (assert_drawn("path", plots_of(pages[name][0])["path"][1])
+                         for name in ("star", "delta", "plan"))
     assert star.shape[1] > 1.5 * star.shape[0] and star.shape[1] > 1.5 * plan.shape[1]  # two square-ish panels
     assert delta.shape[0] > 0.8 * delta.shape[1]  # two tall panels (z up): the figure is about as high as wide
 
