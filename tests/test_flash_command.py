@@ -1,5 +1,5 @@
 """`printer-codegen flash`: the programmer's exact command for each chip, and every refusal before anything runs
-(no image, a stale image, an AT89C52, no programmer installed). Real builds (avr-gcc, SDCC) of the small star
+(no image, a stale image, no port, no programmer installed). Real builds (avr-gcc, SDCC) of the small star
 job; no simulator, no board: a stand-in avrdude records what it was given."""
 
 import json
@@ -49,17 +49,20 @@ def test_stcgal_for_the_stc89c52rc(capsys, star):
         0, "stcgal -P stc89 -p /dev/ttyUSB0 build/star/firmware.hex\n", "")
 
 
-def test_the_at89c52_has_no_serial_bootloader(capsys, star):
+def test_minipro_for_the_at89c52_out_of_its_board(capsys, star):
+    """No serial bootloader: the chip goes into a TL866II+ / T48 on USB, which minipro programs (no --port)."""
     build(capsys, str(star), "--target", "mcs51")
-    code, out, err = run(capsys, "flash", str(star), "--target", "mcs51", "--port", "/dev/ttyUSB0", "--dry-run")
-    assert (code, out) == (1, "")
-    assert err.startswith("error: the AT89C52 (board at89c52) has no serial bootloader, so flash cannot program it "
-                          "over /dev/ttyUSB0: take the chip to a parallel programmer")
-    assert err.endswith("`minipro -p AT89C52 -w build/star/firmware.hex` (it reads the Intel HEX file). Or fit an "
-                        "STC89C52RC (board stc89c52rc: the same pins), which flash programs in the board with stcgal\n")
-    for board in ("seed-51", "coil-51"):  # their own wiring: no STC89C52RC board file to move to
-        with pytest.raises(BuildError, match=rf"AT89C52 \(board {board}\).*Intel HEX file\)$"):
-            flash_command(board, "/dev/ttyUSB0", Path("firmware.hex"))
+    assert run(capsys, "flash", str(star), "--target", "mcs51", "--dry-run") == (
+        0, "minipro -p AT89C52 -w build/star/firmware.hex\n", "")
+    for board in ("seed-51", "coil-51"):  # their own wiring, the same chip
+        assert flash_command(board, None, Path("firmware.hex")) == ["minipro", "-p", "AT89C52", "-w", "firmware.hex"]
+
+
+def test_a_serial_bootloader_needs_the_port(capsys, star):
+    build(capsys, str(star))
+    assert run(capsys, "flash", str(star), "--dry-run") == (
+        2, "", "error: flash: avrdude programs board ramps-1.4 through its serial port: give --port (e.g. "
+               "/dev/ttyACM0)\n")
 
 
 def test_no_image_yet(capsys, star):
