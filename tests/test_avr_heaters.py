@@ -169,8 +169,8 @@ def test_start_sequence_waits_then_moves_like_the_twin(tmp_path, settings):
     """A job (the star, corexy at 300 mm/s) behind M140 S60 / M104 S210 / M190 / M109: the table starts once
     both heaters have settled, its pulses are the twin's from there, and the heaters' stages never delay a
     step by more than the hook's check. At the end (M104 S0 / M140 S0) the heaters go off and the image halts."""
-    star = tmp_path / "star.yaml"  # without its feed hold keys: an image with heaters has no hold yet
-    star.write_text((ROOT / "examples" / "star.yaml").read_text().replace("  feed_hold: {}", "  # feed_hold"))
+    star = tmp_path / "star.yaml"  # with its feed hold keys: main polls them beside the heaters' stages
+    star.write_text((ROOT / "examples" / "star.yaml").read_text())
     job = load_job(star)
     host = host_build(job)
     img, config = image(tmp_path, settings, host.schedule, (), {"hotend": 210.0, "bed": 60.0}, end_off=True,
