@@ -54,12 +54,13 @@ class HeatedRun(FlashRun):
 
     def __init__(self, host: HostBuild, image):
         super().__init__(host, image)
-        from codegen.verify_heaters import HEAT_LIMIT_S, job_plants, wait_ticks  # here: it builds on the CLI's
+        from codegen.verify_heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR,  # here: it builds on the CLI's
+                                            HELD_AFTER_S, job_plants, wait_ticks)
 
         self.plants = job_plants(host.job, self.config)
         self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
-        self.held_after_s = host.plan.total * 1.2 + 1.0
+        self.held_after_s = host.plan.total * HELD_AFTER_FACTOR + HELD_AFTER_S  # verify_heaters' own run
         self.seconds = HEAT_LIMIT_S + self.held_after_s
         self.start = 0  # the job's tick 0 (cycles from reset)
         self.shift = 0  # simulated cycles after the last wait's hold, less the twin's
