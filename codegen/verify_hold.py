@@ -28,6 +28,7 @@ OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from 
 REST_S = 0.02  # from the park the twin predicts to the resume key
 POLL_CYCLES = 400  # a step interrupt and main's poll: a key pressed this long before an event may be seen after it
 CANDIDATES = 5  # events, after the first one within POLL_CYCLES of the press, that may be the key's first
+RESUME_FIT = 32  # events after a resume whose earliest pulse places it (some may come late behind a link interrupt)
 
 
 @dataclasses.dataclass
@@ -98,6 +99,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
         runner = HeatedRun(host, image) if host.heaters else FlashRun(host, image)
     target, f_cpu = host.target, host.target.f_cpu
     prescale, latency = f_cpu // target.tick_hz, int(target.mcu_data.get("isr_latency_cycles", 0))
+    least_latency = int(target.mcu_data.get("isr_latency_min_cycles", latency))
     tick0 = runner.tick0(bool(pause_events(host.schedule)))
     actions = _actions(host, tick0, hold_s, override)
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
@@ -122,19 +124,22 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     sim = _event_cycles(host, trace.run_only())  # homing steps are not the table's
 
     def resumed(events: list[int]) -> list[int]:
-        """Each park's resumed tick: the one that puts the first pulse after its resume in place (everything
-        after a resume moves with it)."""
+        """Each park's resumed tick: the one that puts the first pulses after its resume in place (everything
+        after a resume moves with it), at the player's least latency: the earliest of RESUME_FIT pulses (a link
+        interrupt may have delayed the first)."""
         ticks: list[int] = []
         for r in resume_arrived:
             provisional = (r - tick0) // prescale + RESUME_TICKS
             d = _predict(host, actions[:len(events)], events, ticks + [provisional], resume_target)
             if r < 0 or len(d.parks) <= len(ticks):
                 break
-            after = np.flatnonzero((sim > r) & (np.arange(len(sim)) >= d.parks[len(ticks)][0]))
+            until = d.parks[len(ticks) + 1][0] if len(d.parks) > len(ticks) + 1 else len(sim)
+            index = np.arange(len(sim))
+            after = np.flatnonzero((sim > r) & (index >= d.parks[len(ticks)][0]) & (index < until))[:RESUME_FIT]
             if not len(after):
                 break
-            k = after[0]
-            ticks.append(provisional + int(round((sim[k] - tick0 - latency) / prescale)) - int(d.tick[k]))
+            late = (sim[after] - tick0 - least_latency) / prescale - d.tick[after]
+            ticks.append(provisional + int(round(float(late.min()))))
         return ticks
 
     chosen: list[int] = []
