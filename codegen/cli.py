@@ -262,8 +262,8 @@ def parser() -> argparse.ArgumentParser:
                            help="press the feed hold key SECONDS into the job, resume once the machine is at "
                                 "rest (machine.feed_hold; an ATmega2560 flash image)")
             v.add_argument("--override", type=int, metavar="PERCENT",
-                           help="step the feed override to PERCENT (10..100, by 10) with the feed keys as the "
-                                "job starts (machine.feed_hold)")
+                           help="step the feed override to PERCENT (10 up to machine.feed_hold.max_override, by 10) "
+                                "with the feed keys as the job starts (machine.feed_hold)")
             v.add_argument("--fault", action="append", default=[], type=fault_spec, metavar="NAME[:HEATER]@SECONDS",
                            help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
                                 "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "

@@ -1,10 +1,14 @@
 """Feed hold, resume and feed override by time dilation, the host's half: the constants the AVR player uses and
 the model of its integer arithmetic (the twin of a held or overridden run).
 
-The player plays the tables on a dilated clock. F (0..F_ONE) is the feed factor in 1/255: every event's tick
-delta becomes (delta x D[F]) >> 8 with D[F] = 65280 / F (8.8 fixed point; F_ONE gives delta itself), at most
-CLAMP (a long wait's first tick; long waits themselves are not dilated). So the path is unchanged and every motor's
-velocity scales with F / F_ONE (its acceleration with the square, plus the factor's own change).
+The player plays the tables on a dilated clock. F (0..F_MAX) is the feed factor in 1/128 (F_ONE: 100 %): every
+event's tick delta becomes (delta x D[F]) >> 8 with D[F] = 32768 / F (8.8 fixed point; F_ONE gives delta itself),
+at most CLAMP (a long wait's first tick; long waits themselves are not dilated). So the path is unchanged and every
+motor's velocity scales with F / F_ONE (its acceleration with the square, plus the factor's own change).
+
+Above 100 % the factor goes only as far as the ceiling records let it (codegen/headroom.py): the target it ramps
+towards is the lower of the override and the ceiling in force, which the host sets from every motor's headroom on
+the stretch being played and lowers early enough for the ramp to come back down before the headroom ends.
 
 F ramps towards a target (0 for a hold, the override for resume) on the real clock: after each dilated delta of
 t ticks, F.frac16 moves by t x K. K keeps every motor's extra acceleration v x dF/dt within RAMP_SHARE of its
@@ -32,27 +36,29 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.schedule import FRAC_BITS, RT_PAUSE, Schedule
 
-F_ONE = 255  # the feed factor 1 (100 %)
+F_ONE = 128  # the feed factor 1 (100 %)
+F_MAX = 255  # the highest factor (199 %): the override's 200 % step
 RAMP_SHARE = 0.2  # of each motor's acceleration that the factor's change may take (the planner's curves leave it)
 F_FREE = int(math.floor(F_ONE * math.sqrt(1.0 - RAMP_SHARE)))  # at or below: f^2 a_max + RAMP_SHARE a_max <= a_max
 CLAMP = 0xFEFFFF  # the longest dilated delta, 1/256 tick: just under a long wait (0xFF00 ticks)
 LONG = 0xFF00 << FRAC_BITS  # an undilated delta this long goes the long-wait way, undilated
 RESUME_TICKS = 0xFEFF  # from main's read of the timer at resume to the pending event: at least its own interval
 # (a parked event is never a long wait), so no step comes sooner after the one before than the plan's
-OVERRIDE_STEPS = 10  # the override keys step by 10 %: target F = floor(step x 25.5), 1..10
+MAX_OVERRIDE_STEPS = 20  # the override keys step by 10 %, 1..20: target F = override_target(step)
 FRAC16 = 1 << 16
 PARKED = -1  # Dilation.factor after the event the player parked behind
 
 
-def dilation_table() -> np.ndarray:
-    """D[F] for F = 0..F_ONE (8.8 fixed point, D[F_ONE] = 256; D[0] is never used: F 0 parks)."""
-    f = np.arange(F_ONE + 1, dtype=np.int64)
-    return np.where(f > 0, (65280 + f // 2) // np.maximum(f, 1), 0)
+def dilation_table(f_top: int = F_ONE) -> np.ndarray:
+    """D[F] for F = 0..f_top (8.8 fixed point, D[F_ONE] = 256; D[0] is never used: F 0 parks)."""
+    f = np.arange(f_top + 1, dtype=np.int64)
+    return np.where(f > 0, (F_ONE * 256 + f // 2) // np.maximum(f, 1), 0)
 
 
 def override_target(step: int) -> int:
-    """The target F of the override keys' step 1..10 (10 % each)."""
-    return step * 51 // 2
+    """The target F of the override keys' step 1..20 (10 % each): step x 12.8, rounded (the player's
+    (step x 205 + 8) >> 4), at most F_MAX."""
+    return min((step * 205 + 8) >> 4, F_MAX)
 
 
 @dataclass(frozen=True)
@@ -60,9 +66,23 @@ class HoldPlan:
     """What the firmware's feed hold needs: the ramp's K (F.frac16 per tick) and the board's keys."""
 
     ramp_k: int  # F.frac16 per dilated tick
-    gate_above: int  # above this F the ramp waits for the plan's add (F_FREE); F_ONE: never (a delta's)
+    gate_above: int  # above this F the ramp waits for the plan's add (F_FREE); F_MAX: never (a delta's)
     keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2)
-    table: tuple[int, ...]  # dilation_table()
+    table: tuple[int, ...]  # dilation_table() up to the highest target
+    max_step: int = 10  # the override's highest step (machine.feed_hold.max_override / 10)
+
+    @property
+    def gated(self) -> bool:
+        return self.gate_above < F_MAX
+
+    @property
+    def top(self) -> int:
+        """The highest factor the override can ask for."""
+        return override_target(self.max_step)
+
+    def ramp_per_second(self, tick_hz: int) -> float:
+        """F per second while the factor ramps."""
+        return self.ramp_k * tick_hz / FRAC16
 
     def ramp_seconds(self, tick_hz: int) -> float:
         """From F_ONE to 0 at the ramp's rate (where nothing freezes it)."""
@@ -80,9 +100,10 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     if not 1 <= ramp_k < FRAC16:
         raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
                          f"player's 16-bit step per tick ({ramp_k})")
-    gate_above = F_ONE if plans_ramp_share(job) else F_FREE
+    gate_above = F_MAX if plans_ramp_share(job) else F_FREE
+    max_step = job.machine.feed_hold.max_override // 10
     return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()},
-                    tuple(int(d) for d in dilation_table()))
+                    tuple(int(d) for d in dilation_table(override_target(max_step))), max_step)
 
 
 def plans_ramp_share(job) -> bool:
@@ -131,13 +152,28 @@ def pause_events(schedule: Schedule) -> list[int]:
     return [int(first[b]) for b in blocks]
 
 
+def event_ceilings(schedule: Schedule) -> np.ndarray:
+    """(E,) the factor's ceiling in force at every event's interrupt (F_ONE before the first record), from the
+    schedule's ceiling records."""
+    events = int(schedule.run_count.sum())
+    if not schedule.n_ceiling:
+        return np.full(events, F_ONE, dtype=np.int64)
+    set_at = np.full(events, -1, dtype=np.int64)
+    run_first = np.cumsum(schedule.run_count) - schedule.run_count
+    records = schedule.run_ceiling >= 0
+    set_at[run_first[records]] = np.flatnonzero(records)
+    last = np.maximum.accumulate(set_at)
+    return np.where(last >= 0, schedule.run_ceiling[np.maximum(last, 0)], F_ONE)
+
+
 def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
            resume_target: int = F_ONE) -> Dilation:
     """Event ticks under `changes`: (event, target F) in order, each seen first by the interrupt that computes
     that event's delta, and the schedule's pauses. After each park the player goes on at the next of `resumes`
     (the simulator's tick of the parked event: main re-armed the timer there) towards `resume_target`, at F 1
-    after a hold and at F_ONE after a pause; without one the rest never plays. A per-event loop only where the
-    factor ramps: elsewhere the deltas are summed (scaled where the factor is steady)."""
+    after a hold and at F_ONE after a pause; without one the rest never plays. A target above F_ONE is capped by
+    the ceiling records. A per-event loop only where the factor ramps: elsewhere the deltas are summed (scaled
+    where the factor is steady)."""
     delta, add = event_deltas(schedule)
     pos = np.zeros(len(delta) + 1, dtype=np.int64)
     np.cumsum(delta, out=pos[1:])
@@ -148,6 +184,9 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
     parks: list[tuple[int, int, bool]] = []
     if not marks:
         return Dilation(out, factor, parks)
+    ceiling = event_ceilings(schedule)
+    run_first = np.cumsum(schedule.run_count) - schedule.run_count
+    ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
     table, k = plan.table, plan.ramp_k
     e = marks[0]
     here = int(pos[e])  # 24.8: where event e - 1 played
@@ -159,8 +198,12 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
             pauses.pop(0)
             ffx, paused = ffx & 0xFFFF, True
         f, d = ffx >> 16, int(delta[e])
+        goal = min(target, int(ceiling[e]))
         end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
-        if f == target and f and end > e:  # a steady factor up to the next change (F_ONE: undilated)
+        if target > F_ONE:  # the goal may change at the next ceiling record
+            nxt = int(np.searchsorted(ceiling_marks, e, side="right"))
+            end = min(end, int(ceiling_marks[nxt]) if nxt < len(ceiling_marks) else end)
+        if f == goal and f and end > e:  # a steady factor up to the next change (F_ONE: undilated)
             d = delta[e:end]
             step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
             ends = here + np.cumsum(step)
@@ -182,7 +225,7 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
         else:
             d = min((d * table[f]) >> 8, CLAMP)
             here += d
-            ffx = _ramp(ffx, target, d >> FRAC_BITS, int(add[e]), k, plan.gate_above)
+            ffx = _ramp(ffx, goal, d >> FRAC_BITS, int(add[e]), k, plan.gate_above)
         if e and f:
             factor[e - 1] = ffx >> 16
         out[e] = here >> FRAC_BITS

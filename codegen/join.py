@@ -56,15 +56,17 @@ def join_schedule(played: list[Played], final_tool: bool) -> Schedule:
         block_tool=_cat(schedules, "block_tool"), block_events=_cat(schedules, "block_events"),
         block_segment=np.concatenate([s.block_segment + k for s, k in zip(schedules, segment_at)]),
         run_interval=_cat(schedules, "run_interval"), run_add=_cat(schedules, "run_add"),
-        run_count=_cat(schedules, "run_count"), final_tool=final_tool, run_power=_join_power(schedules),
+        run_count=_cat(schedules, "run_count"), final_tool=final_tool, run_power=_join_records(schedules, "run_power"),
+        run_ceiling=_join_records(schedules, "run_ceiling"),
     )
 
 
-def _join_power(schedules: list[Schedule]) -> np.ndarray:
-    """The runs' power records over the program (-1 for a window's runs without any; empty: a program without)."""
-    if not any(s.n_power for s in schedules):
+def _join_records(schedules: list[Schedule], name: str) -> np.ndarray:
+    """The runs' power or ceiling records over the program (-1 for a window's runs without any; empty: a program
+    without)."""
+    if not any(len(getattr(s, name)) for s in schedules):
         return np.zeros(0, dtype=np.int64)
-    return np.concatenate([s.run_power if len(s.run_power) else np.full(s.n_runs, -1, dtype=np.int64)
+    return np.concatenate([getattr(s, name) if len(getattr(s, name)) else np.full(s.n_runs, -1, dtype=np.int64)
                            for s in schedules])
 
 

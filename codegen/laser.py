@@ -13,8 +13,9 @@ the new duty at its next period (phase-correct PWM: its compare register is doub
 
 With feed_hold (codegen/hold.py) M4's power must follow the feed factor F as well: its records carry DYNAMIC_FLAG
 (bit 15; TOP stays below it), and while the clock is dilated the player writes counts x G >> 8 with
-G = F + (F >> 7) (`follow`: G 256 at F_ONE, 0 at F 0), at the event and again whenever F changes; at rest the
-laser is dark whatever the mode.
+G = 2 F below F_ONE (`follow`: 0 at F 0; F_ONE and above, the override's headroom, keep the record's counts: M4
+never burns more than its S, as Grbl's), at the event and again whenever F changes; at rest the laser is dark
+whatever the mode.
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from codegen.errors import BuildError
+from codegen.hold import F_ONE
 from codegen.planner import Plan
-from codegen.schedule import Schedule
+from codegen.schedule import Schedule, split_runs
 from codegen.segments import Segments
 from codegen.stepgen import Events
 
@@ -114,11 +116,11 @@ def event_counts(events: Events, plan: Plan, segments: Segments, laser: LaserPwm
 
 def follow(records: np.ndarray, factor: np.ndarray | int) -> np.ndarray:
     """The counts the player writes for power records (DYNAMIC_FLAG: M4's) at feed factor F (codegen/hold.py
-    Dilation.factor): M4's times G = F + (F >> 7) over 256 (all of it at F_ONE), the rest as they are; none
-    where the player parked (a negative factor)."""
+    Dilation.factor): M4's times G = 2 F over 256 below F_ONE (all of it at F_ONE and above: M4 never burns
+    more than its S, as Grbl's), the rest as they are; none where the player parked (a negative factor)."""
     counts = records & COUNTS
     f = np.maximum(np.asarray(factor, dtype=np.int64), 0)
-    scaled = np.where((records & DYNAMIC_FLAG) > 0, (counts * (f + (f >> 7))) >> 8, counts)
+    scaled = np.where(((records & DYNAMIC_FLAG) > 0) & (f < F_ONE), (counts * (2 * f)) >> 8, counts)
     return np.where(np.asarray(factor) < 0, 0, scaled)
 
 
@@ -129,17 +131,10 @@ def with_power(schedule: Schedule, counts: np.ndarray, before: int) -> Schedule:
     change = np.flatnonzero(counts != previous)
     if not len(change):
         return schedule
-    n, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
-    run_first = np.cumsum(n) - n
-    first = np.union1d(run_first, change)  # every run's first event, the splits' included
-    parent = np.searchsorted(run_first, first, side="right") - 1
-    offset = first - run_first[parent]
-    count = np.diff(np.append(first, int(n.sum())))
-    run = np.searchsorted(first, change)
-    power = np.full(len(first), -1, dtype=np.int64)
+    out, run = split_runs(schedule, change)
+    power = np.full(out.n_runs, -1, dtype=np.int64) if not len(out.run_power) else out.run_power.copy()
     power[run] = counts[change]
-    return replace(schedule, run_interval=interval[parent] + offset * add[parent], run_add=add[parent].copy(),
-                   run_count=count, run_power=power)
+    return replace(out, run_power=power)
 
 
 def played_counts(schedule: Schedule, before: int = 0) -> np.ndarray:

@@ -153,10 +153,11 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
+    hold = None
     if job.machine.feed_hold is not None:  # its errors before any planning
         if target.target != "avr":
             raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
-        hold_plan(job, target.tick_hz, target.board, target.board_data)
+        hold = hold_plan(job, target.tick_hz, target.board, target.board_data)
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
     played_out = runtime_outputs(job, target, link is not None)
@@ -173,7 +174,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             chunk = next(chunks, None)
         if stages is None:
             stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables, link, runtime, laser)
+                            tables, link, runtime, laser, hold)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:

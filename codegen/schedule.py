@@ -30,7 +30,10 @@ Laser power (an image with a PWM laser, codegen/laser.py): a power record before
 sets the PWM's counts at the run's first event: the player reads it with the run, and writes it to the PWM with
 that event's STEP edge. Power changes no pulse.
 
-`interval` is unsigned 24.8 fixed point ticks, `add` signed 16.8 (24 bits), `count` 1..65535. A block whose
+Feed override above 100 % (an image with feed_hold, codegen/headroom.py): a ceiling record before a rate run
+(`run_ceiling` >= 0) caps the feed factor from the run's first event on. Ceilings change no pulse either.
+
+`interval` is unsigned 24.8 fixed point ticks, `add` signed 16.8 (24 bits), `count` 1..65534 (65535 marks a ceiling record). A block whose
 motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_MODULUS`, every
 `steps[m] <= modulus` and `init[m] < modulus`. After i events motor m has made
 `ceil((i * steps[m] - init[m]) / modulus)` steps, exactly `steps[m]` after `modulus` events.
@@ -38,14 +41,14 @@ motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 FRAC_BITS = 8
 FRAC_ONE = 1 << FRAC_BITS
 MAX_MODULUS = 32767
-MAX_COUNT = 65535
+MAX_COUNT = 65534  # a long run's count 0xFFFF is a ceiling record's mark (codegen/tables.py)
 MAX_INTERVAL = (1 << 32) - 1  # 24.8 fixed point: just under 2**24 ticks
 MAX_ADD = (1 << 23) - 1
 TOOL_BIT = 0x40
@@ -78,6 +81,8 @@ class Schedule:
     runtime_value: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (T,) u16
     # (R,) a laser's PWM counts set at each run's first event, or -1 (no record); empty: no laser
     run_power: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    # (R,) the feed factor's ceiling from each run's first event on (codegen/hold.py F), or -1; empty: none
+    run_ceiling: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def events_per_block(self) -> np.ndarray:
         return self.block_events
@@ -102,6 +107,11 @@ class Schedule:
     def n_power(self) -> int:
         """Power records (a laser's PWM counts, before the runs whose run_power is >= 0)."""
         return int(np.count_nonzero(self.run_power >= 0))
+
+    @property
+    def n_ceiling(self) -> int:
+        """Ceiling records (the feed override's headroom, before the runs whose run_ceiling is >= 0)."""
+        return int(np.count_nonzero(self.run_ceiling >= 0))
 
     def table_bytes(self) -> int:
         """Size of the encoded stream, end marker included."""
@@ -133,7 +143,29 @@ class Schedule:
             problems.append("runtime records out of range or out of order")
         if len(self.run_power) not in (0, self.n_runs) or np.any(self.run_power > MAX_POWER):
             problems.append("power records out of range")
+        if len(self.run_ceiling) not in (0, self.n_runs) or np.any(self.run_ceiling > 0xFF):
+            problems.append("ceiling records out of range")
         if int(self.block_events.sum()) != int(self.run_count.sum()):
             problems.append("the blocks' events and the runs' events differ")
         if problems:
             raise ValueError("; ".join(problems))
+
+
+def split_runs(schedule: Schedule, starts: np.ndarray) -> tuple[Schedule, np.ndarray]:
+    """The schedule with a run starting at each of `starts` (sorted events; a run split there goes on with the
+    same times), and the index of the run each of them starts. A split's second part has no power or ceiling
+    record of its own."""
+    n, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
+    run_first = np.cumsum(n) - n
+    first = np.union1d(run_first, starts)  # every run's first event, the splits' included
+    parent = np.searchsorted(run_first, first, side="right") - 1
+    offset = first - run_first[parent]
+    count = np.diff(np.append(first, int(n.sum())))
+    fresh = offset > 0
+
+    def carried(records: np.ndarray) -> np.ndarray:
+        return records if not len(records) else np.where(fresh, -1, records[parent])
+
+    out = replace(schedule, run_interval=interval[parent] + offset * add[parent], run_add=add[parent].copy(),
+                  run_count=count, run_power=carried(schedule.run_power), run_ceiling=carried(schedule.run_ceiling))
+    return out, np.searchsorted(first, starts)

@@ -28,6 +28,8 @@ Run record, first byte `count`:
     0             long form:  count u16, interval u32 (24.8), add i24 (16.8)           (10 bytes)
 Power record (a laser's, codegen/laser.py), before the run record whose first event takes it: a long run of count
 0, then the PWM's counts u16: 0, 0, 0, counts u16                                       (5 bytes)
+Ceiling record (the feed override's headroom, codegen/headroom.py), after the power record of the same run, if
+any: a long run of count 0xFFFF, then the factor's ceiling u8: 0, 0xFF, 0xFF, F        (4 bytes)
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ MAX_MOTORS = 4  # direction bits 0..3 of the flags
 SHORT_RUN_BYTES = 6
 LONG_RUN_BYTES = 10
 POWER_BYTES = 5
+CEILING_BYTES = 4
+CEILING_MARK = 0xFFFF  # the long run count of a ceiling record (no run counts that many: MAX_COUNT)
 MAX_LONG_MODULUS = 0xFFFF
 _HEX = [f"0x{b:02X}" for b in range(256)]
 
@@ -58,6 +62,7 @@ class CompactTable:
     run_long: np.ndarray  # (R,) bool
     runtime_offsets: np.ndarray  # (T,) byte offset of every runtime record
     power_offsets: np.ndarray  # (P,) byte offset of every power record
+    ceiling_offsets: np.ndarray  # (C,) byte offset of every ceiling record
 
     def counts(self) -> dict[str, int]:
         return {"short_blocks": int((~self.block_long).sum()), "long_blocks": int(self.block_long.sum()),
@@ -106,7 +111,8 @@ def stream_bytes(schedule: Schedule) -> int:
     long_runs = int(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add).sum())
     return (long_blocks * long_block_bytes(motors) + (schedule.n_blocks - long_blocks) * short_block_bytes(motors)
             + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES
-            + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power + 2)
+            + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power
+            + CEILING_BYTES * schedule.n_ceiling + 2)
 
 
 def encode(schedule: Schedule) -> CompactTable:
@@ -156,35 +162,43 @@ def encode(schedule: Schedule) -> CompactTable:
     power = np.zeros((schedule.n_power, POWER_BYTES), dtype=np.uint8)
     power[:, 3:5] = _le(schedule.run_power[schedule.run_power >= 0], 2)
 
+    ceiling = np.zeros((schedule.n_ceiling, CEILING_BYTES), dtype=np.uint8)
+    ceiling[:, 1:3] = _le(np.full(schedule.n_ceiling, CEILING_MARK), 2)
+    ceiling[:, 3] = schedule.run_ceiling[schedule.run_ceiling >= 0]
+
     order, key = _record_order(schedule)
     size = max(width, LONG_RUN_BYTES)
     matrix = np.zeros((len(key), size), dtype=np.uint8)
-    nt, nb, npw = schedule.n_runtime, schedule.n_blocks, schedule.n_power
+    nt, nb, npw, nc = schedule.n_runtime, schedule.n_blocks, schedule.n_power, schedule.n_ceiling
     matrix[:nt, :RUNTIME_BYTES] = runtime
     matrix[nt:nt + nb, :width] = blocks
     matrix[nt + nb:nt + nb + npw, :POWER_BYTES] = power
-    matrix[nt + nb + npw:, :LONG_RUN_BYTES] = runs
-    length = np.concatenate([np.full(nt, RUNTIME_BYTES), block_len, np.full(npw, POWER_BYTES), run_len])[order]
+    matrix[nt + nb + npw:nt + nb + npw + nc, :CEILING_BYTES] = ceiling
+    matrix[nt + nb + npw + nc:, :LONG_RUN_BYTES] = runs
+    length = np.concatenate([np.full(nt, RUNTIME_BYTES), block_len, np.full(npw, POWER_BYTES),
+                             np.full(nc, CEILING_BYTES), run_len])[order]
     matrix = matrix[order]
     body = matrix[np.arange(size)[None, :] < length[:, None]]
     data = body.astype(np.uint8).tobytes() + end_marker(schedule.final_tool)
     offsets = np.empty(len(key), dtype=np.int64)
     offsets[order] = np.cumsum(length) - length
     return CompactTable(data, offsets[nt:nt + nb], block_long, run_long, offsets[:nt],
-                        offsets[nt + nb:nt + nb + npw])
+                        offsets[nt + nb:nt + nb + npw], offsets[nt + nb + npw:nt + nb + npw + nc])
 
 
 def _record_order(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
-    """Records in the order the player needs them, runtime records first, then blocks, power records, runs: by the
-    event that starts them (a runtime record: its block's first event, or after the last event), a runtime
-    record before a block before a power record before a run (order), and the sort key (2 x that event, + 1 for
-    a power record or a run)."""
+    """Records in the order the player needs them, runtime records first, then blocks, power records, ceiling
+    records, runs: by the event that starts them (a runtime record: its block's first event, or after the last
+    event), a runtime record before a block before a power record before a ceiling record before a run (order),
+    and the sort key (2 x that event, + 1 for a power or ceiling record or a run)."""
     events = schedule.events_per_block()
     block_first = np.cumsum(events) - events
     run_first = np.cumsum(schedule.run_count) - schedule.run_count
     runtime_first = np.append(block_first, int(events.sum()))[schedule.runtime_block]
     power_first = run_first[schedule.run_power >= 0] if schedule.n_power else np.zeros(0, dtype=np.int64)
-    key = np.concatenate([2 * runtime_first, 2 * block_first, 2 * power_first + 1, 2 * run_first + 1])
+    ceiling_first = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
+    key = np.concatenate([2 * runtime_first, 2 * block_first, 2 * power_first + 1, 2 * ceiling_first + 1,
+                          2 * run_first + 1])
     return np.argsort(key, kind="stable"), key
 
 
@@ -196,7 +210,8 @@ def record_events(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
     run_len = np.where(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add), LONG_RUN_BYTES,
                        SHORT_RUN_BYTES)
     order, key = _record_order(schedule)
-    sizes = [np.full(schedule.n_runtime, RUNTIME_BYTES), block_len, np.full(schedule.n_power, POWER_BYTES), run_len]
+    sizes = [np.full(schedule.n_runtime, RUNTIME_BYTES), block_len, np.full(schedule.n_power, POWER_BYTES),
+             np.full(schedule.n_ceiling, CEILING_BYTES), run_len]
     return key[order] >> 1, np.concatenate(sizes)[order]
 
 
@@ -215,6 +230,8 @@ def table_lines(table: CompactTable, schedule: Schedule, line_bytes: int) -> lis
         marks[int(o)] = f"runtime: {RUNTIME_NAMES[int(schedule.runtime_command[k])]} {int(schedule.runtime_value[k])}"
     for o, counts in zip(table.power_offsets, schedule.run_power[schedule.run_power >= 0]):
         marks[int(o)] = f"laser power: {int(counts)} counts"
+    for o, ceiling in zip(table.ceiling_offsets, schedule.run_ceiling[schedule.run_ceiling >= 0]):
+        marks[int(o)] = f"feed ceiling: F {int(ceiling)}"
     marks[len(data) - 2] = "end marker"
     cuts = sorted(set(marks) | {0, len(data)})
     lines = []

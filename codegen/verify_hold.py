@@ -43,8 +43,6 @@ def _actions(host: HostBuild, tick0: int, hold_s: float | None, override: int | 
     f_cpu, start = host.target.f_cpu, host.job.machine.feed_hold.override // 10
     actions = []
     if override is not None:
-        if override % 10 or not 10 <= override <= 100:
-            raise BuildError(f"verify --override {override}: the feed keys step by 10 % from 10 % to 100 %")
         goal = override // 10
         for i, step in enumerate(range(start, goal, 1 if goal > start else -1)):
             press = tick0 + int((OVERRIDE_FIRST_S + i * OVERRIDE_EVERY_S) * f_cpu)
@@ -91,6 +89,10 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     streaming firmware's (codegen/streaming.py), else the flash image."""
     if host.hold_plan is None:
         raise BuildError("verify --hold/--override: the job has no machine.feed_hold (the image has no hold keys)")
+    top = host.hold_plan.max_step * 10
+    if override is not None and (override % 10 or not 10 <= override <= top):
+        raise BuildError(f"verify --override {override}: the feed keys step by 10 % from 10 % to {top} % "
+                         "(machine.feed_hold.max_override)")
     if hold_s is not None and not 0 <= hold_s < host.plan.total:
         raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
     if setup is not None:
@@ -208,6 +210,9 @@ def hold_lines(hold: dict) -> list[str]:
     """verify's text lines for a held or overridden run."""
     lines = [f"  {k['key']} at {k['pressed_s']:.4f} s: the player dilated from event {k['first_dilated_event']}"
              for k in hold["keys"]]
+    if (hold.get("override_pct") or 0) > 100:
+        lines.append(f"  override {hold['override_pct']} %: the factor went up to {hold['highest_factor_pct']:.1f} %, "
+                     f"under {hold['ceiling_records']} ceiling records")
     if "at_rest_s" in hold:
         lines.append(f"  hold: at rest {hold['stopping_s']:.4f} s after the key (at {hold['at_rest_s']:.4f} s, "
                      f"before event {hold['parked_event']}), resumed at {hold['resume_s']:.4f} s")
@@ -229,7 +234,10 @@ def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: i
     rests = [{"kind": "pause" if paused else "hold", "at_rest_s": round(tick / tick_hz, 6),
               "parked_event": event, "resume_s": seconds(press)}
              for (event, tick, paused), press in zip(final.parks, resume_presses)]
+    played = final.factor[final.factor >= 0]
     out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests,
+                 "highest_factor_pct": round(100 * int(played.max(initial=0)) / F_ONE, 1),
+                 "ceiling_records": host.schedule.n_ceiling,
                  "ramp_s": round(host.hold_plan.ramp_seconds(tick_hz), 6), "keys": [
         {"key": a.function, "pressed_s": seconds(a.press), "first_dilated_event": a.event} for a in actions]}
     hold = next((a for a in actions if a.function == "hold"), None)

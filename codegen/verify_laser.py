@@ -73,7 +73,7 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
                                 f"{tables[k]} ({len(differ)} events differ)")
     ideal = event_power(host.events, host.plan, host.segments)[twin_event]
     if dilation is not None:  # M4's follows the actual speed, the plan's times the factor; dark at rest
-        ideal = np.where(records & DYNAMIC_FLAG, ideal * np.maximum(factor, 0) / F_ONE, ideal)
+        ideal = np.where(records & DYNAMIC_FLAG, ideal * np.clip(factor, 0, F_ONE) / F_ONE, ideal)
         ideal = np.where(factor < 0, 0.0, ideal)
     error = np.abs(played / laser.top - ideal)
     verdict.max_power_error = float(error.max(initial=0.0))

@@ -25,6 +25,8 @@ import numpy as np
 from codegen.checks import Checker, MotorTrain, corner_jumps
 from codegen.compress import Compressed, compress
 from codegen.errors import BuildError
+from codegen.headroom import with_ceilings
+from codegen.hold import HoldPlan
 from codegen.kinematics.base import Kinematics
 from codegen.laser import LaserPwm, event_counts, power_error_of, with_power
 from codegen.link.ring import LinkBudget, Ring, Shortfall
@@ -110,13 +112,14 @@ class Stages:
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
                  lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
                  link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None,
-                 laser: LaserPwm | None = None):
+                 laser: LaserPwm | None = None, hold: HoldPlan | None = None):
         """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
         `tables` gets each final window's table records as it is made (a window ends at a block and a run
         start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
         stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
         `runtime`: the program's runtime records so far (codegen/runtime.py), whose cost the blocks after them
-        get; `laser`: the laser's PWM, whose power records the runs get (codegen/laser.py)."""
+        get; `laser`: the laser's PWM, whose power records the runs get (codegen/laser.py); `hold`: the feed hold,
+        whose ceiling records they get where its override goes above 100 % (codegen/headroom.py)."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
@@ -124,7 +127,7 @@ class Stages:
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
-        self.runtime, self.laser = runtime, laser
+        self.runtime, self.laser, self.hold = runtime, laser, hold
         motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
         self.gaps = (target.run_gap_ticks(motors, pulse_us),
                      target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
@@ -205,6 +208,10 @@ class Stages:
                 laser_counts = int(counts[-1])
         with watch("twin"):
             pulses = predict(compressed.schedule, before.origin_fx, before.position)
+        if self.hold is not None and len(events.time):
+            with watch("feed ceilings"):  # they change no pulse
+                compressed.schedule = with_ceilings(compressed.schedule, self.hold, pulses, before.position,
+                                                    self.max_rate, kin.limits.max_accel * kin.limits.steps_per_mm)
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep else None, pulses if self.keep else None, before.block_item, power_error)

@@ -50,13 +50,19 @@ class _Reader:
         return value - (1 << 8 * width) if value >> (8 * width - 1) else value
 
 
-def _next_run(read, power: list | None, event: int) -> tuple[int, int, int]:
-    """The next rate run (count, interval, add), the power records before it going to `power`."""
+def _next_run(read, power: list | None, event: int, ceiling: list | None = None) -> tuple[int, int, int]:
+    """The next rate run (count, interval, add), the power records before it going to `power` and the ceiling
+    records to `ceiling`."""
     while True:
         count = read.u(1)
         if count:
             return count, read.u(3), read.i(2)
         count = read.u(2)
+        if count == 0xFFFF:  # a long run of count 0xFFFF: a ceiling record
+            factor = read.u(1)
+            if ceiling is not None:
+                ceiling.append((event, factor))
+            continue
         if count:
             return count, read.u(4), read.i(3)
         counts = read.u(2)  # a long run of count 0: a power record
@@ -64,13 +70,15 @@ def _next_run(read, power: list | None, event: int) -> tuple[int, int, int]:
             power.append((event, counts))
 
 
-def play_stream(data: bytes, motors: int, runtime: list | None = None, power: list | None = None) \
+def play_stream(data: bytes, motors: int, runtime: list | None = None, power: list | None = None,
+                ceiling: list | None = None) \
         -> tuple[list[tuple[int, int, int]], list[int], bool]:
     """(tick, motor, dir) of every pulse, the tool flag of every event and the final tool state, from the compact
     stream: a block lasts `modulus` events; a short block's master steps at every event; the runs follow one
     another over all events; at an event that starts a block and a run, the block record comes first. Runtime
     records (flags 0x90) go to `runtime` as (the events played before them, command, value); power records (a long
-    run of count 0, then counts u16) to `power` as (the event that takes them, counts)."""
+    run of count 0, then counts u16) to `power` as (the event that takes them, counts); ceiling records (a long run
+    of count 0xFFFF, then F u8) to `ceiling` as (the event that takes them, F)."""
     read = _Reader(data)
     pulses, tools = [], []
     pos = interval = add = run_left = 0
@@ -99,7 +107,7 @@ def play_stream(data: bytes, motors: int, runtime: list | None = None, power: li
         dirs = [1 if flags >> m & 1 else -1 for m in range(motors)]
         for _ in range(modulus):
             if run_left == 0:
-                run_left, interval, add = _next_run(read, power, len(tools))
+                run_left, interval, add = _next_run(read, power, len(tools), ceiling)
             else:
                 interval += add
             run_left -= 1

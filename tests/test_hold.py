@@ -20,7 +20,7 @@ from codegen.checks import check
 from codegen.firmware.avr import render_sources
 from codegen.cli import _build, main
 from codegen.errors import BuildError, JobError
-from codegen.hold import F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
+from codegen.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
 from codegen.job import load_job
 from codegen.pipeline import host_build, trains_from
 from codegen.streaming import stream_setup
@@ -43,10 +43,11 @@ def star(tmp_path_factory):
 
 
 def test_the_dilation_table_is_the_factor_s_reciprocal():
-    d = dilation_table()
-    assert d[F_ONE] == 256 and d[1] == 65280 and d[128] == 510
+    d = dilation_table(F_MAX)
+    assert F_ONE == 128 and d[F_ONE] == 256 and d[1] == 32768 and d[64] == 512 and d[F_MAX] == 129
     assert np.all(np.diff(d[1:]) <= 0)
-    assert [override_target(s) for s in (1, 5, 10)] == [25, 127, F_ONE]
+    # the override's steps: 12.8 F each, rounded; 200 % is the highest factor, 199 %
+    assert [override_target(s) for s in (1, 5, 10, 15, 19, 20)] == [13, 64, F_ONE, 192, 243, F_MAX]
 
 
 @needs_simavr
@@ -160,7 +161,7 @@ def test_a_delta_held_mid_job_comes_to_rest_within_its_limits_and_ends_exact(tmp
     path.write_text(_with_hold((ROOT / "examples" / "kossel-mini.yaml").read_text()))
     job = load_job(path)
     host, image, _ = _build(job, str(tmp_path / "out"), reuse=False, strict=False)
-    assert host.hold_plan.gate_above == F_ONE
+    assert not host.hold_plan.gated
     assert max(host.findings.accel_ratio.values()) <= 1.0 - RAMP_SHARE + 0.01  # the plan's own share
     at = random.Random(4).uniform(0.5, host.plan.total - 1.0)
     result, _ = hold_verify(host, image, at, None)
@@ -187,7 +188,7 @@ def test_an_override_the_keys_cannot_reach_is_an_error(tmp_path):
                                                                                       "override: 55"))
     with pytest.raises(JobError) as err:
         load_job(path)
-    assert "from 10 to 100 in steps of 10" in err.value.render()
+    assert "from 10 to 200 in steps of 10" in err.value.render()
 
 
 HOST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
@@ -196,10 +197,11 @@ HOST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
 
 @HOST
 @given(st.sampled_from(["cartesian", "corexy", "delta"]).flatmap(lambda k: jobs(k, "avr")),
-       st.floats(0.05, 0.95), st.integers(0, 3))
+       st.floats(0.05, 0.95), st.integers(0, 5))
 def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_factory, text, where, override):
-    """The host model of a hold (and a lower override before it) over random machines and programs: the dilated
-    pulse trains keep every motor within its rate and acceleration, as the planned ones do."""
+    """The host model of a hold (and an override before it: 70, 40 or 10 %, or 150 or 200 % under the ceiling
+    records) over random machines and programs: the dilated pulse trains keep every motor within its rate and
+    acceleration, as the planned ones do."""
     path = tmp_path_factory.mktemp("hold") / "job.yaml"
     path.write_text(_with_hold(text))
     try:
@@ -209,7 +211,8 @@ def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_fa
     assume(host.findings.ok and len(host.pulses.event_tick) > 10)
     twin = host.pulses
     events = len(twin.event_tick)
-    changes = ([(1, override_target(10 - 3 * override))] if override else []) + [(int(where * events), 0)]
+    step = {0: 10, 1: 7, 2: 4, 3: 1, 4: 15, 5: 20}[override]
+    changes = ([(1, override_target(step))] if step != 10 else []) + [(int(where * events), 0)]
     held = dilate(host.schedule, host.hold_plan, changes)
     if held.parks:  # resume 20 ms after the rest, back to 100 %
         resume = held.parks[0][1] + host.target.tick_hz // 50 + RESUME_TICKS

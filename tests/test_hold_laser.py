@@ -14,7 +14,7 @@ import yaml
 
 import codegen.verify_laser
 from codegen.cli import _build
-from codegen.hold import F_ONE, PARKED
+from codegen.hold import F_MAX, F_ONE, PARKED
 from codegen.job import load_job
 from codegen.laser import DYNAMIC_FLAG, follow
 from codegen.verify_hold import hold_verify
@@ -36,14 +36,17 @@ def laser(tmp_path_factory):
 
 
 def test_m4_follows_the_factor_and_nothing_burns_at_rest():
-    """The host's model of the player's integers: G = F + (F >> 7) over 256, M3's as they are, dark parked."""
+    """The host's model of the player's integers: G = 2 F over 256 below F_ONE, all of it at and above F_ONE (the
+    override's headroom: M4 never burns more than its S), M3's as they are, dark parked."""
     records = np.array([1000 | DYNAMIC_FLAG, 1000, 7999 | DYNAMIC_FLAG])
     assert follow(records, F_ONE).tolist() == [1000, 1000, 7999]
-    assert follow(records, 128).tolist() == [1000 * 129 >> 8, 1000, 7999 * 129 >> 8]
+    assert follow(records, F_MAX).tolist() == [1000, 1000, 7999]
+    assert follow(records, 64).tolist() == [500, 1000, 7999 * 128 >> 8]
     assert follow(records, 0).tolist() == [0, 1000, 0]  # F 0 and still moving: M3 burns until the rest
     assert follow(records, PARKED).tolist() == [0, 0, 0]
-    f = np.arange(F_ONE + 1)
-    assert np.max(np.abs(follow(np.full(F_ONE + 1, 0x7FFF | DYNAMIC_FLAG), f) / 0x7FFF - f / F_ONE)) < 0.002
+    f = np.arange(F_MAX + 1)
+    played = follow(np.full(F_MAX + 1, 0x7FFF | DYNAMIC_FLAG), f) / 0x7FFF
+    assert np.max(np.abs(played - np.minimum(f, F_ONE) / F_ONE)) < 0.0001
 
 
 def _power_during(trace, start: int, end: int) -> np.ndarray:

@@ -16,6 +16,7 @@ from codegen import hold_runs
 from codegen.cli import _build, main
 from codegen.cli_stream import _firmware, new_link, streamed_host
 from codegen.errors import JobError
+from codegen.hold import F_ONE
 from codegen.hold_runs import Scripted
 from codegen.job import load_job
 from codegen.link import protocol
@@ -165,7 +166,7 @@ def test_status_reports_the_feed_factor_through_a_hold(star_stream):
     simulate_stream(image.hex_path, setup.config, watched, int(10 * f_cpu), switches=simulated_switches(host))
     assert watched.link.outcome == "finished"
     feeds = [(s.state, s.feed) for _, s in watched.answers]
-    assert feeds == [("playing", 255), ("playing", 0), ("playing", 0), ("playing", 255)]
+    assert feeds == [("playing", F_ONE), ("playing", 0), ("playing", 0), ("playing", F_ONE)]
     assert watched.answers[1][1].position == watched.answers[2][1].position  # standing still while held
     line = status_line(watched.answers[1][1], ("a", "b"), ())
     assert line.endswith("held")

@@ -3,6 +3,7 @@ rate runs to the bit, the same pulses to the bit, the same path distances to rou
 makes the same tables.
 """
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -111,8 +112,9 @@ def recorded_windows(monkeypatch, job) -> list:
     calls = []
 
     def record(events, *args, **kw):
-        calls.append((events, args, kw, compress(events, *args, **kw)))
-        return calls[-1][-1]
+        made = compress(events, *args, **kw)
+        calls.append((events, args, kw, dataclasses.replace(made)))  # the window's records go into made's schedule
+        return made
 
     with monkeypatch.context() as patch:
         patch.setattr(windows, "compress", record)

@@ -3,8 +3,8 @@
 and the step interrupt's dilated path (templates/avr/player_isr.S.j2).
 
 Keys to ground on the board's `hold_keys:` pins (internal pull-ups, pressed reads low): `hold` sets the target
-factor to 0, `resume` to the override, `feed-` and `feed+` step the override by 10 % (10 % to 100 %) on each
-press. The step interrupt takes the dilated path while a GPIOR0 bit says so (main sets it at a key; the interrupt
+factor to 0, `resume` to the override, `feed-` and `feed+` step the override by 10 % (10 % to
+machine.feed_hold.max_override) on each press; above 100 % the ceiling records cap the factor (codegen/headroom.py). The step interrupt takes the dilated path while a GPIOR0 bit says so (main sets it at a key; the interrupt
 clears it once the factor and its target are both 100 %)."""
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ import re
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig, board_pin_uses
 from codegen.firmware.avr_player import NEED_BIT0
-from codegen.hold import CLAMP, F_ONE, OVERRIDE_STEPS, RESUME_TICKS, override_target
+from codegen.hold import CLAMP, F_ONE, RESUME_TICKS, override_target
 from codegen.schedule import RT_PAUSE
 
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits (the link's requests' too)
-HOLD_VARIABLES = 20  # bytes of SRAM: D (2), F.frac16 (3), target, parked, paused, override step, keys, the last
-# look's TCNT1 (2), the debounce's quiet (2), spill (6)
+HOLD_VARIABLES = 21  # bytes of SRAM: D (2), F.frac16 (3), target, ceiling, parked, paused, override step, keys,
+# the last look's TCNT1 (2), the debounce's quiet (2), spill (6)
 DEBOUNCE_MS = 20  # a feed key's contacts bounce for a few ms: presses closer than this count once
 HOLD_STREAM_VARIABLES = 2  # the streaming firmware's: the link's requests, the catch-up's far flag
 PIN = re.compile(r"P[A-L][0-7]")
@@ -54,9 +54,10 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool, tick_
     start = config.hold_override // 10
     return {"hold": {
         "bit": dilate_bit(motors, stream), "key_list": keys,
-        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": plan.gate_above, "gated": plan.gate_above < F_ONE,
+        "ramp_k": plan.ramp_k, "f_one": F_ONE, "f_free": plan.gate_above, "gated": plan.gated,
+        "ceilings": plan.top > F_ONE,
         "resume_ticks": RESUME_TICKS,
         "clamp_bytes": [CLAMP >> 8 * k & 0xFF for k in range(3)],
         "debounce_ms": DEBOUNCE_MS, "debounce_ticks": DEBOUNCE_MS * tick_hz // 1000,
-        "override_steps": OVERRIDE_STEPS, "start_step": start, "start_target": override_target(start),
+        "override_steps": plan.max_step, "start_step": start, "start_target": override_target(start),
         "table": plan.table, "rt_pause": RT_PAUSE}}

@@ -201,16 +201,31 @@ class Jog(_Model):
 
 def _override(v: Any) -> int:
     n = _number(v)
-    if n != int(n) or not 10 <= n <= 100 or int(n) % 10:
-        raise _fail("override", "expected a percentage from 10 to 100 in steps of 10 (the feed keys' steps)")
+    if n != int(n) or not 10 <= n <= 200 or int(n) % 10:
+        raise _fail("override", "expected a percentage from 10 to 200 in steps of 10 (the feed keys' steps)")
+    return int(n)
+
+
+def _max_override(v: Any) -> int:
+    n = _number(v)
+    if n != int(n) or not 100 <= n <= 200 or int(n) % 10:
+        raise _fail("override", "expected a percentage from 100 to 200 in steps of 10 (the feed keys' steps)")
     return int(n)
 
 
 class FeedHold(_Model):
     """Feed hold, resume and feed override keys (codegen/hold.py): the player's clock slows down, stops and
-    comes back within the motors' limits (the board's `hold_keys`)."""
+    comes back within the motors' limits (the board's `hold_keys`). Above 100 % the override goes only as far as
+    every motor's limits allow on the stretch being played (codegen/headroom.py)."""
 
     override: Annotated[int, BeforeValidator(_override)] = 100  # % the job starts with; feed- and feed+ step by 10
+    max_override: Annotated[int, BeforeValidator(_max_override)] = 200  # % the feed+ key goes up to
+
+    @model_validator(mode="after")
+    def _start_within(self) -> "FeedHold":
+        if self.override > self.max_override:
+            raise _fail("override", f"expected at most max_override ({self.max_override} %)", at=("override",))
+        return self
 
 
 # ---- heaters ----

@@ -14,6 +14,7 @@ import time
 from contextlib import contextmanager
 
 from codegen.errors import BuildError
+from codegen.hold import F_ONE
 from codegen.link.host import HostLink
 from codegen.link.protocol import FEED_DOWN, FEED_UP, HOLD, RESUME, Status
 
@@ -75,7 +76,7 @@ def status_line(status: Status, motors: tuple[str, ...], heaters: tuple[str, ...
     if status.laser is not None and laser_top:
         parts.append(f"laser {100 * status.laser / laser_top:.1f} %")
     if status.feed is not None and status.state == "playing":
-        parts.append("held" if status.feed == 0 else f"feed {100 * status.feed / 255:.0f} %")
+        parts.append("held" if status.feed == 0 else f"feed {100 * status.feed / F_ONE:.0f} %")
     return ", ".join(parts)
 
 
