@@ -32,12 +32,11 @@ GRID = 4  # grid points per window W: the checks' windows may start anywhere
 EDGE_WINDOWS = 2  # windows at each end of a table window that keep F_ONE
 
 
-def allowance(schedule: Schedule, pulses: Pulses, before: np.ndarray, max_rate: np.ndarray,
+def allowance(schedule: Schedule, delta: np.ndarray, pulses: Pulses, before: np.ndarray, max_rate: np.ndarray,
               max_accel: np.ndarray) -> np.ndarray:
     """(E,) the highest factor (1.0 = 100 %) every motor's limits allow at each event, on a steady factor: the
-    window's twin `pulses` (motor positions `before` its first event), `max_rate` steps/s and `max_accel`
-    steps/s^2 per motor."""
-    delta, _ = event_deltas(schedule)
+    events' tick deltas (event_deltas), the window's twin `pulses` (motor positions `before` its first event),
+    `max_rate` steps/s and `max_accel` steps/s^2 per motor."""
     tick_hz = schedule.tick_hz
     block = np.repeat(np.arange(schedule.n_blocks), schedule.block_events)
     share = schedule.block_steps / schedule.block_modulus[:, None]  # (B, M) steps per event
@@ -72,7 +71,8 @@ def _rate_ratio(pulses: Pulses, before: np.ndarray, max_rate: np.ndarray, tick_h
     position = pulses.event_position
     worst = np.zeros(len(position))
     for m in range(position.shape[1]):
-        stepped = np.flatnonzero(np.diff(position[:, m], prepend=before[m]))  # at most one step per event
+        steps = np.diff(position[:, m], prepend=before[m]) != 0  # at most one step per event
+        stepped = np.flatnonzero(steps)
         if len(stepped) <= RATE_WINDOW:
             continue
         tick = pulses.event_tick[stepped]
@@ -81,15 +81,14 @@ def _rate_ratio(pulses: Pulses, before: np.ndarray, max_rate: np.ndarray, tick_h
         highest = padded[:len(stepped) + 1].copy()  # highest[j + 1]: the windows ending at steps j .. j + 7
         for k in range(1, RATE_WINDOW + 1):
             np.maximum(highest, padded[k:k + len(stepped) + 1], out=highest)
-        last = np.searchsorted(stepped, np.arange(len(position)), side="right")  # j + 1: the last step so far
-        np.maximum(worst, highest[last], out=worst)
+        np.maximum(worst, highest[np.cumsum(steps)], out=worst)  # [j + 1]: j the last step so far
     return np.maximum(worst, 1e-12)
 
 
-def ceilings(schedule: Schedule, plan: HoldPlan, allow: np.ndarray) -> np.ndarray:
+def ceilings(schedule: Schedule, delta: np.ndarray, add: np.ndarray, plan: HoldPlan,
+             allow: np.ndarray) -> np.ndarray:
     """(E,) the ceiling (F) in force at each event: the override's steps under the allowance, lowered early
-    enough for the ramp."""
-    delta, add = event_deltas(schedule)
+    enough for the ramp (`delta`, `add`: event_deltas)."""
     top = plan.top
     levels = np.array(sorted({F_ONE} | {override_target(s) for s in range(11, plan.max_step + 1)}))
     allowed = np.clip(np.floor(allow * F_ONE) - 1, F_ONE, top)  # one F of margin for the interrupt's rounding
@@ -108,13 +107,13 @@ def ceilings(schedule: Schedule, plan: HoldPlan, allow: np.ndarray) -> np.ndarra
     return levels[np.searchsorted(levels, envelope + 1e-9, side="right") - 1]
 
 
-def records(schedule: Schedule, plan: HoldPlan, ceiling: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def records(schedule: Schedule, delta: np.ndarray, plan: HoldPlan, ceiling: np.ndarray) \
+        -> tuple[np.ndarray, np.ndarray]:
     """The ceiling records for per-event ceilings: (events, F). Rises that the ramp could not climb a step in
     are left out, and each run of falls becomes one, at its first, to its lowest."""
     change = np.flatnonzero(np.diff(np.concatenate([[F_ONE], ceiling])))
     if not len(change):
         return change, change
-    delta, _ = event_deltas(schedule)
     start = np.concatenate([[0.0], np.cumsum(delta / (FRAC_ONE * schedule.tick_hz))])
     climb = (override_target(11) - F_ONE) / plan.ramp_per_second(schedule.tick_hz)  # s of plan time, at least
     at = np.append(change, len(ceiling))
@@ -144,8 +143,9 @@ def with_ceilings(schedule: Schedule, plan: HoldPlan, pulses: Pulses, before: np
     `pulses` and the motors' positions `before` it (steps)."""
     if plan.top <= F_ONE or not schedule.n_runs:
         return schedule
-    ceiling = ceilings(schedule, plan, allowance(schedule, pulses, before, max_rate, max_accel))
-    events, factors = records(schedule, plan, ceiling)
+    delta, add = event_deltas(schedule)
+    ceiling = ceilings(schedule, delta, add, plan, allowance(schedule, delta, pulses, before, max_rate, max_accel))
+    events, factors = records(schedule, delta, plan, ceiling)
     if not len(events):
         return schedule
     out, run = split_runs(schedule, events)

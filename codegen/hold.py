@@ -188,6 +188,7 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
     run_first = np.cumsum(schedule.run_count) - schedule.run_count
     ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
     table, k = plan.table, plan.ramp_k
+    deltas, adds, ceilings = delta.tolist(), add.tolist(), ceiling.tolist()  # the loop's scalars, fast
     e = marks[0]
     here = int(pos[e])  # 24.8: where event e - 1 played
     ffx, target, paused = F_ONE << 16, F_ONE, False
@@ -197,13 +198,15 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
         if pauses and pauses[0] <= e:  # the record comes with this event's block: F 0
             pauses.pop(0)
             ffx, paused = ffx & 0xFFFF, True
-        f, d = ffx >> 16, int(delta[e])
-        goal = min(target, int(ceiling[e]))
-        end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
-        if target > F_ONE:  # the goal may change at the next ceiling record
-            nxt = int(np.searchsorted(ceiling_marks, e, side="right"))
-            end = min(end, int(ceiling_marks[nxt]) if nxt < len(ceiling_marks) else end)
-        if f == goal and f and end > e:  # a steady factor up to the next change (F_ONE: undilated)
+        f, d = ffx >> 16, deltas[e]
+        goal = min(target, ceilings[e])
+        end = e
+        if f == goal and f:  # a steady factor up to the next change (F_ONE: undilated)
+            end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
+            if target > F_ONE:  # the goal may change at the next ceiling record
+                nxt = int(np.searchsorted(ceiling_marks, e, side="right"))
+                end = min(end, int(ceiling_marks[nxt]) if nxt < len(ceiling_marks) else end)
+        if end > e:
             d = delta[e:end]
             step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
             ends = here + np.cumsum(step)
@@ -225,7 +228,7 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
         else:
             d = min((d * table[f]) >> 8, CLAMP)
             here += d
-            ffx = _ramp(ffx, goal, d >> FRAC_BITS, int(add[e]), k, plan.gate_above)
+            ffx = _ramp(ffx, goal, d >> FRAC_BITS, adds[e], k, plan.gate_above)
         if e and f:
             factor[e - 1] = ffx >> 16
         out[e] = here >> FRAC_BITS
