@@ -95,8 +95,7 @@ def ceilings(schedule: Schedule, delta: np.ndarray, add: np.ndarray, plan: HoldP
     # The fall the ramp surely makes over each event: plan time x F_ONE / top (the real clock at the top
     # factor), at most one step's worth; none in a long wait or (gated) while the plan brakes.
     seconds = delta / (FRAC_ONE * schedule.tick_hz)
-    fall = np.minimum(plan.ramp_per_second(schedule.tick_hz) * seconds * F_ONE / top, levels[1] - levels[0]
-                      if len(levels) > 1 else 0.0)
+    fall = np.minimum(plan.ramp_per_second(schedule.tick_hz) * seconds * F_ONE / top, levels[1] - levels[0])
     fall[delta >= LONG] = 0.0
     if plan.gated:
         fall[add > 0] = 0.0
