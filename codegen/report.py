@@ -41,7 +41,16 @@ def plan_summary(host: HostBuild) -> dict:
         **(host.link_plan.summary() if host.link_plan is not None else {}),
         **({"heaters": heaters_plan(host)} if host.heaters else {}),
         **({"laser": laser_plan(host)} if host.laser else {}),
+        **({"feed_hold": feed_hold_plan(host)} if host.hold_plan is not None else {}),
     }
+
+
+def feed_hold_plan(host: HostBuild) -> dict:
+    """Feed hold's ramp and keys, and the override's ceiling records (codegen/headroom.py) with their bytes."""
+    plan = host.hold_plan
+    return {"ramp_s": _round(plan.ramp_seconds(host.target.tick_hz), 4), "max_override_pct": plan.max_step * 10,
+            "ceiling_records": host.totals.ceiling_records,
+            "ceiling_bytes": host.totals.ceiling_bytes, "keys": dict(plan.keys)}
 
 
 def laser_plan(host: HostBuild) -> dict:
@@ -184,5 +193,11 @@ def human_plan(summary: dict) -> str:
         lines.append(f"  laser on {laser['pin']} at {laser['pwm_hz']:g} Hz ({laser['top']} counts): "
                      f"{laser['power_records']} power changes, within {laser['max_power_error_pct']:.2f} % of "
                      f"full scale of the plan")
+    if "feed_hold" in summary:
+        hold = summary["feed_hold"]
+        keys = ", ".join(f"{k} {v}" for k, v in hold["keys"].items())
+        lines.append(f"  feed hold ({keys}): {hold['ramp_s']:.4f} s from 100 % to rest; override up to "
+                     f"{hold['max_override_pct']} %, {hold['ceiling_records']} ceiling records "
+                     f"({hold['ceiling_bytes']} bytes of the tables, with the runs they split)")
     lines.extend(f"  problem: {p}" for p in summary["problems"])
     return "\n".join(lines)

@@ -59,6 +59,7 @@ class Played:
     pulses: Pulses | None  # ticks absolute, event_position counted from the program's start
     prior_item: int = -1  # the item of the last block before the window (its runtime records come after it)
     power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
+    ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
 
 
 @dataclass
@@ -76,6 +77,8 @@ class Totals:
     link_slowdown_s: float = 0.0  # time the link's bandwidth added to the plan (streaming)
     max_power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal
     power_records: int = 0
+    ceiling_records: int = 0  # the feed override's headroom (codegen/headroom.py)
+    ceiling_bytes: int = 0  # theirs and their runs' splits
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -90,6 +93,8 @@ class Totals:
         self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
         self.max_power_error = max(self.max_power_error, played.power_error)
         self.power_records += sched.n_power
+        self.ceiling_records += sched.n_ceiling
+        self.ceiling_bytes += played.ceiling_bytes
 
 
 @dataclass
@@ -208,13 +213,17 @@ class Stages:
                 laser_counts = int(counts[-1])
         with watch("twin"):
             pulses = predict(compressed.schedule, before.origin_fx, before.position)
+        ceiling_bytes = 0
         if self.hold is not None and len(events.time):
             with watch("feed ceilings"):  # they change no pulse
+                was = compressed.schedule.table_bytes()
                 compressed.schedule = with_ceilings(compressed.schedule, self.hold, pulses, before.position,
                                                     self.max_rate, kin.limits.max_accel * kin.limits.steps_per_mm)
+                ceiling_bytes = compressed.schedule.table_bytes() - was
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep else None, before.block_item, power_error)
+                        events if self.keep else None, pulses if self.keep else None, before.block_item, power_error,
+                        ceiling_bytes)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
         around = concat(*parts)

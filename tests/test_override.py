@@ -21,6 +21,7 @@ from codegen.errors import BuildError, JobError
 from codegen.hold import F_ONE, dilate, event_ceilings, override_target
 from codegen.job import load_job
 from codegen.pipeline import host_build, trains_from
+from codegen.report import plan_summary
 from codegen.streaming import stream_setup
 from codegen.tables import encode
 from codegen.verify_hold import hold_verify
@@ -128,6 +129,16 @@ def test_max_override_100_makes_no_records_and_bounds_the_keys(tmp_path):
     assert host.schedule.n_ceiling == 0 and host.hold_plan.top == F_ONE
     with pytest.raises(BuildError, match=r"from 10 % to 100 % \(machine.feed_hold.max_override\)"):
         hold_verify(host, None, None, 150)
+
+
+def test_the_plan_accounts_for_every_byte_of_the_ceilings(plotter, tmp_path):
+    host, _ = plotter
+    plain = host_build(_job(tmp_path, max_override=100))
+    hold = plan_summary(host)["feed_hold"]
+    assert hold["ceiling_records"] == host.schedule.n_ceiling and hold["max_override_pct"] == 200
+    assert hold["ceiling_bytes"] == host.schedule.table_bytes() - plain.schedule.table_bytes() > 4 * hold[
+        "ceiling_records"]  # each record and the run it splits
+    assert plan_summary(plain)["feed_hold"]["ceiling_bytes"] == 0
 
 
 def test_an_override_above_max_override_is_an_error(tmp_path):
