@@ -54,9 +54,9 @@ def _image_from_report(out_dir: Path, data: dict) -> Image:
                  dict(data["ram_parts"]))
 
 
-def _host(job, strict: bool, keep: bool = True) -> HostBuild:
+def _host(job, strict: bool, keep: bool = True, observe=None) -> HostBuild:
     """The host side of the build; the front end's warnings go to stderr."""
-    host = host_build(job, strict, keep=keep)
+    host = host_build(job, strict, keep=keep, observe=observe)
     if host.warnings:
         print(render_all(host.warnings), file=sys.stderr)
     return host
@@ -189,25 +189,28 @@ def cmd_plan(args) -> int:
     if args.stream:
         return cli_stream.cmd_plan_stream(args)
     job = load_job(Path(args.job), args.target)
-    keep = args.report is not None  # the report draws the whole plan
+    samples = None
+    if args.report:  # what the report draws, gathered a window at a time (memory bounded as without it)
+        from codegen.plan_samples import PlanSamples
+        samples = PlanSamples()
     if args.tables is None:
-        host = _host(job, args.strict, keep=keep)
+        host = _host(job, args.strict, keep=False, observe=samples)
     else:
-        host = _plan_writing_tables(job, args.strict, Path(args.tables), keep)
+        host = _plan_writing_tables(job, args.strict, Path(args.tables), samples)
     summary = plan_summary(host)
     print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
     if args.report:  # codegen/report_html.py, with matplotlib: imported only here
         from codegen.report_html import write_plan_report
-        write_plan_report(Path(args.report), host, summary)
+        write_plan_report(Path(args.report), host, summary, samples)
     return 0 if summary["pass"] else 1
 
 
-def _plan_writing_tables(job, strict: bool, path: Path, keep: bool = False) -> HostBuild:
+def _plan_writing_tables(job, strict: bool, path: Path, observe=None) -> HostBuild:
     """The plan, its table stream written to `path` as it is made; no file unless every check passes."""
     partial = path.with_name(f".{path.name}.partial")
     try:
         with open(partial, "wb") as tables:
-            host = host_build(job, strict, keep=keep, tables=tables)
+            host = host_build(job, strict, keep=False, tables=tables, observe=observe)
         if host.warnings:
             print(render_all(host.warnings), file=sys.stderr)
         if host.findings.ok:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import BinaryIO
+from typing import BinaryIO, Callable
 
 import numpy as np
 
@@ -134,19 +134,21 @@ def planner_limits(job, kin: Kinematics, target: TargetInfo, heaters: bool = Fal
 
 
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
-               tables: BinaryIO | None = None, link: LinkBudget | None = None) -> HostBuild:
+               tables: BinaryIO | None = None, link: LinkBudget | None = None,
+               observe: Callable[[Played], None] | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator. The program
     is read, planned and played a window at a time (codegen/lookahead.py, codegen/windows.py); `keep` joins
     the windows' results into the whole program's (for an image and its verification), otherwise only their
     totals are kept and memory stays bounded whatever the program's size. `tables` gets the table stream as
     its windows are made. With `link`, the job is planned for the streaming player: its costs, and a ring that
-    the link keeps fed (host.link_plan). A bar shows the share of the program planned (codegen/progress.py)."""
+    the link keeps fed (host.link_plan). `observe` gets each final window (codegen/plan_samples.py). A bar shows
+    the share of the program planned (codegen/progress.py)."""
     with progress.stage("plan", 1.0) as bar:
-        return _host_build(job, strict, watch or Stopwatch(), keep, tables, link, bar)
+        return _host_build(job, strict, watch or Stopwatch(), keep, tables, link, bar, observe)
 
 
 def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryIO | None, link: LinkBudget | None,
-                bar) -> HostBuild:
+                bar, observe) -> HostBuild:
     try:
         target = target_info(job.board, stream=link is not None, laser=job.machine.laser is not None,
                              hold=job.machine.feed_hold is not None)
@@ -174,7 +176,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             chunk = next(chunks, None)
         if stages is None:
             stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables, link, runtime, laser, hold)
+                            tables, link, runtime, laser, hold, observe)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:

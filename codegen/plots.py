@@ -62,10 +62,9 @@ def _planned_power(segments, k: np.ndarray, speed: np.ndarray) -> np.ndarray:
     return segments.power[k] * np.where(segments.dynamic[k], np.minimum(ratio, 1.0), 1.0)
 
 
-def planned_path(host, power: bool) -> PathSamples:
+def planned_path(plan, segments, power: bool) -> PathSamples:
     """The job's path as planned: the plan's trapezoids sampled on a time grid and at (a share of) the segments'
     starts, coloured by the planned speed or the ideal laser power."""
-    plan, segments = host.plan, host.segments
     every = np.linspace(0, len(segments) - 1, min(len(segments), MAX_POINTS // 2)).astype(np.int64)
     t = np.union1d(np.linspace(0.0, plan.total, MAX_POINTS // 2), plan.t_start[every])
     k = _segment_at(plan, t)
@@ -181,13 +180,24 @@ def motor_motion(trains: list[tuple[np.ndarray, np.ndarray]], steps_per_mm: np.n
     neighbouring ACCEL_WINDOW_S windows, positions interpolated between pulses. `trains`: per motor, pulse times
     (s) and directions. Returns the velocity's times, velocities (M, N), the acceleration's times and
     accelerations (M, K)."""
-    grid = max(WINDOW_S, duration / MAX_POINTS)
-    edges = np.arange(0.0, duration + grid, grid)
-    n = max(1, round(ACCEL_WINDOW_S / grid))  # grid steps per acceleration window
+    edges = motion_edges(duration)
     position = np.zeros((len(trains), len(edges)))
     for m, (t, direction) in enumerate(trains):
         if len(t):
             position[m] = np.interp(edges, t, np.cumsum(direction, dtype=np.int64), left=0.0) / steps_per_mm[m]
+    return motion_of(edges, position)
+
+
+def motion_edges(duration: float) -> np.ndarray:
+    """The motion plots' grid from 0 to `duration` (s): WINDOW_S or more, at most MAX_POINTS windows."""
+    grid = max(WINDOW_S, duration / MAX_POINTS)
+    return np.arange(0.0, duration + grid, grid)
+
+
+def motion_of(edges: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """motor_motion's series from every motor's position (mm, (M, N)) at the grid's `edges`."""
+    grid = float(edges[1] - edges[0]) if len(edges) > 1 else WINDOW_S
+    n = max(1, round(ACCEL_WINDOW_S / grid))  # grid steps per acceleration window
     velocity = np.diff(position, axis=1) / grid
     accel = (position[:, 2 * n:] - 2 * position[:, n:-n] + position[:, :-2 * n]) / (n * grid) ** 2
     return 0.5 * (edges[1:] + edges[:-1]), velocity, edges[n:-n], accel

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen import __version__, plots
+from codegen.plan_samples import PlanSamples
 from codegen.verify import MAX_TIMING_ERROR_US
 from codegen.verify_heaters import on_twin_clock, wait_ticks
 
@@ -119,22 +120,24 @@ def _write(path: Path, page: str) -> None:
         partial.unlink(missing_ok=True)
 
 
-def _path_section(host, simulated) -> Section:
+def _path_section(host, simulated, plan=None, segments=None) -> Section:
+    """The tool path, planned (the host's whole plan, or `plan` and `segments`) and simulated."""
+    plan, segments = (host.plan, host.segments) if segments is None else (plan, segments)
     power = host.laser is not None
     colour = "power" if power else "speed"
     title = f"tool path, coloured by {'laser power' if power else 'speed'}"
-    if host.segments is None or not len(host.segments):
+    if segments is None or not len(segments):
         return Section("path", title, missing="the job does not move")
-    planned = plots.planned_path(host, power)
+    planned = plots.planned_path(plan, segments, power)
     return Section("path", title, plots.path_figure(planned, simulated, power), colour=colour)
 
 
-def _motion_section(host, trains, duration: float, source: str) -> Section:
+def _motion_section(host, series, duration: float, source: str) -> Section:
+    """`series`: plots.motor_motion's, or a function of the limits that makes them."""
     title = "motors: velocity and acceleration against their limits"
     if duration <= 0:
         return Section("motion", title, missing="no motor steps")
     limits = host.kin.limits
-    series = plots.motor_motion(trains, limits.steps_per_mm, duration)
     return Section("motion", title, plots.motion_figure(host.kin.motors, series, limits.max_velocity,
                                                         limits.max_accel, source),
                    caption="Velocity over 10 ms windows (or more, on a long job); acceleration as the checks measure "
@@ -142,15 +145,14 @@ def _motion_section(host, trains, duration: float, source: str) -> Section:
                            "(the junction deviation's) shows as a spike the checks allow.")
 
 
-def write_plan_report(path: Path, host, summary: dict) -> None:
+def write_plan_report(path: Path, host, summary: dict, samples: PlanSamples) -> None:
     """plan --report: the planned path and the twin's motor motion (no simulation: no simulated path, timing, ring
-    fill over time or temperatures)."""
-    pulses, tick_hz = host.pulses, host.target.tick_hz
-    trains = [(t / tick_hz, d) for t, d in (pulses.of_motor(m) for m in range(len(host.kin.motors)))]
-    duration = float(pulses.tick.max()) / tick_hz if len(pulses.tick) else 0.0
-    sections = [_path_section(host, None),
+    fill over time or temperatures), from what `samples` gathered a window at a time."""
+    duration = samples.duration_s
+    motion = samples.motion(host.kin.limits.steps_per_mm) if duration > 0 else None
+    sections = [_path_section(host, None, samples.plan(), samples.segments()),
                 Section("simulated-path", "simulated tool path", missing="plan runs no simulator (verify does)"),
-                _motion_section(host, trains, duration, "the twin's pulses: what the tables play"),
+                _motion_section(host, motion, duration, "the twin's pulses: what the tables play"),
                 Section("timing", "timing against the twin", missing="plan runs no simulator (verify does)")]
     if host.link_plan is not None:
         sections.append(Section("ring-fill", "ring fill over time",
@@ -245,8 +247,10 @@ def write_verify_report(path: Path, host, result: dict, trace) -> None:
     trains = [(seconds[run.step_motor == m], run.step_dir[run.step_motor == m]) for m in range(len(host.kin.motors))]
     power = host.laser is not None
     simulated = plots.simulated_path(host, trace, power) if len(run.step_cycle) > 1 else None
+    duration = float(seconds.max()) if len(seconds) else 0.0
+    motion = plots.motor_motion(trains, host.kin.limits.steps_per_mm, duration) if duration > 0 else None
     sections = [_path_section(host, simulated),
-                _motion_section(host, trains, float(seconds.max()) if len(seconds) else 0.0, "simulated pulses"),
+                _motion_section(host, motion, duration, "simulated pulses"),
                 _timing_section(host, result, trace)]
     if "link" in result:
         sections.append(_ring_section(host, result, trace))

@@ -117,14 +117,16 @@ class Stages:
     def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
                  lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
                  link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None,
-                 laser: LaserPwm | None = None, hold: HoldPlan | None = None):
+                 laser: LaserPwm | None = None, hold: HoldPlan | None = None,
+                 observe: Callable[[Played], None] | None = None):
         """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
         `tables` gets each final window's table records as it is made (a window ends at a block and a run
         start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
         stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
         `runtime`: the program's runtime records so far (codegen/runtime.py), whose cost the blocks after them
         get; `laser`: the laser's PWM, whose power records the runs get (codegen/laser.py); `hold`: the feed hold,
-        whose ceiling records they get where its override goes above 100 % (codegen/headroom.py)."""
+        whose ceiling records they get where its override goes above 100 % (codegen/headroom.py); `observe`
+        gets each final window with its pulses (which it drops after unless `keep`)."""
         self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
@@ -132,7 +134,7 @@ class Stages:
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
-        self.runtime, self.laser, self.hold = runtime, laser, hold
+        self.runtime, self.laser, self.hold, self.observe = runtime, laser, hold, observe
         motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
         self.gaps = (target.run_gap_ticks(motors, pulse_us),
                      target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
@@ -175,6 +177,9 @@ class Stages:
             self.open = None
         for p in out:
             self.totals.add(p)
+            if self.observe is not None:
+                self.observe(p)
+                p.pulses = p.pulses if self.keep else None
             if self.tables is not None:
                 self.tables.write(encode(self._with_runtime(p, last and p is out[-1])).data[:-len(end_marker(False))])
         return out
@@ -222,7 +227,7 @@ class Stages:
                 ceiling_bytes = compressed.schedule.table_bytes() - was
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep else None, before.block_item, power_error,
+                        events if self.keep else None, pulses if self.keep or self.observe else None, before.block_item, power_error,
                         ceiling_bytes)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]

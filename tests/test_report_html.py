@@ -167,3 +167,24 @@ def test_a_bad_job_gives_exit_2_and_no_page(tmp_path):
         code, _, err = run(verb, job, "--report", page, *(("--out", tmp_path / "out") if verb == "verify" else ()))
         assert code == 2 and "must be > 0" in err
         assert not page.exists() and not list(tmp_path.glob(".*.partial"))
+
+
+def test_the_plan_report_gathers_its_motion_a_window_at_a_time():
+    """plan --report keeps no pulses: the motors' motion it draws, gathered per window on a fine grid, is the one
+    drawn from the whole job's twin (the star's grid is 10 ms, two of the fine grid's steps: the same positions)."""
+    from codegen.job import load_job
+    from codegen.pipeline import host_build
+    from codegen.plan_samples import PlanSamples
+    from codegen.plots import motor_motion
+
+    job = load_job(ROOT / "examples" / "star.yaml")
+    whole = host_build(job)
+    samples = PlanSamples()
+    windowed = host_build(job, keep=False, observe=samples)
+    assert windowed.pulses is None and samples.duration_s == whole.pulses.event_tick[-1] / whole.target.tick_hz
+    tick_hz, spm = whole.target.tick_hz, whole.kin.limits.steps_per_mm
+    trains = [(t / tick_hz, d) for t, d in map(whole.pulses.of_motor, range(len(whole.kin.motors)))]
+    for ours, theirs in zip(samples.motion(spm), motor_motion(trains, spm, samples.duration_s)):
+        assert ours.shape == theirs.shape and np.allclose(ours, theirs, atol=1e-9)
+    assert len(samples.segments()) == len(whole.segments)
+    assert np.array_equal(samples.plan().t_start, whole.plan.t_start)
