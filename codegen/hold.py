@@ -67,7 +67,7 @@ class HoldPlan:
 
     ramp_k: int  # F.frac16 per dilated tick
     gate_above: int  # above this F the ramp waits for the plan's add (F_FREE); F_MAX: never (a delta's)
-    keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2)
+    keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2) or (row, column) of a key matrix
     table: tuple[int, ...]  # dilation_table() up to the highest target
     max_step: int = 10  # the override's highest step (machine.feed_hold.max_override / 10)
 
@@ -94,6 +94,9 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     keys = board.get("hold_keys")
     if not keys:
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
+    if board.get("target") == "mcs51" and job.machine.feed_hold.max_override != 100:
+        raise BuildError(f"machine.feed_hold.max_override: the 8051's player goes up to 100 % (has "
+                         f"{job.machine.feed_hold.max_override} %)")
     steppers = job.machine.steppers.values()
     per_second = min(s.max_accel / s.max_velocity for s in steppers)  # of f, for the fastest motor at its limit
     ramp_k = int(RAMP_SHARE * per_second * F_ONE * FRAC16 / tick_hz)
@@ -102,13 +105,19 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
                          f"player's 16-bit step per tick ({ramp_k})")
     gate_above = F_MAX if plans_ramp_share(job) else F_FREE
     max_step = job.machine.feed_hold.max_override // 10
-    return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()},
+    return HoldPlan(ramp_k, gate_above, {str(k): _key_place(v) for k, v in keys.items()},
                     tuple(int(d) for d in dilation_table(override_target(max_step))), max_step)
 
 
+def _key_place(value) -> str | tuple[int, ...]:
+    """A hold key's place on its board: a pin name (PL2), or (row, column) on the board's key matrix."""
+    return tuple(int(v) for v in value) if isinstance(value, (list, tuple)) else str(value)
+
+
 def plans_ramp_share(job) -> bool:
-    """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp (a delta with feed_hold)."""
-    return job.machine.feed_hold is not None and job.machine.kinematics == "delta"
+    """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp: a delta's with feed_hold, and every
+    8051 image's (its player's ramp has no gate)."""
+    return job.machine.feed_hold is not None and (job.machine.kinematics == "delta" or job.target == "mcs51")
 
 
 def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,5 @@
-"""`verify --hold SECONDS` and `verify --override PERCENT` on an ATmega2560 image with machine.feed_hold: the
-simulator presses the board's hold keys (a flash image) or the host sends HOLD, RESUME, FEED_DOWN and FEED_UP
+"""`verify --hold SECONDS` and `verify --override PERCENT` on an image with machine.feed_hold: the simulator
+presses the board's hold keys (an ATmega2560's or an 8051's flash image) or the host sends HOLD, RESUME, FEED_DOWN and FEED_UP
 frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the dilated clock
 that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its resume key or
 frame comes once the machine rests at each.
@@ -20,7 +20,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
-from codegen.hold_runs import FlashRun, HeatedRun, StreamRun
+from codegen.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
 from codegen.pipeline import HostBuild
 from codegen.verify import compare
 
@@ -97,6 +97,8 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
         raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
     if setup is not None:
         runner = StreamRun(host, image, setup)
+    elif host.target.target == "mcs51":
+        runner = S51FlashRun(host, image)
     else:
         runner = HeatedRun(host, image) if host.heaters else FlashRun(host, image)
     target, f_cpu = host.target, host.target.f_cpu
