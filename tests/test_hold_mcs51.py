@@ -1,0 +1,138 @@
+"""Feed hold, resume and override on the 8051's flash image (codegen/firmware/mcs51_hold.py, the dilated path of
+templates/mcs51/player.c.j2), end to end with the real SDCC and s51: seed-51's hold keys on its key matrix pressed
+by the s51 script (codegen/sim/mcs51_hold.py), every pulse on the dilated twin's clock (codegen/hold.py), every
+motor within its limits, the end positions exact; and what the 8051 refuses."""
+
+from __future__ import annotations
+
+import dataclasses
+import random
+import shutil
+from pathlib import Path
+
+import pytest
+
+from codegen.cli import _build, main
+from codegen.errors import BuildError, JobError
+from codegen.firmware.mcs51 import render_sources
+from codegen.hold import RAMP_SHARE
+from codegen.job import load_job
+from codegen.pipeline import host_build
+from codegen.verify_hold import hold_verify
+
+pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
+                                reason="needs sdcc and s51 (scripts/setup.sh installs them)")
+
+F_CPU = 12_000_000
+JOB = """name: hold51
+target: mcs51
+board: seed-51
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 40, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
+    y: {{steps_per_mm: 40, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
+{hold}
+program:
+  feed: 2400
+  shapes:
+    - line: {{from: [0, 0], to: [20, 0]}}
+    - line: {{from: [20, 0], to: [20, 15]}}
+    - arc: {{center: [10, 15], radius: 10, start: 0, sweep: 180}}
+    - line: {{from: [0, 15], to: [0, 0]}}
+"""
+HOLD = "  feed_hold: {max_override: 100}"
+
+
+def job_file(folder: Path, hold: str = HOLD) -> Path:
+    """A plotter at its motors' full speed (1,600 steps/s), 2.15 s of lines and a half circle."""
+    path = folder / "hold51.yaml"
+    path.write_text(JOB.format(hold=hold))
+    return path
+
+
+@pytest.fixture(scope="module")
+def plotter(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hold51")
+    host, image, _ = _build(load_job(job_file(out)), str(out / "out"), reuse=False, strict=False)
+    return host, image
+
+
+def _within_limits(result: dict) -> None:
+    assert result["pass"], result["problems"]
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_held_mid_move_comes_to_rest_within_its_limits_and_ends_exact(plotter, seed):
+    host, image = plotter
+    assert not host.hold_plan.gated  # the 8051's plan keeps RAMP_SHARE of every motor's acceleration
+    assert max(host.findings.accel_ratio.values()) <= 1.0 - RAMP_SHARE + 0.01
+    at = random.Random(seed).uniform(0.1, host.plan.total - 0.6)
+    result, trace = hold_verify(host, image, at, None)
+    _within_limits(result)
+    hold = result["hold"]
+    assert hold["ramp_s"] - 0.001 < hold["stopping_s"] < hold["ramp_s"] + 0.1
+    assert hold["resume_s"] > hold["at_rest_s"]
+    # no pulse while parked: between the last one before the rest and the resume key (times rounded to 1 us)
+    rest, resume = (trace.timer_start_cycle + hold[k] * F_CPU for k in ("at_rest_s", "resume_s"))
+    assert not ((trace.step_cycle > rest + 120) & (trace.step_cycle < resume)).any()
+    assert result["duration_s"] > host.plan.total + (hold["resume_s"] - hold["at_rest_s"])
+
+
+def test_the_feed_keys_override_the_plotter_to_half_speed(plotter):
+    host, image = plotter
+    result, _ = hold_verify(host, image, None, 50)
+    _within_limits(result)
+    assert [k["key"] for k in result["hold"]["keys"]] == ["feed-"] * 5
+    assert 1.7 * host.plan.total < result["duration_s"] < 2.0 * host.plan.total
+
+
+def test_a_twin_with_another_ramp_does_not_pass(plotter):
+    """The comparison can fail: a ramp one step per tick faster than the firmware's is found out."""
+    host, image = plotter
+    fake = dataclasses.replace(host)
+    fake.__dict__["hold_plan"] = dataclasses.replace(host.hold_plan, ramp_k=host.hold_plan.ramp_k + 1)
+    result, _ = hold_verify(fake, image, 0.7, None)
+    assert not result["pass"]
+    assert any("away from its predicted time" in p for p in result["problems"])
+
+
+def test_verify_hold_on_the_command_line(plotter, capsys):
+    host, image = plotter
+    code = main(["verify", str(host.job.path), "--out", str(image.hex_path.parent), "--hold", "1.0"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert out.startswith("PASS hold51") and "hold: at rest" in out
+
+
+def test_the_image_grows_by_the_hold_and_runs_no_movx(plotter, tmp_path):
+    """The keys share P0 with the idle XRAM bus: nothing of the player, the display or the keys is in XRAM."""
+    host, image = plotter
+    assert image.sections["xram_used"] == 0
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    _, without, _ = _build(load_job(job_file(plain, hold="")), str(plain / "out"), reuse=False, strict=False)
+    code = image.flash_bytes - image.table_bytes
+    assert 700 < code - (without.flash_bytes - without.table_bytes) < 1100, (code, without.flash_bytes)
+
+
+def test_a_hold_key_on_a_jog_key_is_an_error(plotter):
+    host, _ = plotter
+    config = dataclasses.replace(host.firmware_config(), hold=dataclasses.replace(
+        host.hold_plan, keys={**host.hold_plan.keys, "feed+": (1, 1)}))
+    with pytest.raises(BuildError, match=r"hold_keys feed\+ is at \[1, 1\], a jog key's place"):
+        render_sources(host.schedule, config)
+
+
+def test_m0_on_the_8051_is_an_error_at_its_line(tmp_path):
+    """The 8051's player has no runtime records: an M0/M1 pause cannot wait for the resume key there."""
+    path = job_file(tmp_path)
+    path.write_text(path.read_text().split("program:")[0] + "program:\n  gcode: |\n    G1 X5 F600\n    M0\n"
+                                                            "    G1 X0\n")
+    with pytest.raises(JobError) as err:
+        host_build(load_job(path))
+    text = err.value.render()
+    assert "hold51.yaml:13:5: error: M0 waits for the resume key: the 8051's player has no M0/M1 pause yet" in text
