@@ -10,14 +10,17 @@ import random
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from codegen.cli import _build, main
 from codegen.errors import BuildError, JobError
 from codegen.firmware.mcs51 import render_sources
-from codegen.hold import RAMP_SHARE
+from codegen.hold import RAMP_SHARE, dilate, override_target
 from codegen.job import load_job
 from codegen.pipeline import host_build
+from codegen.sim.mcs51 import simulate
+from codegen.sim.mcs51_hold import seen_at
 from codegen.verify_hold import hold_verify
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
@@ -90,6 +93,25 @@ def test_the_feed_keys_override_the_plotter_to_half_speed(plotter):
     assert 1.7 * host.plan.total < result["duration_s"] < 2.0 * host.plan.total
 
 
+def test_a_bouncing_feed_key_steps_the_override_once(plotter):
+    """Two closings of feed- 10 ms apart (its contacts bouncing; main polls every 3.4 ms between its display's
+    updates, so it sees both) take the override to 90 %, not 80 %."""
+    host, image = plotter
+    config, ms = host.firmware_config(), F_CPU // 1000
+    tick0 = simulate(image.hex_path, config, 4 * F_CPU).timer_start_cycle
+    at = tick0 + 100 * ms
+    bounces = [("feed-", at, at + 5 * ms), ("feed-", at + 10 * ms, at + 60 * ms)]
+    trace = simulate(image.hex_path, config, 8 * F_CPU, hold_keys=bounces)
+    took = (int(trace.step_cycle.max()) - trace.timer_start_cycle) / F_CPU
+    seen = seen_at(trace.hold_polls, trace.hold_changes, at)
+    cycles = tick0 + host.pulses.event_tick * (F_CPU // host.target.tick_hz)
+    first = int(np.searchsorted(cycles, seen)) + 1
+    predicted = {step: dilate(host.schedule, host.hold_plan, [(first, override_target(step))]).tick[-1]
+                 / host.target.tick_hz for step in (9, 8)}
+    assert abs(took - predicted[9]) < 0.001 * predicted[9], (took, predicted)
+    assert predicted[8] - predicted[9] > 0.1
+
+
 def test_a_twin_with_another_ramp_does_not_pass(plotter):
     """The comparison can fail: a ramp one step per tick faster than the firmware's is found out."""
     host, image = plotter
@@ -106,6 +128,15 @@ def test_verify_hold_on_the_command_line(plotter, capsys):
     out = capsys.readouterr().out
     assert code == 0, out
     assert out.startswith("PASS hold51") and "hold: at rest" in out
+
+
+def test_hold_keys_beside_jog_keys_on_one_matrix(tmp_path):
+    """Jog mode first (its start key), then the job, held and resumed: both keys' models on seed-51's P0."""
+    path = job_file(tmp_path, hold=HOLD + "\n  jog: {speeds: [150, 600, 2400]}")
+    host, image, _ = _build(load_job(path), str(tmp_path / "out"), reuse=False, strict=False)
+    result, _ = hold_verify(host, image, 0.7, None)
+    _within_limits(result)
+    assert "at_rest_s" in result["hold"]
 
 
 def test_the_image_grows_by_the_hold_and_runs_no_movx(plotter, tmp_path):

@@ -4,7 +4,8 @@ clock counts, for codegen/hold_runs.py's S51FlashRun.
 As the jog keys' model (codegen/sim/mcs51_keys.py): the script keeps the keys held in a simulator variable, `hk`
 (bit i: HOLD_KEYS[i]), set at every entry of the firmware's poll (`_hold_poll`, from firmware.map) from sim_ticks, so
 a change is seen at the first poll after it; at every write to a port that carries a row, each column's pin reads
-low while a held key joins it to a row whose latch is low. Each poll logs a record (TAG_HOLD_POLL, the index of the
+low while a held key joins it to a row whose latch is low (beside the jog keys' model of the same matrix, it only
+pulls columns low after that model's update). Each poll logs a record (TAG_HOLD_POLL, the index of the
 latest change in effect), which tells when the firmware first saw each press.
 """
 
@@ -43,7 +44,9 @@ def hold_key_model(config: FirmwareConfig, presses: list[tuple[str, int, int]], 
                 if cols[c].port == port]
         all_bits = sum(c.mask for c in cols if c.port == port)
         low = "|".join(f"((((hk>>{bit})&1)&&!(P{row.port}&{row.mask}))?{col.mask}:0)" for bit, row, col in mine) or "0"
-        update = f"pin{port}=(pin{port}&{0xFF & ~all_bits})|({all_bits}&~({low}))"
+        # after the jog keys' own update (which sets every column from its keys) only pull more columns low
+        update = (f"pin{port}=pin{port}&~({low})" if config.jog is not None
+                  else f"pin{port}=(pin{port}&{0xFF & ~all_bits})|({all_bits}&~({low}))")
         for row_port in sorted({r.port for r in rows}):
             on_write[row_port] = ",".join(filter(None, [on_write.get(row_port), update]))
     return {"prelude": ("var hk", "expression /X hk=0"), "on_write": on_write,
