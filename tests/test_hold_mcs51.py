@@ -33,11 +33,11 @@ board: seed-51
 machine:
   kinematics: cartesian
   steppers:
-    x: {{steps_per_mm: 40, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
-    y: {{steps_per_mm: 40, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
+    x: {{steps_per_mm: 40, max_velocity: {v}, max_accel: {a}, range: [0, 200]}}
+    y: {{steps_per_mm: 40, max_velocity: {v}, max_accel: {a}, range: [0, 200]}}
 {hold}
 program:
-  feed: 2400
+  feed: {feed}
   shapes:
     - line: {{from: [0, 0], to: [20, 0]}}
     - line: {{from: [20, 0], to: [20, 15]}}
@@ -47,10 +47,10 @@ program:
 HOLD = "  feed_hold: {max_override: 100}"
 
 
-def job_file(folder: Path, hold: str = HOLD) -> Path:
-    """A plotter at its motors' full speed (1,600 steps/s), 2.15 s of lines and a half circle."""
+def job_file(folder: Path, hold: str = HOLD, velocity: int = 40, accel: int = 1000) -> Path:
+    """A plotter at its motors' full speed (1,600 steps/s by default), 2.15 s of lines and a half circle."""
     path = folder / "hold51.yaml"
-    path.write_text(JOB.format(hold=hold))
+    path.write_text(JOB.format(hold=hold, v=velocity, a=accel, feed=velocity * 60))
     return path
 
 
@@ -72,6 +72,7 @@ def _within_limits(result: dict) -> None:
 def test_held_mid_move_comes_to_rest_within_its_limits_and_ends_exact(plotter, seed):
     host, image = plotter
     assert not host.hold_plan.gated  # the 8051's plan keeps RAMP_SHARE of every motor's acceleration
+    assert host.hold_plan.ramp_k == 41  # the ramp step: 16 x 8 bits
     assert max(host.findings.accel_ratio.values()) <= 1.0 - RAMP_SHARE + 0.01
     at = random.Random(seed).uniform(0.1, host.plan.total - 0.6)
     result, trace = hold_verify(host, image, at, None)
@@ -83,6 +84,16 @@ def test_held_mid_move_comes_to_rest_within_its_limits_and_ends_exact(plotter, s
     rest, resume = (trace.timer_start_cycle + hold[k] * F_CPU for k in ("at_rest_s", "resume_s"))
     assert not ((trace.step_cycle > rest + 120) & (trace.step_cycle < resume)).any()
     assert result["duration_s"] > host.plan.total + (hold["resume_s"] - hold["at_rest_s"])
+
+
+def test_a_ramp_of_more_than_255_per_tick_holds_too(tmp_path):
+    """RAMP_K 335 (F.frac16 per tick): the ramp's step takes the 16 x 16-bit product (41 above takes 16 x 8)."""
+    host, image, _ = _build(load_job(job_file(tmp_path, velocity=25, accel=5000)), str(tmp_path / "out"),
+                            reuse=False, strict=False)
+    assert host.hold_plan.ramp_k == 335
+    result, _ = hold_verify(host, image, 0.5, None)
+    _within_limits(result)
+    assert result["hold"]["stopping_s"] < 0.1
 
 
 def test_the_feed_keys_override_the_plotter_to_half_speed(plotter):
