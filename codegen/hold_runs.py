@@ -1,7 +1,8 @@
 """The simulated runs of codegen/verify_hold.py: a flash image whose hold keys are pressed (simavr's key pins; s51's
-key matrix on the 8051), or a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the closed-loop link of
-codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each reached the firmware:
-a key at once (on the 8051: at main's first poll after it), a frame once its last byte has arrived (it is sent when the line is idle, at or after its cycle)."""
+key matrix on the 8051), or a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the
+closed-loop link of codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each
+reached the firmware: a key at once (on the 8051: at main's first poll after it), a frame once its last byte has
+arrived (it is sent when the line is idle, at or after its cycle)."""
 
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ class FlashRun:
 
 
 class S51FlashRun(FlashRun):
-    """An 8051 flash image in s51, its matrix keys pressed (codegen/sim/mcs51_hold.py): main polls them between its
+    """An 8051 flash image in s51, its matrix keys pressed (codegen/sim/mcs51_keys.py): main polls them between its
     display's updates, so each press reaches the firmware at the first poll that sees it."""
 
     def tick0(self, pauses: bool) -> int:
@@ -57,7 +58,7 @@ class S51FlashRun(FlashRun):
 
     def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
         from codegen.sim.mcs51 import simulate as simulate_51
-        from codegen.sim.mcs51_hold import seen_at
+        from codegen.sim.mcs51_keys import seen_at
 
         hold = int(PRESS_S * self.f_cpu)
         keys = [(function, cycle, cycle + hold) for function, cycle in presses]

@@ -1,8 +1,8 @@
 """`verify --hold SECONDS` and `verify --override PERCENT` on an image with machine.feed_hold: the simulator
-presses the board's hold keys (an ATmega2560's or an 8051's flash image) or the host sends HOLD, RESUME, FEED_DOWN and FEED_UP
-frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the dilated clock
-that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its resume key or
-frame comes once the machine rests at each.
+presses the board's hold keys (an ATmega2560's or an 8051's flash image) or the host sends HOLD, RESUME, FEED_DOWN
+and FEED_UP frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the
+dilated clock that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its
+resume key or frame comes once the machine rests at each.
 
 The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the requests.
 The override requests (feed- or feed+, one per 10 %) come from 10 ms into the job, one every 100 ms; the hold at

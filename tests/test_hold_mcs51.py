@@ -1,6 +1,6 @@
 """Feed hold, resume and override on the 8051's flash image (codegen/firmware/mcs51_hold.py, the dilated path of
 templates/mcs51/player.c.j2), end to end with the real SDCC and s51: seed-51's hold keys on its key matrix pressed
-by the s51 script (codegen/sim/mcs51_hold.py), every pulse on the dilated twin's clock (codegen/hold.py), every
+by the s51 script (codegen/sim/mcs51_keys.py), every pulse on the dilated twin's clock (codegen/hold.py), every
 motor within its limits, the end positions exact; and what the 8051 refuses."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from codegen.hold import RAMP_SHARE, dilate, override_target
 from codegen.job import load_job
 from codegen.pipeline import host_build
 from codegen.sim.mcs51 import simulate
-from codegen.sim.mcs51_hold import seen_at
+from codegen.sim.mcs51_keys import seen_at
 from codegen.verify_hold import hold_verify
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,

@@ -54,6 +54,7 @@ def hold_context(config: FirmwareConfig, board: dict, parse_pin, stop_ticks: int
     return {"hold": {
         "scans": scans, "ramp_k": plan.ramp_k, "f_one": F_ONE, "resume_ticks": RESUME_TICKS,
         "long_iv": long_iv, "long_add": 0x10000 - long_iv, "clamp_top": CLAMP >> 16,
-        "table_lo": [d & 0xFF for d in plan.table], "table_hi": [d >> 8 for d in plan.table], "targets": [override_target(s) for s in range(plan.max_step + 1)],
+        "table_lo": [d & 0xFF for d in plan.table], "table_hi": [d >> 8 for d in plan.table],
+        "targets": [override_target(s) for s in range(plan.max_step + 1)],
         "override_steps": plan.max_step, "start_step": start, "start_target": override_target(start),
         "debounce_ms": DEBOUNCE_MS, "debounce_units": -(-DEBOUNCE_MS * tick_hz // (1000 * TH1_TICKS))}}

@@ -39,8 +39,8 @@ from codegen.firmware.mcs51_homing import decode_status, endstops
 from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
-from codegen.sim.mcs51_hold import TAG_HOLD_POLL, hold_key_model
-from codegen.sim.mcs51_keys import POSITION_BYTES, TAG_JOG_POS, TAG_SCAN, jog_positions, key_model
+from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model,
+                                    jog_positions, key_model)
 from codegen.sim.avr import (HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault,
                              switch_thresholds)
 
@@ -179,7 +179,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     error here: see SimTrace.homing_failed. `keys`: a jog image's key script (codegen/sim/keys.py; it must press
     start; without one, start alone), its time on top of the budget; the trace then has `jog_positions` (the
     firmware's counts at the end) and `key_scans` (the clock of every key scan). `hold_keys`: a feed hold image's
-    presses (function, first clock, last clock; codegen/sim/mcs51_hold.py); the trace then has `hold_polls` (clock,
+    presses (function, first clock, last clock; codegen/sim/mcs51_keys.py); the trace then has `hold_polls` (clock,
     index of the latest change seen) and `hold_changes`."""
     if shutil.which("s51") is None:
         raise BuildError("s51 not found: install sdcc-ucsim")
