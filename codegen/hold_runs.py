@@ -16,6 +16,7 @@ from codegen.verify import simulated_switches
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
+MAX_CLOCK = (1 << 32) - 1  # s51's sim_ticks never passes it: a key held down to the end
 KINDS = {"hold": protocol.HOLD, "resume": protocol.RESUME, "feed-": protocol.FEED_DOWN, "feed+": protocol.FEED_UP}
 FRAME_BYTES = protocol.OVERHEAD_BYTES  # a request has no payload
 
@@ -54,7 +55,9 @@ class S51FlashRun(FlashRun):
     def tick0(self, pauses: bool) -> int:
         from codegen.sim.mcs51 import simulate as simulate_51
 
-        return simulate_51(self.image.hex_path, self.config, self.budget, switches=self.switches).timer_start_cycle
+        held = [("resume", 1, MAX_CLOCK)] if pauses else []  # down all along: every M0/M1 goes on at once
+        return simulate_51(self.image.hex_path, self.config, self.budget, switches=self.switches,
+                           hold_keys=held).timer_start_cycle
 
     def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
         from codegen.sim.mcs51 import simulate as simulate_51

@@ -218,10 +218,11 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
     that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
-    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too; none elsewhere (codegen/runtime.py)."""
-    if target.target != "avr":
-        return ()
+    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too, on an 8051's flash image alone; none
+    elsewhere (codegen/runtime.py)."""
     pauses = ("pause",) if job.machine.feed_hold is not None else ()
+    if target.target != "avr":
+        return () if streamed else pauses
     if not target.heater_pins:
         return pauses
     if streamed:

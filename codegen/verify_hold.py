@@ -109,12 +109,18 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
 
     def cycles_of(d: Dilation) -> np.ndarray:
-        return tick0 + d.tick * prescale + latency
+        """Every event's predicted cycle; one never played (after a park without its resume): the end of time, so
+        that the predictions stay sorted for searchsorted."""
+        return np.where(d.tick >= 0, tick0 + d.tick * prescale + latency, np.iinfo(np.int64).max)
 
-    # Where each request is first seen (the middle candidate, to place those that follow and the resumes).
+    # Where each request is first seen (the middle candidate, to place those that follow and the resumes), on the
+    # clock of the requests before it and of the M0/M1 pauses before it, each resumed as _resume_presses says.
     guess: list[int] = []
     for a in actions:
-        pred = cycles_of(_predict(host, actions[:len(guess)], guess, [], resume_target))
+        done = actions[:len(guess)]
+        resumes = [(r - tick0) // prescale + RESUME_TICKS
+                   for r in _resume_presses(host, done, guess, resume_target, tick0, prescale)]
+        pred = cycles_of(_predict(host, done, guess, resumes, resume_target))
         first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
         guess.append(first + CANDIDATES // 2 + 1)
     resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale)

@@ -6,7 +6,8 @@ sets the target factor to 0, `resume` to the override (and re-arms a parked play
 override by 10 % (10 % to 100 %: the 8051's player has no ceiling records) once per press, a press counting only
 after DEBOUNCE_MS of quiet, timed by Timer1 (free once homing is done). The interrupt takes the dilated path while
 the bit pl_dilating says so (main sets it at a key; the interrupt clears it once the factor and its target are both
-100 %). No M0/M1 pauses: the 8051's player has no runtime records (codegen/gcode/mcodes.py refuses them)."""
+100 %). An M0/M1 pause is a runtime record before its block (the only one an 8051 image has): the interrupt sets F 0
+there, parks, and resume goes on at F_ONE."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.hold import CLAMP, F_ONE, LONG, RESUME_TICKS, override_target
 from codegen.schedule import FRAC_BITS
+from codegen.tables import RUNTIME_BYTES, RUNTIME_FLAGS
 
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits in hold.c
 DEBOUNCE_MS = 20  # as the AVR's (codegen/firmware/avr_hold.py): presses closer than this count once
@@ -56,5 +58,5 @@ def hold_context(config: FirmwareConfig, board: dict, parse_pin, stop_ticks: int
         "long_iv": long_iv, "long_add": 0x10000 - long_iv, "clamp_top": CLAMP >> 16,
         "table_lo": [d & 0xFF for d in plan.table], "table_hi": [d >> 8 for d in plan.table],
         "targets": [override_target(s) for s in range(plan.max_step + 1)],
-        "override_steps": plan.max_step, "start_step": start, "start_target": override_target(start),
+        "runtime_flags": RUNTIME_FLAGS, "runtime_bytes": RUNTIME_BYTES, "override_steps": plan.max_step, "start_step": start, "start_target": override_target(start),
         "debounce_ms": DEBOUNCE_MS, "debounce_units": -(-DEBOUNCE_MS * tick_hz // (1000 * TH1_TICKS))}}

@@ -71,7 +71,6 @@ class Interpreter(Moves, GrblState):
         scale = getattr(program, "s_max", None)
         self.s_full = float(scale) if scale else S_FULL_SCALE
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
-        self.pause_player = getattr(job, "target", "avr") == "avr"  # the 8051's player has no M0/M1 pause yet
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.origin, self.strict = origin, strict
         self.flat = list(start)
