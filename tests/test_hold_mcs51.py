@@ -1,7 +1,7 @@
 """Feed hold, resume and override on the 8051's flash image (codegen/firmware/mcs51_hold.py, the dilated path of
 templates/mcs51/player.c.j2), end to end with the real SDCC and s51: seed-51's hold keys on its key matrix pressed
 by the s51 script (codegen/sim/mcs51_keys.py), every pulse on the dilated twin's clock (codegen/hold.py), every
-motor within its limits, the end positions exact; and what the 8051 refuses."""
+motor within its limits, the end positions exact; M0/M1 pauses; and what the 8051 refuses."""
 
 from __future__ import annotations
 
@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 
 from codegen.cli import _build, main
-from codegen.errors import BuildError, JobError
+from codegen.errors import BuildError
 from codegen.firmware.mcs51 import render_sources
 from codegen.hold import RAMP_SHARE, dilate, override_target
 from codegen.job import load_job
-from codegen.pipeline import host_build
 from codegen.sim.mcs51 import simulate
 from codegen.sim.mcs51_keys import seen_at
 from codegen.verify_hold import hold_verify
@@ -169,12 +168,24 @@ def test_a_hold_key_on_a_jog_key_is_an_error(plotter):
         render_sources(host.schedule, config)
 
 
-def test_m0_on_the_8051_is_an_error_at_its_line(tmp_path):
-    """The 8051's player has no runtime records: an M0/M1 pause cannot wait for the resume key there."""
-    path = job_file(tmp_path)
-    path.write_text(path.read_text().split("program:")[0] + "program:\n  gcode: |\n    G1 X5 F600\n    M0\n"
-                                                            "    G1 X0\n")
-    with pytest.raises(JobError) as err:
-        host_build(load_job(path))
-    text = err.value.render()
-    assert "hold51.yaml:13:5: error: M0 waits for the resume key: the 8051's player has no M0/M1 pause yet" in text
+def _paused(folder: Path):
+    """Two M0/M1 pauses in G-code: the plan rests at each, and the player parks there until the resume key."""
+    path = job_file(folder)
+    path.write_text(path.read_text().split("program:")[0] + "program:\n  gcode: |\n    G1 X15 F2400\n    M0\n"
+                                                            "    G1 Y10\n    M1\n    G1 X0 Y0\n")
+    host, image, _ = _build(load_job(path), str(folder / "out"), reuse=False, strict=False)
+    return host, image
+
+
+def test_m0_and_m1_park_the_8051_until_the_resume_key(tmp_path):
+    """Each pause's runtime record sets F 0 where the plan rests; resume goes on at 100 % (no ramp): verify presses
+    it once the machine is at rest; a hold after the first pause is placed on the resumed clock."""
+    host, image = _paused(tmp_path)
+    assert len(host.runtime) == 2
+    result, _ = hold_verify(host, image, None, None)
+    _within_limits(result)
+    rests = result["hold"]["rests"]
+    assert [r["kind"] for r in rests] == ["pause", "pause"] and rests[0]["resume_s"] > rests[0]["at_rest_s"]
+    held, _ = hold_verify(host, image, 0.6, None)
+    _within_limits(held)
+    assert sorted(r["kind"] for r in held["hold"]["rests"]) == ["hold", "pause", "pause"]
