@@ -263,7 +263,7 @@ def parser() -> argparse.ArgumentParser:
                                 "GTKWave; timescale 1 ns: each change at cycle x 1e9 / F_CPU from reset, rounded")
             v.add_argument("--hold", type=float, metavar="SECONDS",
                            help="press the feed hold key SECONDS into the job, resume once the machine is at "
-                                "rest (machine.feed_hold; an ATmega2560 flash image)")
+                                "rest (machine.feed_hold; a flash image)")
             v.add_argument("--override", type=int, metavar="PERCENT",
                            help="step the feed override to PERCENT (10 up to machine.feed_hold.max_override, by 10) "
                                 "with the feed keys as the job starts (machine.feed_hold)")

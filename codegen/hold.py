@@ -44,7 +44,8 @@ CLAMP = 0xFEFFFF  # the longest dilated delta, 1/256 tick: just under a long wai
 LONG = 0xFF00 << FRAC_BITS  # an undilated delta this long goes the long-wait way, undilated
 RESUME_TICKS = 0xFEFF  # from main's read of the timer at resume to the pending event: at least its own interval
 # (a parked event is never a long wait), so no step comes sooner after the one before than the plan's
-MAX_OVERRIDE_STEPS = 20  # the override keys step by 10 %, 1..20: target F = override_target(step)
+PLAYER_MAX_OVERRIDE = {"avr": ("ATmega2560", 200), "mcs51": ("8051", 100)}  # % each player's override goes up to
+# (the 8051's has no ceiling records)
 FRAC16 = 1 << 16
 PARKED = -1  # Dilation.factor after the event the player parked behind
 
@@ -67,7 +68,7 @@ class HoldPlan:
 
     ramp_k: int  # F.frac16 per dilated tick
     gate_above: int  # above this F the ramp waits for the plan's add (F_FREE); F_MAX: never (a delta's)
-    keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2)
+    keys: dict  # function (hold, resume, feed+, feed-) -> board pin name (PL2) or (row, column) of a key matrix
     table: tuple[int, ...]  # dilation_table() up to the highest target
     max_step: int = 10  # the override's highest step (machine.feed_hold.max_override / 10)
 
@@ -94,6 +95,11 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
     keys = board.get("hold_keys")
     if not keys:
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
+    hold = job.machine.feed_hold
+    player, top = PLAYER_MAX_OVERRIDE[board.get("target", "avr")]
+    for name, percent in (("max_override", hold.max_override), ("override", hold.override)):
+        if percent is not None and percent > top:
+            raise BuildError(f"machine.feed_hold.{name}: the {player}'s player goes up to {top} % (has {percent} %)")
     steppers = job.machine.steppers.values()
     per_second = min(s.max_accel / s.max_velocity for s in steppers)  # of f, for the fastest motor at its limit
     ramp_k = int(RAMP_SHARE * per_second * F_ONE * FRAC16 / tick_hz)
@@ -101,14 +107,20 @@ def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
         raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
                          f"player's 16-bit step per tick ({ramp_k})")
     gate_above = F_MAX if plans_ramp_share(job) else F_FREE
-    max_step = job.machine.feed_hold.max_override // 10
-    return HoldPlan(ramp_k, gate_above, {str(k): str(v) for k, v in keys.items()},
+    max_step = (hold.max_override or top) // 10
+    return HoldPlan(ramp_k, gate_above, {str(k): _key_place(v) for k, v in keys.items()},
                     tuple(int(d) for d in dilation_table(override_target(max_step))), max_step)
 
 
+def _key_place(value) -> str | tuple[int, ...]:
+    """A hold key's place on its board: a pin name (PL2), or (row, column) on the board's key matrix."""
+    return tuple(int(v) for v in value) if isinstance(value, (list, tuple)) else str(value)
+
+
 def plans_ramp_share(job) -> bool:
-    """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp (a delta with feed_hold)."""
-    return job.machine.feed_hold is not None and job.machine.kinematics == "delta"
+    """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp: a delta's with feed_hold, and every
+    8051 image's (its player's ramp has no gate)."""
+    return job.machine.feed_hold is not None and (job.machine.kinematics == "delta" or job.target == "mcs51")
 
 
 def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:

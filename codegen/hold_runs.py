@@ -1,7 +1,8 @@
-"""The simulated runs of codegen/verify_hold.py: a flash image whose hold keys are pressed (simavr's key pins), or
-a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the closed-loop link of
-codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each reached the firmware:
-a key at once, a frame once its last byte has arrived (it is sent when the line is idle, at or after its cycle)."""
+"""The simulated runs of codegen/verify_hold.py: a flash image whose hold keys are pressed (simavr's key pins; s51's
+key matrix on the 8051), or a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the
+closed-loop link of codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each
+reached the firmware: a key at once (on the 8051: at main's first poll after it), a frame once its last byte has
+arrived (it is sent when the line is idle, at or after its cycle)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from codegen.verify import simulated_switches
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
+MAX_CLOCK = (1 << 32) - 1  # s51's sim_ticks never passes it: a key held down to the end
 KINDS = {"hold": protocol.HOLD, "resume": protocol.RESUME, "feed-": protocol.FEED_DOWN, "feed+": protocol.FEED_UP}
 FRAME_BYTES = protocol.OVERHEAD_BYTES  # a request has no payload
 
@@ -44,6 +46,28 @@ class FlashRun:
 
     def result(self, verdict, trace) -> dict:
         return verify_json(self.host, verdict, self.image)
+
+
+class S51FlashRun(FlashRun):
+    """An 8051 flash image in s51, its matrix keys pressed (codegen/sim/mcs51_keys.py): main polls them between its
+    display's updates, so each press reaches the firmware at the first poll that sees it."""
+
+    def tick0(self, pauses: bool) -> int:
+        from codegen.sim.mcs51 import simulate as simulate_51
+
+        held = [("resume", 1, MAX_CLOCK)] if pauses else []  # down all along: every M0/M1 goes on at once
+        return simulate_51(self.image.hex_path, self.config, self.budget, switches=self.switches,
+                           hold_keys=held).timer_start_cycle
+
+    def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
+        from codegen.sim.mcs51 import simulate as simulate_51
+        from codegen.sim.mcs51_keys import seen_at
+
+        hold = int(PRESS_S * self.f_cpu)
+        keys = [(function, cycle, cycle + hold) for function, cycle in presses]
+        budget = int(self.budget * slower) + max((c for _, c in presses), default=0) + int(2 * self.f_cpu)
+        trace = simulate_51(self.image.hex_path, self.config, budget, switches=self.switches, hold_keys=keys)
+        return trace, [seen_at(trace.hold_polls, trace.hold_changes, cycle) for _, cycle in presses]
 
 
 class HeatedRun(FlashRun):

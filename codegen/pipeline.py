@@ -92,7 +92,7 @@ class HostBuild:
 
     @cached_property
     def hold_plan(self) -> HoldPlan | None:
-        """The feed hold of an ATmega2560 image (codegen/hold.py); BuildError where the player cannot hold."""
+        """The feed hold of the image (codegen/hold.py); BuildError where the player cannot hold."""
         if self.job.machine.feed_hold is None:
             return None
         return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data)
@@ -157,8 +157,9 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             from None
     hold = None
     if job.machine.feed_hold is not None:  # its errors before any planning
-        if target.target != "avr":
-            raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
+        if target.target != "avr" and link is not None:
+            raise BuildError("machine.feed_hold: the 8051's streaming firmware has no feed hold yet (its flash "
+                             "image and the ATmega2560's have)")
         hold = hold_plan(job, target.tick_hz, target.board, target.board_data)
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
@@ -219,10 +220,11 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
     that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
-    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too; none elsewhere (codegen/runtime.py)."""
-    if target.target != "avr":
-        return ()
+    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too, on an 8051's flash image alone; none
+    elsewhere (codegen/runtime.py)."""
     pauses = ("pause",) if job.machine.feed_hold is not None else ()
+    if target.target != "avr":
+        return () if streamed else pauses
     if not target.heater_pins:
         return pauses
     if streamed:

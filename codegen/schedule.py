@@ -34,8 +34,8 @@ Feed override above 100 % (an image with feed_hold, codegen/headroom.py): a ceil
 (`run_ceiling` >= 0) caps the feed factor from the run's first event on. Ceilings change no pulse either.
 
 `interval` is unsigned 24.8 fixed point ticks, `add` signed 16.8 (24 bits), `count` 1..65534 (65535 marks a
-ceiling record). A block whose motors all have 0 steps is a dwell (its events only pass time). `modulus <= MAX_MODULUS`, every
-`steps[m] <= modulus` and `init[m] < modulus`. After i events motor m has made
+ceiling record). A block whose motors all have 0 steps is a dwell (its events only pass time).
+`modulus <= MAX_MODULUS`, every `steps[m] <= modulus` and `init[m] < modulus`. After i events motor m has made
 `ceil((i * steps[m] - init[m]) / modulus)` steps, exactly `steps[m]` after `modulus` events.
 """
 

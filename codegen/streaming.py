@@ -63,7 +63,8 @@ def _hold(job, target) -> HoldPlan | None:
     if job.machine.feed_hold is None:
         return None
     if target.target != "avr":
-        raise BuildError("machine.feed_hold: the 8051's player has no feed hold yet (the ATmega2560's has)")
+        raise BuildError("machine.feed_hold: the 8051's streaming firmware has no feed hold yet (its flash image "
+                         "and the ATmega2560's have)")
     return hold_plan(job, target.tick_hz, target.board, target.board_data)
 
 

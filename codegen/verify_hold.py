@@ -1,8 +1,8 @@
-"""`verify --hold SECONDS` and `verify --override PERCENT` on an ATmega2560 image with machine.feed_hold: the
-simulator presses the board's hold keys (a flash image) or the host sends HOLD, RESUME, FEED_DOWN and FEED_UP
-frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the dilated clock
-that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its resume key or
-frame comes once the machine rests at each.
+"""`verify --hold SECONDS` and `verify --override PERCENT` on an image with machine.feed_hold: the simulator
+presses the board's hold keys (an ATmega2560's or an 8051's flash image) or the host sends HOLD, RESUME, FEED_DOWN
+and FEED_UP frames (a streaming firmware: codegen/hold_runs.py), and every pulse is compared with the twin on the
+dilated clock that codegen/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its
+resume key or frame comes once the machine rests at each.
 
 The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the requests.
 The override requests (feed- or feed+, one per 10 %) come from 10 ms into the job, one every 100 ms; the hold at
@@ -20,7 +20,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
-from codegen.hold_runs import FlashRun, HeatedRun, StreamRun
+from codegen.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
 from codegen.pipeline import HostBuild
 from codegen.verify import compare
 
@@ -97,6 +97,8 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
         raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
     if setup is not None:
         runner = StreamRun(host, image, setup)
+    elif host.target.target == "mcs51":
+        runner = S51FlashRun(host, image)
     else:
         runner = HeatedRun(host, image) if host.heaters else FlashRun(host, image)
     target, f_cpu = host.target, host.target.f_cpu
@@ -107,12 +109,18 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
 
     def cycles_of(d: Dilation) -> np.ndarray:
-        return tick0 + d.tick * prescale + latency
+        """Every event's predicted cycle; one never played (after a park without its resume): the end of time, so
+        that the predictions stay sorted for searchsorted."""
+        return np.where(d.tick >= 0, tick0 + d.tick * prescale + latency, np.iinfo(np.int64).max)
 
-    # Where each request is first seen (the middle candidate, to place those that follow and the resumes).
+    # Where each request is first seen (the middle candidate, to place those that follow and the resumes), on the
+    # clock of the requests before it and of the M0/M1 pauses before it, each resumed as _resume_presses says.
     guess: list[int] = []
     for a in actions:
-        pred = cycles_of(_predict(host, actions[:len(guess)], guess, [], resume_target))
+        done = actions[:len(guess)]
+        resumes = [(r - tick0) // prescale + RESUME_TICKS
+                   for r in _resume_presses(host, done, guess, resume_target, tick0, prescale)]
+        pred = cycles_of(_predict(host, done, guess, resumes, resume_target))
         first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
         guess.append(first + CANDIDATES // 2 + 1)
     resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale)

@@ -227,8 +227,8 @@ class Stages:
                 ceiling_bytes = compressed.schedule.table_bytes() - was
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep or self.observe else None, before.block_item, power_error,
-                        ceiling_bytes)
+                        events if self.keep else None, pulses if self.keep or self.observe else None,
+                        before.block_item, power_error, ceiling_bytes)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
         around = concat(*parts)

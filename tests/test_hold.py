@@ -173,13 +173,25 @@ def test_a_delta_held_mid_job_comes_to_rest_within_its_limits_and_ends_exact(tmp
         assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
 
 
-def test_no_hold_yet_on_the_8051(tmp_path):
+def test_the_8051_holds_in_its_flash_image_only_and_up_to_100_percent(tmp_path):
+    """The 8051's flash image has feed hold (tests/test_hold_mcs51.py); its streaming firmware has none yet, and its
+    player has no ceiling records: its override goes up to 100 % (the default there), more is refused."""
+    job = yaml.safe_load(_with_hold((ROOT / "examples" / "star.yaml").read_text()))
+    job.update(target="mcs51", board="seed-51")
     path = tmp_path / "star.yaml"
-    path.write_text(_with_hold((ROOT / "examples" / "star.yaml").read_text()))
-    for stream in (False, True):
-        job = load_job(path, "mcs51")
-        with pytest.raises(BuildError, match="machine.feed_hold: the 8051's player has no feed hold yet"):
-            stream_setup(job) if stream else host_build(job)
+    path.write_text(yaml.safe_dump(job, sort_keys=False))
+    host = host_build(load_job(path))
+    assert host.hold_plan.top == F_ONE and host.schedule.n_ceiling == 0
+    for key, percent in (("max_override", 150), ("override", 120)):
+        job["machine"]["feed_hold"] = {key: percent}
+        path.write_text(yaml.safe_dump(job, sort_keys=False))
+        with pytest.raises(BuildError, match=f"machine.feed_hold.{key}: the 8051's player goes up to 100 % "
+                                             rf"\(has {percent} %\)"):
+            host_build(load_job(path))
+    job["machine"]["feed_hold"] = {}
+    path.write_text(yaml.safe_dump(job, sort_keys=False))
+    with pytest.raises(BuildError, match="machine.feed_hold: the 8051's streaming firmware has no feed hold yet"):
+        stream_setup(load_job(path))
 
 
 def test_an_override_the_keys_cannot_reach_is_an_error(tmp_path):

@@ -4,8 +4,9 @@ and the step interrupt's dilated path (templates/avr/player_isr.S.j2).
 
 Keys to ground on the board's `hold_keys:` pins (internal pull-ups, pressed reads low): `hold` sets the target
 factor to 0, `resume` to the override, `feed-` and `feed+` step the override by 10 % (10 % to
-machine.feed_hold.max_override) on each press; above 100 % the ceiling records cap the factor (codegen/headroom.py). The step interrupt takes the dilated path while a GPIOR0 bit says so (main sets it at a key; the interrupt
-clears it once the factor and its target are both 100 %)."""
+machine.feed_hold.max_override) on each press; above 100 % the ceiling records cap the factor
+(codegen/headroom.py). The step interrupt takes the dilated path while a GPIOR0 bit says so (main sets it at a key;
+the interrupt clears it once the factor and its target are both 100 %)."""
 
 from __future__ import annotations
 

@@ -163,6 +163,8 @@ def render_player(context: dict, lcd, config: FirmwareConfig, first: tuple[str, 
         sources["homing.c"] = render("mcs51/homing.c.j2", **context)
     if config.jog:
         sources["jog.c"] = render("mcs51/jog.c.j2", **context)
+    if context.get("hold"):
+        sources["hold.c"] = render("mcs51/hold.c.j2", **context)
     return sources
 
 
@@ -247,12 +249,15 @@ def player_context(config: FirmwareConfig, stream: bool = False) -> tuple[dict, 
     from codegen.firmware.mcs51_jog import jog_context  # here: that module builds on this one
 
     context.update(jog_context(config, motors, pulse_ticks, len(names) if lcd is not None else None))
+    from codegen.firmware.mcs51_hold import hold_context  # here: that module builds on this one
+
+    context.update(hold_context(config, board_data(config.board)[0], parse_pin, STOP_TICKS, tick_hz))
     for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
         m["start_steps"] = int(start) % 65536  # the display shows signed 16-bit positions
-    # With a display (or a link), main runs its code while the interrupt plays: the interrupt saves what it uses,
-    # and keeps every motor's position at each block start for main to show (and report).
-    context.update(busy_main=lcd is not None or stream, positions=lcd is not None or stream, display=lcd is not None,
-                   stream=stream, block_regs=BLOCK_REGS, long_regs=LONG_REGS)
+    # With a display (or a link, or feed hold's keys), main runs its code while the interrupt plays: the interrupt
+    # saves what it uses, and keeps every motor's position at each block start for main to show (and report).
+    context.update(busy_main=lcd is not None or stream or config.hold is not None, positions=lcd is not None or stream,
+                   display=lcd is not None, stream=stream, block_regs=BLOCK_REGS, long_regs=LONG_REGS)
     return context, lcd
 
 

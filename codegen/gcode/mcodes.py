@@ -179,7 +179,7 @@ def pause(it, block, params, name: str) -> None:
         return dwell(it, block, params)
     if not it.pausable:
         it.fail(block, name, f"{name} waits for the resume key: the machine needs feed_hold (its hold keys or "
-                             "the link's RESUME; the ATmega2560's images have it)")
+                             "the link's RESUME; the ATmega2560's images and the 8051's flash image have it)")
         return None
     it.items.append(Output("pause", 0.0, True, it.source(block)))
     return None

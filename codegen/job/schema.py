@@ -219,11 +219,12 @@ class FeedHold(_Model):
     every motor's limits allow on the stretch being played (codegen/headroom.py)."""
 
     override: Annotated[int, BeforeValidator(_override)] = 100  # % the job starts with; feed- and feed+ step by 10
-    max_override: Annotated[int, BeforeValidator(_max_override)] = 200  # % the feed+ key goes up to
+    # % the feed+ key goes up to; None: as far as the player goes (200 % on the ATmega2560, 100 % on the 8051)
+    max_override: Optional[Annotated[int, BeforeValidator(_max_override)]] = None
 
     @model_validator(mode="after")
     def _start_within(self) -> "FeedHold":
-        if self.override > self.max_override:
+        if self.max_override is not None and self.override > self.max_override:
             raise _fail("override", f"expected at most max_override ({self.max_override} %)", at=("override",))
         return self
 
@@ -345,7 +346,7 @@ class Machine(_Model):
     jog: Optional[Jog] = None  # jog keys before the job (codegen/jog.py); None: no jog mode
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
-    feed_hold: Optional[FeedHold] = None  # hold, resume and override keys (AVR flash images); None: none
+    feed_hold: Optional[FeedHold] = None  # hold, resume and override keys (AVR images, 8051 flash images); None: none
 
     @property
     def motor_names(self) -> tuple[str, ...]:

@@ -18,7 +18,8 @@ to the one it expects next, which it then counts on. HELLO and ABORT are taken w
     ABORT  0x05  stop stepping at once
     HOLD   0x06  feed hold (a firmware with machine.feed_hold, codegen/hold.py): slow down to a stop on the path
     RESUME 0x07  go on after a hold or an M0/M1 pause, at the override
-    FEED_DOWN 0x08, FEED_UP 0x09  the feed override 10 % lower or higher (10 % to machine.feed_hold.max_override), as the hold keys'
+    FEED_DOWN 0x08, FEED_UP 0x09  the feed override 10 % lower or higher (10 % to machine.feed_hold.max_override),
+                  as the hold keys'
 
 Firmware to host; SEQ is the host sequence number the firmware expects next (every frame acknowledges).
     ACK       0x81  free u16 (ring bytes free after every frame it took), flags u8 (bit 0 REJECTED: the frame

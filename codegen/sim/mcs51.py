@@ -39,7 +39,8 @@ from codegen.firmware.mcs51_homing import decode_status, endstops
 from codegen.firmware.mcs51_lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
-from codegen.sim.mcs51_keys import POSITION_BYTES, TAG_JOG_POS, TAG_SCAN, jog_positions, key_model
+from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model,
+                                    jog_positions, key_model)
 from codegen.sim.avr import (HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault,
                              switch_thresholds)
 
@@ -165,7 +166,8 @@ def switch_model(config: FirmwareConfig, pins: dict, switches: dict[int, int | N
 
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
-             switches: dict[int, int | None] | None = None, keys: list[KeyPress] | None = None) -> SimTrace:
+             switches: dict[int, int | None] | None = None, keys: list[KeyPress] | None = None,
+             hold_keys: list[tuple[str, int, int]] | None = None) -> SimTrace:
     """Run `hex_path` until the firmware reaches halt() (or homing's fault state); BuildError on a crash or past
     the budget (CPU clocks).
 
@@ -176,7 +178,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     is for the step table: an image that homes gets a bound on its homing time on top. A failed homing is not an
     error here: see SimTrace.homing_failed. `keys`: a jog image's key script (codegen/sim/keys.py; it must press
     start; without one, start alone), its time on top of the budget; the trace then has `jog_positions` (the
-    firmware's counts at the end) and `key_scans` (the clock of every key scan)."""
+    firmware's counts at the end) and `key_scans` (the clock of every key scan). `hold_keys`: a feed hold image's
+    presses (function, first clock, last clock; codegen/sim/mcs51_keys.py); the trace then has `hold_polls` (clock,
+    index of the latest change seen) and `hold_changes`."""
     if shutil.which("s51") is None:
         raise BuildError("s51 not found: install sdcc-ucsim")
     hex_path = Path(hex_path).resolve()
@@ -209,14 +213,22 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
             on_write[port] = ",".join(filter(None, [on_write.get(port), expr]))
         extra = {**extra, "prelude": (*extra.get("prelude", ()), *keyed["prelude"]), "on_write": on_write,
                  "breaks": tuple(keyed["breaks"]), "at_halt": tuple(keyed["at_halt"])}
+    held: dict = {}
+    if config.hold is not None:
+        held = hold_key_model(config, hold_keys or [], read_map(hex_path.with_name(MAP_FILE), data=True)[1])
+        on_write = dict(extra.get("on_write") or {})
+        for port, expr in held["on_write"].items():
+            on_write[port] = ",".join(filter(None, [on_write.get(port), expr]))
+        extra = {**extra, "prelude": (*extra.get("prelude", ()), *held["prelude"]), "on_write": on_write,
+                 "breaks": (*extra.get("breaks", ()), *held["breaks"])}
     watched = [p for m in pins["motors"] for p in (m["step"], m["dir"]) if p is not None] + [pins["tool"]]
     watched += [c for m in pins["motors"] for c in m["coils"] or []]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         w = lcd.wiring
         watched += [p for p in (w.rs, w.e, w.rw, *w.data) if p is not None]
-    ports = sorted({p.port for p in watched} | set(keyed.get("on_write", {})))
-    bits = sorted({SFR[p.port] + p.bit for p in watched} | set(keyed.get("bits", ())))
+    ports = sorted({p.port for p in watched} | set(keyed.get("on_write", {})) | set(held.get("on_write", {})))
+    bits = sorted({SFR[p.port] + p.bit for p in watched} | set(keyed.get("bits", ())) | set(held.get("bits", ())))
     with tempfile.TemporaryDirectory(prefix="printer-codegen-s51-") as tmp:
         script = Path(tmp) / "run.cmd"
         script.write_text(_script(hex_path, ports, bits, sym, int(cycle_budget), **extra), encoding="utf-8")
@@ -228,7 +240,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         except FileNotFoundError as exc:
             raise BuildError("timeout or s51 not found") from exc
     rec = _records(done.stdout)
-    tags = {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT}
+    tags = {*ports, TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT} | ({TAG_HOLD_POLL} if held else set())
     if keys is not None:
         tags |= {TAG_SCAN, *range(TAG_JOG_POS, TAG_JOG_POS + POSITION_BYTES * len(config.jog.motors))}
     stray = set(np.unique(rec[:, 1]).tolist()) - tags
@@ -263,6 +275,8 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         named = [("lcd.rs", w.rs), ("lcd.e", w.e), ("lcd.rw", w.rw)]
         named += [(f"lcd.d{k + 8 - len(w.data)}", d) for k, d in enumerate(w.data)]  # D4-D7 or D0-D7
         trace.pins.update(pin_waves(rec, [(name, pin) for name, pin in named if pin is not None]))
+    if held:
+        trace.hold_polls, trace.hold_changes = rec[rec[:, 1] == TAG_HOLD_POLL][:, [0, 2]], held["changes"]
     if keys is not None:
         trace.jog_positions = jog_positions(rec, len(config.jog.motors))
         trace.key_scans = rec[rec[:, 1] == TAG_SCAN][:, [0, 2]]

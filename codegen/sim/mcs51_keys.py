@@ -1,4 +1,5 @@
-"""Jog keys in s51: the board's keys pressed and released at simulated times (codegen/sim/keys.py's script).
+"""Jog keys and feed hold keys in s51: the board's keys pressed and released at simulated times (codegen/sim/keys.py's
+script for jog keys; (function, first clock, last clock) for the hold keys of codegen/hold_runs.py's S51FlashRun).
 
 The script keeps the pressed keys in a simulator variable, `kp` (bit i: codegen/jog.py's KEYS[i]), set at every
 entry of the firmware's key scan (`_jog_scan`, from firmware.map) from sim_ticks: a nested conditional over the
@@ -11,18 +12,27 @@ through two pressed keys are not modelled.)
 
 Each scan prints a record (TAG_SCAN, the index of the script's latest change in effect); at the end the firmware's
 jog positions are read from internal RAM (TAG_JOG_POS + byte index, a byte each, little-endian int32 per motor).
+
+Hold keys (codegen/firmware/mcs51_hold.py) likewise: the script keeps them in `hk` (bit i: HOLD_KEYS[i]), set at
+every entry of the firmware's poll (`_hold_poll`), and a column reads low while a held key joins it to a row whose
+latch is low (beside the jog keys' model of the same matrix, it only pulls columns low after that model's update).
+Each poll prints a record (TAG_HOLD_POLL, the index of the latest change in effect): when the firmware first saw
+each press.
 """
 
 from __future__ import annotations
 
+import numpy as np
+
 from codegen.errors import BuildError
 from codegen.firmware import FirmwareConfig
 from codegen.firmware.mcs51 import SFR, board_data, parse_pin
+from codegen.firmware.mcs51_hold import HOLD_KEYS
 from codegen.firmware.mcs51_jog import taken_pins
 from codegen.jog import KEYS, board_keys
 from codegen.sim.keys import KeyPress, key_events
 
-TAG_SCAN, TAG_JOG_POS = 20, 32  # record tags (TAG_JOG_POS + byte index)
+TAG_SCAN, TAG_HOLD_POLL, TAG_JOG_POS = 20, 21, 32  # record tags (TAG_JOG_POS + byte index)
 POSITION_BYTES = 4
 
 
@@ -90,3 +100,43 @@ def jog_positions(rec, n_motors: int) -> list[int] | None:
         raw = sum(values[POSITION_BYTES * k + b] << (8 * b) for b in range(POSITION_BYTES))
         out.append(raw - (1 << 32) if raw >= 1 << 31 else raw)
     return out
+
+
+def hold_key_model(config: FirmwareConfig, presses: list[tuple[str, int, int]], symbols: dict[str, int]) -> dict:
+    """The s51 script's parts that press `presses` ((function, first clock, last clock)): prelude, on_write (port ->
+    expression), breaks [(spec, tag expression)], bits (bit addresses to break on), changes (clock of each change
+    of the held keys, in order: a poll's record gives the index + 1 of the latest one it saw)."""
+    poll = symbols.get("_hold_poll")
+    if poll is None:
+        raise BuildError("firmware.map lacks _hold_poll: the image has no feed hold keys")
+    matrix = (board_data(config.board)[0].get("jog_keys") or {})["matrix"]
+    rows, cols = [parse_pin(p) for p in matrix["rows"]], [parse_pin(p) for p in matrix["cols"]]
+    times = sorted({t for _, a, b in presses for t in (a, b)})
+    if len(times) > 255:
+        raise BuildError(f"{len(times)} hold key changes: at most 255")
+    chain, index = "0", "0"
+    for i, t in enumerate(times):  # the latest change wins: built from the first outwards
+        held = sum(1 << HOLD_KEYS.index(f) for f, a, b in presses if a <= t < b)
+        chain = f"(sim_ticks>{t})?{held}:{chain}"
+        index = f"(sim_ticks>{t})?{i + 1}:{index}"
+    on_write: dict[int, str] = {}
+    for port in sorted({c.port for c in cols}):
+        mine = [(HOLD_KEYS.index(f), rows[r], cols[c]) for f, (r, c) in config.hold.keys.items()
+                if cols[c].port == port]
+        all_bits = sum(c.mask for c in cols if c.port == port)
+        low = "|".join(f"((((hk>>{bit})&1)&&!(P{row.port}&{row.mask}))?{col.mask}:0)" for bit, row, col in mine) or "0"
+        # after the jog keys' own update (which sets every column from its keys) only pull more columns low
+        update = (f"pin{port}=pin{port}&~({low})" if config.jog is not None
+                  else f"pin{port}=(pin{port}&{0xFF & ~all_bits})|({all_bits}&~({low}))")
+        for row_port in sorted({r.port for r in rows}):
+            on_write[row_port] = ",".join(filter(None, [on_write.get(row_port), update]))
+    return {"prelude": ("var hk", "expression /X hk=0"), "on_write": on_write,
+            "breaks": [(f"{poll:#x}", f"hk={chain},{TAG_HOLD_POLL * 256}+({index})")],
+            "bits": sorted({SFR[r.port] + r.bit for r in rows}), "changes": times}
+
+
+def seen_at(polls: np.ndarray, changes: list[int], press: int) -> int:
+    """The clock of the first poll that saw the change at clock `press` (-1: none did); `polls` (clock, index)."""
+    j = changes.index(press) + 1
+    later = np.flatnonzero(polls[:, 1] >= j)
+    return int(polls[later[0], 0]) if len(later) else -1
