@@ -90,10 +90,11 @@ class HoldPlan:
         return F_ONE * FRAC16 / self.ramp_k / tick_hz
 
 
-def hold_plan(job, tick_hz: int, board_name: str, board: dict) -> HoldPlan:
-    """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:`."""
-    keys = board.get("hold_keys")
-    if not keys:
+def hold_plan(job, tick_hz: int, board_name: str, board: dict, streamed: bool = False) -> HoldPlan:
+    """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:` (none for the
+    8051's streaming firmware, `streamed`: the link's request frames are its only way in)."""
+    keys = board.get("hold_keys") or {}
+    if not keys and not (streamed and board.get("target") == "mcs51"):
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
     hold = job.machine.feed_hold
     player, top = PLAYER_MAX_OVERRIDE[board.get("target", "avr")]

@@ -2,15 +2,19 @@
 key matrix on the 8051), or a streaming firmware whose host sends HOLD, RESUME, FEED_DOWN and FEED_UP frames (the
 closed-loop link of codegen/sim/avr_link.py). Each run takes the presses as (function, cycle) and says when each
 reached the firmware: a key at once (on the 8051: at main's first poll after it), a frame once its last byte has
-arrived (it is sent when the line is idle, at or after its cycle)."""
+arrived (it is sent when the line is idle, at or after its cycle). A stream runs in its target's closed-loop
+simulator: simavr's (codegen/sim/avr_link.py) or s51's (codegen/sim/mcs51_link.py)."""
 
 from __future__ import annotations
+
+import importlib
 
 from codegen import progress
 from codegen.errors import BuildError
 from codegen.link import protocol
 from codegen.pipeline import HostBuild
 from codegen.report import verify_json
+from codegen.streaming import SIM_MODULES
 from codegen.sim.avr import simulate
 from codegen.verify import simulated_switches
 
@@ -164,7 +168,7 @@ class Scripted:
 
 
 class StreamRun:
-    """A streaming firmware in simavr, the job streamed to it, its requests sent over the link; with heaters,
+    """A streaming firmware in its simulator, the job streamed to it, its requests sent over the link; with heaters,
     against their plants, its requests after the heaters' last wait and the run on the twin's clock (as
     HeatedRun's)."""
 
@@ -184,17 +188,18 @@ class StreamRun:
 
     def _session(self, scripted: Scripted, slower: float):
         from codegen.cli_stream import ShownSession, session_budget_s  # here: the CLI builds on this module
-        from codegen.sim.avr_link import simulate_stream, simulate_stream_heaters
         from codegen.verify_heaters import job_plants
 
+        simulator = importlib.import_module(SIM_MODULES[self.setup.target.target])
         budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
         config = self.setup.config
         with progress.stage("stream (simulated)", self.host.link_plan.stream_bytes, "bytes") as bar:
             shown = ShownSession(scripted, bar)
             if self.waits is None:
-                return simulate_stream(self.image.hex_path, config, shown, budget, switches=self.switches)
-            self.heated, figures = simulate_stream_heaters(self.image.hex_path, config, shown, budget,
-                                                           job_plants(self.host.job, config), (), self.switches)
+                return simulator.simulate_stream(self.image.hex_path, config, shown, budget, switches=self.switches)
+            self.heated, figures = simulator.simulate_stream_heaters(self.image.hex_path, config, shown, budget,
+                                                                     job_plants(self.host.job, config), (),
+                                                                     self.switches)
         return self.heated.steps, figures
 
     def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:

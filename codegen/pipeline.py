@@ -95,7 +95,8 @@ class HostBuild:
         """The feed hold of the image (codegen/hold.py); BuildError where the player cannot hold."""
         if self.job.machine.feed_hold is None:
             return None
-        return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data)
+        return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data,
+                         streamed=self.link_plan is not None)
 
     @cached_property
     def heaters(self) -> tuple[HeaterFirmware, ...]:
@@ -157,10 +158,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             from None
     hold = None
     if job.machine.feed_hold is not None:  # its errors before any planning
-        if target.target != "avr" and link is not None:
-            raise BuildError("machine.feed_hold: the 8051's streaming firmware has no feed hold yet (its flash "
-                             "image and the ATmega2560's have)")
-        hold = hold_plan(job, target.tick_hz, target.board, target.board_data)
+        hold = hold_plan(job, target.tick_hz, target.board, target.board_data, streamed=link is not None)
     kin = make_kinematics(job.machine)
     program = Program(job, kin, strict)
     played_out = runtime_outputs(job, target, link is not None)
@@ -220,11 +218,11 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     """The outputs whose settings the image plays at their place: an AVR flash image's heaters (the job's
     that its board has), a streaming firmware's (stream_heaters), and the board's fan beside them (unless a
-    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too, on an 8051's flash image alone; none
-    elsewhere (codegen/runtime.py)."""
+    heater uses its pin); with feed_hold, the program's pauses (M0/M1) too (an 8051's only ones); none elsewhere
+    (codegen/runtime.py)."""
     pauses = ("pause",) if job.machine.feed_hold is not None else ()
     if target.target != "avr":
-        return () if streamed else pauses
+        return pauses
     if not target.heater_pins:
         return pauses
     if streamed:

@@ -59,13 +59,11 @@ def stream_homes(job) -> bool:
 
 
 def _hold(job, target) -> HoldPlan | None:
-    """The streaming firmware's feed hold (the link's HOLD, RESUME, FEED_DOWN, FEED_UP and the board's keys)."""
+    """The streaming firmware's feed hold (the link's HOLD, RESUME, FEED_DOWN, FEED_UP, and on the AVR the board's
+    keys)."""
     if job.machine.feed_hold is None:
         return None
-    if target.target != "avr":
-        raise BuildError("machine.feed_hold: the 8051's streaming firmware has no feed hold yet (its flash image "
-                         "and the ATmega2560's have)")
-    return hold_plan(job, target.tick_hz, target.board, target.board_data)
+    return hold_plan(job, target.tick_hz, target.board, target.board_data, streamed=True)
 
 
 def stream_setup(job, baud: int | None = None) -> StreamSetup:

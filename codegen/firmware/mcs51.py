@@ -251,7 +251,7 @@ def player_context(config: FirmwareConfig, stream: bool = False) -> tuple[dict, 
     context.update(jog_context(config, motors, pulse_ticks, len(names) if lcd is not None else None))
     from codegen.firmware.mcs51_hold import hold_context  # here: that module builds on this one
 
-    context.update(hold_context(config, board_data(config.board)[0], parse_pin, STOP_TICKS, tick_hz))
+    context.update(hold_context(config, board_data(config.board)[0], parse_pin, STOP_TICKS, tick_hz, stream))
     for m, start in zip(motors, config.start_steps or (0,) * len(motors)):
         m["start_steps"] = int(start) % 65536  # the display shows signed 16-bit positions
     # With a display (or a link, or feed hold's keys), main runs its code while the interrupt plays: the interrupt

@@ -175,7 +175,7 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
                            layout.ring_bytes, len(config.motors)).payload()
     types = {name: getattr(protocol, name) for name in ("DATA", "HELLO", "START", "STATUS", "ABORT", "ACK", "IDENT",
                                                         "STARTED", "FINISHED", "UNDERRUN", "STATUS_REPLY",
-                                                        "ABORTED", "HOMING_FAILED")}
+                                                        "ABORTED", "HOMING_FAILED", "HOLD", "FEED_UP")}
     context.update(
         ring={"bytes": layout.ring_bytes, "where": layout.where, "iram": layout.iram_base > 0,
               "base": layout.iram_base, "size": layout.size},
@@ -184,7 +184,8 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
               "reload": layout.reload, "actual_baud": layout.actual_baud, "sync": protocol.SYNC,
               "max_payload": protocol.MAX_PAYLOAD, "types": types, "rejected": protocol.REJECTED, "states": states,
               "payload": link_budget(layout.baud, layout.ring_bytes, len(config.motors)).payload,
-              "ident": list(ident), "max_answer": max(len(ident), STATUS_HEAD + 4 * len(config.motors))})
+              "ident": list(ident),
+              "max_answer": max(len(ident), STATUS_HEAD + 4 * len(config.motors) + (config.hold is not None))})
     return render_player(context, lcd, config, ("config.h", "link.h", "link.c"))
 
 
