@@ -127,7 +127,8 @@ class HeatedRun(FlashRun):
 
 class Scripted:
     """A HostLink that sends the script's requests ((cycle, kind), in order) once the line is idle at or after
-    their cycle, noting when each arrives; with `resume_every` a RESUME that often besides."""
+    their cycle, noting when each arrives; with `resume_every` a RESUME that often besides, once the job has started
+    (before, they would only delay START on a slow link: the 8051's at 9600 baud)."""
 
     def __init__(self, link, script: list[tuple[int, int]], f_cpu: int, resume_every: float | None = None):
         self.link, self.script, self.f_cpu = link, list(script), f_cpu
@@ -145,7 +146,7 @@ class Scripted:
 
     def wake_at(self) -> float | None:
         times = [t for t in (self.link.wake_at(), self._due()) if t is not None]
-        if self.resume_every is not None and self.link.ident is not None:
+        if self.resume_every is not None and self.link.started_at is not None:
             times.append(self.next_resume)
         return min(times) if times else None
 
@@ -154,7 +155,7 @@ class Scripted:
         if due is not None and now >= due - 1e-12:  # the line is idle: the request goes first, at once
             self.link.feed(self.script.pop(0)[1])
             self.arrived.append(int(round((now + FRAME_BYTES * self.link.byte_s) * self.f_cpu)))
-        if self.resume_every is not None and now >= self.next_resume:
+        if self.resume_every is not None and self.link.started_at is not None and now >= self.next_resume:
             self.link.feed(protocol.RESUME)
             self.next_resume = now + self.resume_every
         return self.link.transmit(now)

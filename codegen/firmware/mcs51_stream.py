@@ -41,12 +41,14 @@ IRAM_BITS_START = 0x20
 IRAM_BITS, IRAM_BITS_PER_MOTOR, IRAM_BITS_HOMING = 13, 1, 1
 IRAM_DATA, IRAM_DATA_PER_MOTOR, IRAM_DATA_PER_PORT = 59, 18, 3
 IRAM_HOMING, IRAM_HOMING_PER_AXIS = 11, 8
+IRAM_HOLD = 23  # feed hold's (measured the same way): the dilated path's 19 bytes and 3 bits, hold.c's 2 bytes
 # Stack bytes kept free below the ring: main's deepest calls (link_poll, stopped, exact_positions, position: 11
 # bytes; 16 after a homing failure, when the player cannot run) + the serial interrupt (4) + the step interrupt
 # on top of it (4), from SDCC 4.2's listings. The deepest stack seen in s51 (a write breakpoint on every byte
 # above the variables): 11 bytes playing to the end, to an underrun or an abort; 15 homing; 17 after a homing
 # failure.
 STACK_RESERVE = 20
+HOLD_STACK = 3  # with feed hold, the step interrupt's dilated path pushes B and DPTR too
 DEFAULT_BAUD = 9600
 MAX_BAUD_ERROR_PCT = 2.5
 T2_CLOCKS_PER_BAUD = 32  # Timer2 as baud generator: f_cpu / (32 x (65536 - RCAP2))
@@ -91,7 +93,7 @@ def iram_need(config: FirmwareConfig) -> int:
     motors, axes = len(context["motors"]), len(config.homing)
     bits = IRAM_BITS + IRAM_BITS_PER_MOTOR * motors + (IRAM_BITS_HOMING if axes else 0)
     data = (IRAM_DATA + IRAM_DATA_PER_MOTOR * motors + IRAM_DATA_PER_PORT * len(context["step_ports"])
-            + (IRAM_HOMING + IRAM_HOMING_PER_AXIS * axes if axes else 0))
+            + (IRAM_HOMING + IRAM_HOMING_PER_AXIS * axes if axes else 0) + (IRAM_HOLD if config.hold else 0))
     return IRAM_BITS_START + -(-bits // 8) + data
 
 
@@ -100,7 +102,8 @@ def _iram_ring(config: FirmwareConfig, iram: int) -> tuple[int, int]:
     the variables and the stack reserve below it; BuildError when it would not hold two DATA frames of the
     smallest payload and the longest record."""
     need = iram_need(config)
-    free = iram - need - STACK_RESERVE
+    stack = STACK_RESERVE + (HOLD_STACK if config.hold else 0)
+    free = iram - need - stack
     size = next((n for n in IRAM_RING_SIZES if n <= free), 0)
     frames = 2 * (MIN_PAYLOAD + protocol.OVERHEAD_BYTES)
     record = protocol.max_record_bytes(len(config.motors))
@@ -111,7 +114,7 @@ def _iram_ring(config: FirmwareConfig, iram: int) -> tuple[int, int]:
             f"{protocol.OVERHEAD_BYTES} of overhead each, and the longest record of {len(config.motors)} motors: "
             f"{record}); the largest ring of {', '.join(map(str, IRAM_RING_SIZES))} bytes that fits holds "
             f"{max(size - 1, 0)} ({free} of the {iram} bytes are free after the variables' {need} and a stack of "
-            f"{STACK_RESERVE}); use fewer motors or homed axes, or a board with XRAM (seed-51: 512 B external; "
+            f"{stack}); use fewer motors or homed axes, or a board with XRAM (seed-51: 512 B external; "
             f"stc89c52rc: 256 B on-chip)")
     return size, iram - size
 
@@ -203,7 +206,8 @@ def build_stream_image(sources: dict[str, str], out_dir: Path) -> Image:
     if iram_ring:
         base = int(iram_ring.group(1), 16)
         size = int(mem["iram"]) - base
-        plan = BuildPlan(model=str(mem["model"]), xram=0, iram=base, stack=STACK_RESERVE)
+        plan = BuildPlan(model=str(mem["model"]), xram=0, iram=base,
+                         stack=STACK_RESERVE + (HOLD_STACK if "hold.c" in sources else 0))
         sym_extra.update(ring_base=base, ring_bytes=size - 1, xram=0, on_chip_xram=False)
     else:
         layout = ring_layout(FirmwareConfig("", "", "mcs51", board.group(1), ()))
