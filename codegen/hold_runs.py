@@ -20,6 +20,8 @@ from codegen.verify import simulated_switches
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
+MAIN_TURN_CANDIDATES = 12  # events that may be a frame's first dilated one on the 8051's stream, where main's turn
+# (link_poll, and a display's refresh of up to 2 ms) comes between the frame and hold_poll (verify_hold's CANDIDATES)
 MAX_CLOCK = (1 << 32) - 1  # s51's sim_ticks never passes it: a key held down to the end
 KINDS = {"hold": protocol.HOLD, "resume": protocol.RESUME, "feed-": protocol.FEED_DOWN, "feed+": protocol.FEED_UP}
 FRAME_BYTES = protocol.OVERHEAD_BYTES  # a request has no payload
@@ -34,6 +36,7 @@ class FlashRun:
         self.f_cpu = host.target.f_cpu
         self.budget = int((host.plan.total * 1.2 + 1.0) * self.f_cpu)
         self.streamed = False
+        self.candidates = None  # verify_hold's CANDIDATES
 
     def tick0(self, pauses: bool) -> int:
         """The job's tick 0 (cycles from reset); with `pauses` the resume key is held down all along."""
@@ -178,6 +181,7 @@ class StreamRun:
         self.switches = simulated_switches(host)
         self.f_cpu = host.target.f_cpu
         self.streamed = True
+        self.candidates = MAIN_TURN_CANDIDATES if setup.target.target == "mcs51" else None
         self.link = self.figures = self.heated = None
         self.waits = None
         if host.heaters:

@@ -28,6 +28,7 @@ OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from 
 REST_S = 0.02  # from the park the twin predicts to the resume key
 POLL_CYCLES = 400  # a step interrupt and main's poll: a key pressed this long before an event may be seen after it
 CANDIDATES = 5  # events, after the first one within POLL_CYCLES of the press, that may be the key's first
+# (a runner may need more: its `candidates`)
 RESUME_FIT = 32  # events after a resume whose earliest pulse places it (some may come late behind a link interrupt)
 
 
@@ -104,6 +105,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     target, f_cpu = host.target, host.target.f_cpu
     prescale, latency = f_cpu // target.tick_hz, int(target.mcu_data.get("isr_latency_cycles", 0))
     least_latency = int(target.mcu_data.get("isr_latency_min_cycles", latency))
+    candidates = runner.candidates or CANDIDATES
     tick0 = runner.tick0(bool(pause_events(host.schedule)))
     actions = _actions(host, tick0, hold_s, override)
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
@@ -119,11 +121,11 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     for a in actions:
         done = actions[:len(guess)]
         resumes = [(r - tick0) // prescale + RESUME_TICKS
-                   for r in _resume_presses(host, done, guess, resume_target, tick0, prescale)]
+                   for r in _resume_presses(host, done, guess, resume_target, tick0, prescale, candidates)]
         pred = cycles_of(_predict(host, done, guess, resumes, resume_target))
         first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
-        guess.append(first + CANDIDATES // 2 + 1)
-    resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale)
+        guess.append(first + candidates // 2 + 1)
+    resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale, candidates)
     presses = [(a.function, a.press) for a in actions] + [("resume", r) for r in resume_presses]
     trace, arrived = runner.run(presses, 1.0 if override is None else 11.0)
     for a, when in zip(actions, arrived):
@@ -159,7 +161,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
         # the pulses before the next request can tell (it has not come yet)
         before = (sim >= 0) & (sim < (actions[i + 1].press if i + 1 < len(actions) else np.inf))
         best, best_err = first + 1, None
-        for n in range(first + 1, first + 1 + CANDIDATES):
+        for n in range(first + 1, first + 1 + candidates):
             d = _predict(host, actions[:i + 1], chosen + [n], resumed(chosen + [n]), resume_target)
             err = int(np.abs(cycles_of(d)[before] - sim[before]).max()) if before.any() else 0
             if best_err is None or err < best_err:
@@ -193,7 +195,7 @@ def pauses(host: HostBuild) -> bool:
 
 
 def _resume_presses(host: HostBuild, actions: list[KeyAction], guess: list[int], resume_target: int, tick0: int,
-                    prescale: int) -> list[int]:
+                    prescale: int, candidates: int = CANDIDATES) -> list[int]:
     """The resume key's presses: REST_S after each park the twin predicts (a hold's: the latest of its
     candidates), in order; each predicted resume is RESUME_TICKS after its press."""
     f_cpu, presses, resumes = host.target.f_cpu, [], []
@@ -204,8 +206,8 @@ def _resume_presses(host: HostBuild, actions: list[KeyAction], guess: list[int],
             return presses
         event, tick, paused = d.parks[len(resumes)]
         if not paused and hold is not None:  # the hold's park: the latest of its candidates
-            for k in range(CANDIDATES):
-                other = guess[:hold] + [guess[hold] - CANDIDATES // 2 + k] + guess[hold + 1:]
+            for k in range(candidates):
+                other = guess[:hold] + [guess[hold] - candidates // 2 + k] + guess[hold + 1:]
                 parks = _predict(host, actions, other, resumes, resume_target).parks
                 if len(parks) > len(resumes):
                     tick = max(tick, parks[len(resumes)][1])
