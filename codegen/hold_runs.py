@@ -224,15 +224,18 @@ class StreamRun:
 
     def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
         refuse_before(presses, self.start, self.after, self.f_cpu)
-        scripted = self._scripted([(cycle + self.shift, KINDS[function]) for function, cycle in presses])
+        order = sorted(range(len(presses)), key=lambda i: presses[i][1])  # the line sends them one after another
+        scripted = self._scripted([(presses[i][1] + self.shift, KINDS[presses[i][0]]) for i in order])
         trace, self.figures = self._session(scripted, slower + sum(c for _, c in presses) / self.f_cpu)
         self.link = scripted.link
-        arrived = [c - self.shift for c in scripted.arrived]
+        arrived = [-1] * len(presses)
+        for i, cycle in zip(order, scripted.arrived):
+            arrived[i] = cycle - self.shift
         if self.heated is not None:
             from codegen.verify_heaters import on_twin_clock
 
             trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
-        return trace, arrived + [-1] * (len(presses) - len(arrived))
+        return trace, arrived
 
     def result(self, verdict, trace) -> dict:
         from codegen.cli_stream import stream_result
