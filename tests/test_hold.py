@@ -173,9 +173,10 @@ def test_a_delta_held_mid_job_comes_to_rest_within_its_limits_and_ends_exact(tmp
         assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
 
 
-def test_the_8051_holds_in_its_flash_image_only_and_up_to_100_percent(tmp_path):
-    """The 8051's flash image has feed hold (tests/test_hold_mcs51.py); its streaming firmware has none yet, and its
-    player has no ceiling records: its override goes up to 100 % (the default there), more is refused."""
+def test_the_8051_holds_in_its_flash_image_and_stream_up_to_100_percent(tmp_path):
+    """The 8051's flash image and streaming firmware have feed hold (tests/test_hold_mcs51.py,
+    tests/test_hold_mcs51_stream.py), the stream with no keys (the link's frames) on a board without hold keys too;
+    its player has no ceiling records: its override goes up to 100 % (the default there), more is refused."""
     job = yaml.safe_load(_with_hold((ROOT / "examples" / "star.yaml").read_text()))
     job.update(target="mcs51", board="seed-51")
     path = tmp_path / "star.yaml"
@@ -190,8 +191,12 @@ def test_the_8051_holds_in_its_flash_image_only_and_up_to_100_percent(tmp_path):
             host_build(load_job(path))
     job["machine"]["feed_hold"] = {}
     path.write_text(yaml.safe_dump(job, sort_keys=False))
-    with pytest.raises(BuildError, match="machine.feed_hold: the 8051's streaming firmware has no feed hold yet"):
-        stream_setup(load_job(path))
+    assert stream_setup(load_job(path)).config.hold.top == F_ONE
+    job["board"] = "at89c52"  # no hold_keys: its flash image cannot hold, its stream can
+    path.write_text(yaml.safe_dump(job, sort_keys=False))
+    with pytest.raises(BuildError, match="machine.feed_hold: board at89c52 has no hold_keys"):
+        host_build(load_job(path))
+    assert stream_setup(load_job(path)).config.hold.keys == {}
 
 
 def test_an_override_the_keys_cannot_reach_is_an_error(tmp_path):

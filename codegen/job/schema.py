@@ -346,7 +346,7 @@ class Machine(_Model):
     jog: Optional[Jog] = None  # jog keys before the job (codegen/jog.py); None: no jog mode
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
-    feed_hold: Optional[FeedHold] = None  # hold, resume and override keys (AVR images, 8051 flash images); None: none
+    feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none
 
     @property
     def motor_names(self) -> tuple[str, ...]:
