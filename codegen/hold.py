@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.schedule import FRAC_BITS, RT_PAUSE, Schedule
+from codegen.schedule import FRAC_BITS, RT_PAUSE, Schedule, in_force
 
 F_ONE = 128  # the feed factor 1 (100 %)
 F_MAX = 255  # the highest factor (199 %): the override's 200 % step
@@ -168,15 +168,7 @@ def pause_events(schedule: Schedule) -> list[int]:
 def event_ceilings(schedule: Schedule) -> np.ndarray:
     """(E,) the factor's ceiling in force at every event's interrupt (F_ONE before the first record), from the
     schedule's ceiling records."""
-    events = int(schedule.run_count.sum())
-    if not schedule.n_ceiling:
-        return np.full(events, F_ONE, dtype=np.int64)
-    set_at = np.full(events, -1, dtype=np.int64)
-    run_first = np.cumsum(schedule.run_count) - schedule.run_count
-    records = schedule.run_ceiling >= 0
-    set_at[run_first[records]] = np.flatnonzero(records)
-    last = np.maximum.accumulate(set_at)
-    return np.where(last >= 0, schedule.run_ceiling[np.maximum(last, 0)], F_ONE)
+    return in_force(schedule, schedule.run_ceiling, F_ONE)
 
 
 def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),

@@ -27,7 +27,7 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.hold import F_ONE
 from codegen.planner import Plan
-from codegen.schedule import Schedule, split_runs
+from codegen.schedule import Schedule, in_force, split_runs
 from codegen.segments import Segments
 from codegen.stepgen import Events
 
@@ -139,15 +139,7 @@ def with_power(schedule: Schedule, counts: np.ndarray, before: int) -> Schedule:
 
 def played_counts(schedule: Schedule, before: int = 0) -> np.ndarray:
     """(E,) the PWM counts the player has set at every event, from the schedule's power records."""
-    events = int(schedule.run_count.sum())
-    if not schedule.n_power:
-        return np.full(events, before, dtype=np.int64)
-    set_at = np.full(events, -1, dtype=np.int64)
-    run_first = np.cumsum(schedule.run_count) - schedule.run_count
-    records = schedule.run_power >= 0
-    set_at[run_first[records]] = np.flatnonzero(records)
-    last = np.maximum.accumulate(set_at)  # the latest record at or before each event
-    return np.where(last >= 0, schedule.run_power[np.maximum(last, 0)], before)
+    return in_force(schedule, schedule.run_power, before)
 
 
 def power_error_of(counts: np.ndarray, ideal: np.ndarray, top: int) -> float:

@@ -151,6 +151,20 @@ class Schedule:
             raise ValueError("; ".join(problems))
 
 
+def in_force(schedule: Schedule, records: np.ndarray, before: int) -> np.ndarray:
+    """(E,) at every event, the latest of the runs' `records` (run_power or run_ceiling: >= 0 where a run has one)
+    at or before it; `before` until the first."""
+    events = int(schedule.run_count.sum())
+    if not np.any(records >= 0):
+        return np.full(events, before, dtype=np.int64)
+    set_at = np.full(events, -1, dtype=np.int64)
+    run_first = np.cumsum(schedule.run_count) - schedule.run_count
+    has = records >= 0
+    set_at[run_first[has]] = np.flatnonzero(has)
+    last = np.maximum.accumulate(set_at)
+    return np.where(last >= 0, records[np.maximum(last, 0)], before)
+
+
 def split_runs(schedule: Schedule, starts: np.ndarray) -> tuple[Schedule, np.ndarray]:
     """The schedule with a run starting at each of `starts` (sorted events; a run split there goes on with the
     same times), and the index of the run each of them starts. A split's second part has no power or ceiling

@@ -67,7 +67,7 @@ def _within_limits(result: dict) -> None:
         assert motor["max_accel_ratio"] <= 1.0 and motor["max_rate_ratio"] <= 1.0
 
 
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [1])  # the CLI test and the wrong twin hold at other times
 def test_held_mid_move_comes_to_rest_within_its_limits_and_ends_exact(plotter, seed):
     host, image = plotter
     assert not host.hold_plan.gated  # the 8051's plan keeps RAMP_SHARE of every motor's acceleration
