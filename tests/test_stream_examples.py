@@ -1,5 +1,5 @@
 """The streaming examples end to end, through the command line users run (`verify --stream --json`): the laser
-engraving and the Benchy's first five layers streamed to a RAMPS board in simavr, and the seed plotter set at the
+engraving and the Benchy's first three layers streamed to a RAMPS board in simavr, and the seed plotter set at the
 default tolerance, too big for the AT89C52's flash, streamed to the seed-51 board in s51.
 """
 
@@ -84,15 +84,15 @@ def test_the_laser_engravings_first_strokes_stream_to_ramps(tmp_path, capsys):
 
 
 @needs_avr
-def test_the_benchys_first_five_layers_stream_to_ramps(tmp_path, capsys):
-    (tmp_path / "benchy-5-layers.gcode").write_text(first_layers(BENCHY_GCODE.read_text(), 5))
-    job, replaced = re.subn(r"(?m)^  gcode: .*$", "  gcode: benchy-5-layers.gcode", BENCHY.read_text())
+def test_the_benchys_first_three_layers_stream_to_ramps(tmp_path, capsys):
+    (tmp_path / "benchy-3-layers.gcode").write_text(first_layers(BENCHY_GCODE.read_text(), 3))
+    job, replaced = re.subn(r"(?m)^  gcode: .*$", "  gcode: benchy-3-layers.gcode", BENCHY.read_text())
     assert replaced == 1  # the machine is benchy-mini.yaml's, the program the cut file
-    (tmp_path / "benchy-5-layers.yaml").write_text(job.replace("name: benchy-mini", "name: benchy-5-layers"))
-    result = verify_stream(capsys, tmp_path / "benchy-5-layers.yaml", tmp_path / "out")
+    (tmp_path / "benchy-3-layers.yaml").write_text(job.replace("name: benchy-mini", "name: benchy-3-layers"))
+    result = verify_stream(capsys, tmp_path / "benchy-3-layers.yaml", tmp_path / "out")
     assert_streamed_as_planned(result, baud=250_000)
     assert sorted(result["motors"]) == ["e", "x", "y", "z"]
-    assert result["motors"]["z"]["expected_final"] == 600  # the fifth layer's top, 1.5 mm at 400 steps/mm
+    assert result["motors"]["z"]["expected_final"] == 360  # the third layer's top, 0.9 mm at 400 steps/mm
 
 
 @needs_mcs51
