@@ -39,9 +39,9 @@ SLICER_ESTIMATE_S = 38 * 60 + 43
 def measure_one(job_path: str, target: str | None) -> dict:
     """In the child: the plan of the job, its stage times and figures, as JSON."""
     begin = time.perf_counter()
-    from codegen.cli import keep_freed_memory  # as `printer-codegen plan` does
+    from codegen.cli.main import keep_freed_memory  # as `printer-codegen plan` does
     from codegen.job import load_job
-    from codegen.pipeline import Stopwatch, host_build
+    from codegen.pipeline.host import Stopwatch, host_build
 
     keep_freed_memory()
     watch = Stopwatch()

@@ -1,6 +1,6 @@
 """How fast the ATmega2560 player steps, measured pulse by pulse in simavr.
 
-Schedules are built by hand in the compact stream (codegen/tables.py: runs that cross block starts), on a
+Schedules are built by hand in the compact stream (codegen/tables/format.py: runs that cross block starts), on a
 cartesian RAMPS 1.4 (x, y, z, e on sockets X, Y, Z, E0): a lead event 2000 ticks after tick 0 (clear of tick
 0's block load), then events a constant interval apart. Motor 0 is the block's master (steps == modulus: it steps
 at every event without Bresenham); the others step at (nearly) every event through the 16-bit Bresenham, the path
@@ -38,12 +38,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins  # noqa: E402
-from codegen.firmware.avr import build_image, load_target, render_sources  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins  # noqa: E402
+from codegen.firmware.avr.image import build_image, load_target, render_sources  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
-from codegen.schedule import Schedule  # noqa: E402
+from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.sim.avr import SimTrace, simulate  # noqa: E402
-from codegen.twin import predict  # noqa: E402
+from codegen.tables.twin import predict  # noqa: E402
 from shortest import shortest  # noqa: E402 - beside this script
 
 MCU = "atmega2560"

@@ -33,12 +33,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware import FirmwareConfig, MotorPins  # noqa: E402
-from codegen.firmware.mcs51 import build_image, render_sources  # noqa: E402
-from codegen.firmware.avr import load_target  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, MotorPins  # noqa: E402
+from codegen.firmware.mcs51.image import build_image, render_sources  # noqa: E402
+from codegen.firmware.avr.image import load_target  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
-from codegen.schedule import Schedule  # noqa: E402
-from codegen.twin import predict  # noqa: E402
+from codegen.tables.schedule import Schedule  # noqa: E402
+from codegen.tables.twin import predict  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
 from shortest import shortest  # noqa: E402 - beside this script
 

@@ -16,16 +16,16 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from codegen.checks import MotorTrain, check
-from codegen.compress import compress
+from codegen.tables.checks import MotorTrain, check
+from codegen.tables.compress import compress
 from codegen.kinematics import make_kinematics
-from codegen.planner import PlannerLimits, plan
-from codegen.staircase import refine, split_long
-from codegen.stepgen import generate, segment_steps
+from codegen.motion.planner import PlannerLimits, plan
+from codegen.motion.staircase import refine, split_long
+from codegen.motion.stepgen import generate, segment_steps
 from codegen.targets import target_info
-from codegen.twin import predict
-from codegen.segments import REF_LINE, Segments
-from codegen.toolpath import FINE_STEPS
+from codegen.tables.twin import predict
+from codegen.toolpath.segments import REF_LINE, Segments
+from codegen.toolpath.items import FINE_STEPS
 
 
 def random_segments(n: int, delta: bool, seed: int = 1) -> Segments:

@@ -10,7 +10,7 @@ duration, the wall time of the whole verb and of the simulation, the simulator's
 (simulated s / wall s), what went over the line (bytes, frames, the line's busy share, retransmits, underruns,
 lost bytes), the ring's lowest fill (simulated and planned) and its prefill, and the time the link cost: the
 plan's slowdown for it (link_slowdown_s) and the simulated minus the planned duration (which a flashed image
-shows too, up to the run fitter's window at each end: codegen/compress.py TimingWindow). The Benchy's printer runs
+shows too, up to the run fitter's window at each end: codegen/tables/compress.py TimingWindow). The Benchy's printer runs
 its heaters: the holds at its M190 / M109 and each heater's figures are printed too (the simulated duration counts
 from the first step, after the heat-up).
 """
@@ -29,9 +29,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from codegen.cli import main as cli_main  # noqa: E402
-from codegen.compress import TimingWindow  # noqa: E402
-from codegen.streaming import SIM_MODULES  # noqa: E402
+from codegen.cli.main import main as cli_main  # noqa: E402
+from codegen.tables.compress import TimingWindow  # noqa: E402
+from codegen.pipeline.streaming import SIM_MODULES  # noqa: E402
 
 JOB = Path(__file__).resolve().parent.parent / "examples" / "printers" / "benchy-mini.yaml"
 

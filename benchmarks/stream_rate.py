@@ -1,7 +1,7 @@
 """How fast the streaming ATmega2560 player steps with its link busy, and what the link costs, in simavr.
 
 The schedules are firmware_rate.py's (beside this script: a lead event, then events a constant interval apart;
-modes run, runs, block, long_block), played by the streaming image (codegen/firmware/avr_stream.py) on a RAMPS
+modes run, runs, block, long_block), played by the streaming image (codegen/firmware/avr/stream.py) on a RAMPS
 1.4 (x, y, z, e): the host (codegen/link/host.py, DATA frames of the link budget's payload) sends the schedule
 before START, then goes on sending stream bytes after its end (stored in the ring, never played) back to back at
 250000 baud while the player plays: every receive and transmit interrupt of a busy link comes between the events.
@@ -29,10 +29,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from codegen import tables  # noqa: E402
+import codegen.tables.format as tables  # noqa: E402
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.avr import load_target  # noqa: E402
-from codegen.firmware.avr_stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
+from codegen.firmware.avr.image import load_target  # noqa: E402
+from codegen.firmware.avr.stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
 from codegen.link import protocol  # noqa: E402
 from codegen.link.host import HostLink  # noqa: E402
 from codegen.link.ring import link_budget  # noqa: E402

@@ -30,7 +30,7 @@ from hypothesis import strategies as st
 
 from codegen.errors import BuildError, JobError
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 
 TARGETS = ("avr", "mcs51")
 KINEMATICS = ("cartesian", "corexy", "delta")

@@ -1,5 +1,5 @@
 """What a simulated jog session must show, for both targets: the pulses made before the player's timer started
-(jog mode), split into moves, checked against the jog plan (codegen/jog.py) and the motors' limits."""
+(jog mode), split into moves, checked against the jog plan (codegen/motion/jog.py) and the motors' limits."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.motor_checks import AccelCheck, RateCheck
+from codegen.tables.motor_checks import AccelCheck, RateCheck
 from codegen.sim.keys import KeyPress
 
 # A session that goes through every direction and speed change (seconds from reset; the 8051's display needs
@@ -89,7 +89,7 @@ def check_move(move: Move, plan, level: int, tolerance: int = TICK_TOLERANCE) ->
 
 
 def check_limits(pulses, plan, f_cpu: int) -> tuple[float, float]:
-    """codegen.motor_checks on each jogged motor's pulses: (the worst rate ratio, the worst acceleration ratio)."""
+    """codegen.tables.motor_checks on each jogged motor's pulses: (the worst rate ratio, the worst acceleration ratio)."""
     rate = accel = 0.0
     for cycles, dirs in pulses:
         t = cycles / f_cpu

@@ -1,8 +1,8 @@
 """Plain-Python, event-by-event readings of the player semantics (slow; tests only): `play` from a Schedule's arrays
-(codegen/schedule.py, the runs one sequence over all events, each block taking its events in turn), `play_stream`
-from the bytes of the compact record stream (codegen/tables.py), the way the firmware reads them."""
+(codegen/tables/schedule.py, the runs one sequence over all events, each block taking its events in turn), `play_stream`
+from the bytes of the compact record stream (codegen/tables/format.py), the way the firmware reads them."""
 
-from codegen.schedule import FRAC_BITS, Schedule
+from codegen.tables.schedule import FRAC_BITS, Schedule
 
 
 def event_ticks(schedule: Schedule) -> list[int]:

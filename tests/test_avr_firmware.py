@@ -1,5 +1,5 @@
 """The ATmega2560 player, end to end with the real avr-gcc and the real simavr: hand-made schedules in the compact
-stream (codegen/tables.py) are rendered, built, run, and every simulated pulse is compared with
+stream (codegen/tables/format.py) are rendered, built, run, and every simulated pulse is compared with
 tests/reference_player.py's plain readings of the semantics (from the schedule and from the stream's bytes).
 """
 
@@ -11,10 +11,10 @@ from functools import partial
 import numpy as np
 import pytest
 
-from codegen import tables
+import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, MotorPins
-from codegen.firmware.avr import build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.firmware.avr.image import build_image, render_sources
 from codegen.sim.avr import simulate
 from tests.helpers import block_spans, make_schedule as hand_schedule
 from tests.reference_player import play, play_stream

@@ -11,21 +11,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.firmware import FirmwareConfig, MotorPins
-from codegen.firmware.avr import build_image, render_sources
-from codegen.firmware.avr_heaters import SLICE_CYCLES, heater_firmware
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.firmware.avr.image import build_image, render_sources
+from codegen.firmware.avr.heaters import SLICE_CYCLES, heater_firmware
 from codegen.gcode import toolpath_from_gcode
 from codegen.heaters.control import bang_bang, pid_reference
-from codegen.runtime import runtime_records
-from codegen.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
-from codegen.segments import Flattener
+from codegen.tables.runtime import runtime_records
+from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
+from codegen.toolpath.segments import Flattener
 from codegen.heaters.settings import HeaterSettings, heater_settings
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
 from codegen.targets import board_heater_pins
-from codegen.verify import compare, simulated_switches
-from codegen.verify_heaters import on_twin_clock, settled_at
+from codegen.verify.compare import compare, simulated_switches
+from codegen.verify.heaters import on_twin_clock, settled_at
 from tests.helpers import gcode_job_file, make_schedule
 from tests.reference_player import play
 

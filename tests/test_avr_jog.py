@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.avr import build_image, render_sources
-from codegen.firmware.avr_jog import EVENT_TICKS
+from codegen.firmware.avr.image import build_image, render_sources
+from codegen.firmware.avr.jog import EVENT_TICKS
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.avr import simulate
 from codegen.sim.keys import KeyPress
 from tests.jog_checks import SCRIPT, check_session, jog_pulses, moves

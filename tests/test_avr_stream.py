@@ -13,16 +13,16 @@ from functools import partial
 import numpy as np
 import pytest
 
-from codegen import tables
+import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen.firmware.avr_stream import build_stream_image, render_stream_sources
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.avr.stream import build_stream_image, render_stream_sources
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.sim.avr_link import StreamSim, simulate_stream
 from codegen.targets import target_info
-from codegen.twin import predict
+from codegen.tables.twin import predict
 from tests.helpers import make_schedule as hand_schedule
 from tests.test_avr_firmware import BLOCKS, RUNS, cut
 

@@ -13,16 +13,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from codegen import tables
+import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.avr_stream import render_stream_sources
+from codegen.firmware.avr.stream import render_stream_sources
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.avr_link import StreamSim
 from codegen.sim.keys import KeyPress
-from codegen.streaming import build_stream_firmware, stream_chunks, stream_setup
+from codegen.pipeline.streaming import build_stream_firmware, stream_chunks, stream_setup
 from tests.jog_checks import SCRIPT, check_limits, check_move, check_session, jog_pulses, moves
 from tests.test_avr_jog import JOB
 from tests.test_avr_stream import CYCLES, F_CPU, MAX_LATE, Scripted, check_pulses
@@ -154,7 +154,7 @@ def test_identity_names_the_jog_keys_and_the_8051_refuses_them(jogged, tmp_path)
           f"{bare.ring_bytes} -> {image.ring_bytes} bytes")
     assert image.ring_bytes == bare.ring_bytes - 4 * len(config.jog.motors)
 
-    from codegen.firmware.mcs51_stream import render_stream_sources as mcs51_sources
+    from codegen.firmware.mcs51.stream import render_stream_sources as mcs51_sources
     from tests.test_mcs51_jog import job_file
 
     seed = stream_setup(load_job(job_file(tmp_path)))

@@ -4,9 +4,9 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.checks import MotorTrain, check
+from codegen.tables.checks import MotorTrain, check
 from codegen.job import load_job
-from codegen.pipeline import host_build, trains_from
+from codegen.pipeline.host import host_build, trains_from
 
 ROOT = Path(__file__).resolve().parent.parent
 HOST = host_build(load_job(ROOT / "examples" / "star.yaml"))

@@ -4,10 +4,10 @@ import math
 
 import numpy as np
 
-from codegen.compress import TimingWindow, compress, spread
-from codegen.stepgen import generate
-from codegen.toolpath import Arc, Toolpath
-from codegen.twin import predict
+from codegen.tables.compress import TimingWindow, compress, spread
+from codegen.motion.stepgen import generate
+from codegen.toolpath.items import Arc, Toolpath
+from codegen.tables.twin import predict
 from tests.helpers import SRC, machine, planned, point, polyline
 
 TICK = 16_000_000

@@ -6,10 +6,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.pipeline import host_build
-from codegen.report import plan_summary
+from codegen.pipeline.host import host_build
+from codegen.report.summaries import plan_summary
 
 ROOT = Path(__file__).resolve().parent.parent
 STAR_POINTS = [[100.0, 180.0], [147.023, 35.279], [23.915, 124.721], [176.085, 124.721], [52.977, 35.279],

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.errors import JobError
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 
 JOB = """\
 name: corexy-home
@@ -53,7 +53,7 @@ def run_verify(tmp_path: Path, target: str, capsys) -> tuple[dict, dict[str, lis
 @pytest.mark.parametrize("target", ["avr", "mcs51"])
 def test_corexy_homes_x_then_y_moving_both_belts(tmp_path, target, capsys):
     result, homing = run_verify(tmp_path, target, capsys)
-    # The simulated switches: x 20 mm, z 35 mm, y 50 mm short of where the machine starts (codegen.verify).
+    # The simulated switches: x 20 mm, z 35 mm, y 50 mm short of where the machine starts (codegen.verify.compare).
     x, z, y = 20 * 80, 35 * 100, 50 * 80
     assert result["homing"]["a"] == {"steps": x + 2 * BACK + y + 2 * BACK, "expected_steps": x + y + 4 * BACK,
                                      "net": -x - y, "expected_net": -x - y, "switch": "x_min, y_min"}
@@ -86,7 +86,7 @@ def test_corexy_homing_needs_equal_belt_steps(tmp_path):
 
 
 def test_a_y_switch_that_never_closes_stops_the_machine_after_x(tmp_path):
-    from codegen.firmware.avr import build_image, render_sources
+    from codegen.firmware.avr.image import build_image, render_sources
     from codegen.sim.avr import simulate
 
     job = tmp_path / "corexy-home.yaml"

@@ -10,7 +10,7 @@ import pytest
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.delta import MAX_ARM_RATIO, Delta
-from codegen.segments import flatten
+from codegen.toolpath.segments import flatten
 from tests.helpers import polyline, stepper
 
 ROOT = Path(__file__).resolve().parent.parent

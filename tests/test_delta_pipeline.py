@@ -6,7 +6,7 @@ import pytest
 
 from codegen.errors import JobError
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 
 ROOT = Path(__file__).resolve().parent.parent
 KOSSEL = (ROOT / "examples" / "kossel-mini.yaml").read_text()

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.targets import target_info
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -139,7 +139,7 @@ program:
 
 def test_tool_pin_follows_draw_and_travel(tmp_path, capsys):
     from codegen.job import load_job
-    from codegen.pipeline import host_build
+    from codegen.pipeline.host import host_build
     from codegen.sim.avr import simulate
 
     job = load_job(ROOT / "examples" / "plotter-set.yaml")
@@ -229,9 +229,9 @@ def test_a_point_outside_a_motor_range_is_an_error_at_its_shape(tmp_path, capsys
 
 def test_delta_homing_with_a_switch_that_never_closes_fails_verification(tmp_path, capsys):
     from codegen.job import load_job
-    from codegen.pipeline import host_build
+    from codegen.pipeline.host import host_build
     from codegen.sim.avr import simulate
-    from codegen.verify import compare, simulated_switches
+    from codegen.verify.compare import compare, simulated_switches
 
     job = load_job(ROOT / "examples" / "kossel-mini.yaml")
     assert run(capsys, "build", job.path, "--out", tmp_path)[0] == 0

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli import main
-from codegen.cli_flash import flash_command
+from codegen.cli.main import main
+from codegen.cli.flash import flash_command
 from codegen.errors import BuildError
 from tests.test_config_command import STAR
 

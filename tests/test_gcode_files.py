@@ -15,7 +15,7 @@ import pytest
 from codegen.errors import JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
 from codegen.job import load_job
-from codegen.toolpath import Arc, Dwell, Home, Limits, Line, Output
+from codegen.toolpath.items import Arc, Dwell, Home, Limits, Line, Output
 
 DATA = Path(__file__).parent / "data" / "gcode"
 PRINTER = ("x", "y", "z", "e")

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from codegen.toolpath import Line, Output
+from codegen.toolpath.items import Line, Output
 from tests.test_gcode_interpreter import MILL, errors, items, run
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from codegen.errors import JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
-from codegen.toolpath import Arc, Dwell, Limits, Line, Output
+from codegen.toolpath.items import Arc, Dwell, Limits, Line, Output
 
 PRINTER = ("x", "y", "z", "e")
 MILL = ("x", "y", "z")

@@ -6,7 +6,7 @@
 import pytest
 
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from tests.helpers import gcode_job_file
 
 FILES = {  # file -> does the machine need an extruder

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
-from codegen.firmware.avr import render_sources
+from codegen.cli.main import main
+from codegen.firmware.avr.image import render_sources
 from codegen.job import load_job
-from codegen.pipeline import host_build
-from codegen.schedule import RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
+from codegen.pipeline.host import host_build
+from codegen.tables.schedule import RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
 from tests.helpers import GCODE_DATA
 
 CURA = GCODE_DATA / "slicer" / "puzzle-cura.gcode"

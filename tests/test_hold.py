@@ -1,5 +1,5 @@
-"""Feed hold, resume and override by time dilation (codegen/hold.py, the AVR flash image's dilated path,
-codegen/verify_hold.py): the star at full speed held at random points and resumed in simavr, every pulse on the
+"""Feed hold, resume and override by time dilation (codegen/tables/hold.py, the AVR flash image's dilated path,
+codegen/verify/hold.py): the star at full speed held at random points and resumed in simavr, every pulse on the
 dilated twin's clock and every motor within its limits; an override through the feed keys; the host model over
 random machines and programs (hypothesis); and the refusals where there is no hold yet."""
 
@@ -16,17 +16,17 @@ import yaml
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from codegen.checks import check
-from codegen.firmware.avr import render_sources
-from codegen.cli import _build, main
+from codegen.tables.checks import check
+from codegen.firmware.avr.image import render_sources
+from codegen.cli.main import _build, main
 from codegen.errors import BuildError, JobError
-from codegen.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
+from codegen.tables.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
 from codegen.job import load_job
-from codegen.pipeline import host_build, trains_from
-from codegen.streaming import stream_setup
-from codegen.hold_runs import FlashRun
+from codegen.pipeline.host import host_build, trains_from
+from codegen.pipeline.streaming import stream_setup
+from codegen.verify.hold_runs import FlashRun
 from codegen.sim.avr import simulate
-from codegen.verify_hold import hold_verify
+from codegen.verify.hold import hold_verify
 from tests.jobgen import jobs
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,6 +1,6 @@
 """Feed hold beside heaters (an ATmega2560 flash image or streaming firmware that runs its heaters from main's
 idle loop): main polls the hold keys right after every step interrupt there too; verify heats the simulated
-plants, takes the waits' holds out of the run (codegen/hold_runs.py HeatedRun, StreamRun) and compares every pulse
+plants, takes the waits' holds out of the run (codegen/verify/hold_runs.py HeatedRun, StreamRun) and compares every pulse
 of a held, overridden or paused run with the dilated twin."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli import _build, main
+from codegen.cli.main import _build, main
 from codegen.errors import BuildError
 from codegen.job import load_job
-from codegen.verify_hold import hold_verify
+from codegen.verify.hold import hold_verify
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")

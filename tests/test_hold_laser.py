@@ -1,4 +1,4 @@
-"""Feed hold beside a PWM laser (codegen/laser.py follow, the player's dilated path): M4's power follows the feed
+"""Feed hold beside a PWM laser (codegen/tables/laser.py follow, the player's dilated path): M4's power follows the feed
 factor at every event while the clock is dilated, the laser is dark while the machine rests, M3's power stays
 what the program says while it moves; examples/laser/power.yaml with feed_hold, held in simavr in its M3 square and
 in its M4 zigzag, and overridden to half speed."""
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import yaml
 
-import codegen.verify_laser
-from codegen.cli import _build
-from codegen.hold import F_MAX, F_ONE, PARKED
+import codegen.verify.laser
+from codegen.cli.main import _build
+from codegen.tables.hold import F_MAX, F_ONE, PARKED
 from codegen.job import load_job
-from codegen.laser import DYNAMIC_FLAG, follow
-from codegen.verify_hold import hold_verify
+from codegen.tables.laser import DYNAMIC_FLAG, follow
+from codegen.verify.hold import hold_verify
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="avr-gcc not installed")
@@ -90,7 +90,7 @@ def test_the_override_scales_m4_and_not_m3(laser):
 def test_a_twin_whose_m4_ignores_the_factor_does_not_pass(laser, monkeypatch):
     """The comparison can fail: played as if M4's power did not follow the factor, the simulated PWM differs."""
     host, image = laser
-    monkeypatch.setattr(codegen.verify_laser, "follow", lambda records, factor: follow(records, F_ONE))
+    monkeypatch.setattr(codegen.verify.laser, "follow", lambda records, factor: follow(records, F_ONE))
     result, _ = hold_verify(host, image, 8.0, None)
     assert not result["pass"]
     assert any(p.startswith("laser: at simulated event") for p in result["problems"])

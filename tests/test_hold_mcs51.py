@@ -1,6 +1,6 @@
-"""Feed hold, resume and override on the 8051's flash image (codegen/firmware/mcs51_hold.py, the dilated path of
+"""Feed hold, resume and override on the 8051's flash image (codegen/firmware/mcs51/hold.py, the dilated path of
 templates/mcs51/player.c.j2), end to end with the real SDCC and s51: seed-51's hold keys on its key matrix pressed
-by the s51 script (codegen/sim/mcs51_keys.py), every pulse on the dilated twin's clock (codegen/hold.py), every
+by the s51 script (codegen/sim/mcs51_keys.py), every pulse on the dilated twin's clock (codegen/tables/hold.py), every
 motor within its limits, the end positions exact; M0/M1 pauses; and what the 8051 refuses."""
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import _build, main
+from codegen.cli.main import _build, main
 from codegen.errors import BuildError
-from codegen.firmware.mcs51 import render_sources
-from codegen.hold import RAMP_SHARE, dilate, override_target
+from codegen.firmware.mcs51.image import render_sources
+from codegen.tables.hold import RAMP_SHARE, dilate, override_target
 from codegen.job import load_job
 from codegen.sim.mcs51 import simulate
 from codegen.sim.mcs51_keys import seen_at
-from codegen.verify_hold import hold_verify
+from codegen.verify.hold import hold_verify
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")

@@ -13,15 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli_stream import _firmware, new_link, streamed_host
-from codegen.hold import F_ONE
-from codegen.hold_runs import StreamRun
+from codegen.cli.stream import _firmware, new_link, streamed_host
+from codegen.tables.hold import F_ONE
+from codegen.verify.hold_runs import StreamRun
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.sim.mcs51_link import simulate_stream
-from codegen.streaming import stream_setup
-from codegen.verify import simulated_switches
-from codegen.verify_hold import hold_verify
+from codegen.pipeline.streaming import stream_setup
+from codegen.verify.compare import simulated_switches
+from codegen.verify.hold import hold_verify
 from tests.test_hold_mcs51 import job_file
 from tests.test_hold_stream import Watched
 

@@ -12,21 +12,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen import hold_runs
-from codegen.cli import _build, main
-from codegen.cli_stream import _firmware, new_link, streamed_host
+from codegen.verify import hold_runs
+from codegen.cli.main import _build, main
+from codegen.cli.stream import _firmware, new_link, streamed_host
 from codegen.errors import JobError
-from codegen.hold import F_ONE
-from codegen.hold_runs import Scripted
+from codegen.tables.hold import F_ONE
+from codegen.verify.hold_runs import Scripted
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.link.serial_port import send_hold_keys, status_line, terminal_keys
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.avr_link import simulate_stream
-from codegen.streaming import stream_setup
-from codegen.verify import simulated_switches
-from codegen.verify_hold import hold_verify
+from codegen.pipeline.streaming import stream_setup
+from codegen.verify.compare import simulated_switches
+from codegen.verify.hold import hold_verify
 
 ROOT = Path(__file__).resolve().parent.parent
 PEN_CHANGE = ROOT / "examples" / "gcode" / "pen-change.yaml"

@@ -1,5 +1,5 @@
 """Jog keys on the host: the job file's `machine.jog` (positioned errors, did you mean), the ramp table
-(codegen/jog.py) and the board's key wiring. The firmware in the simulators: test_mcs51_jog.py, test_avr_jog.py."""
+(codegen/motion/jog.py) and the board's key wiring. The firmware in the simulators: test_mcs51_jog.py, test_avr_jog.py."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError, JobError
-from codegen.firmware.avr import parse_pin
-from codegen.jog import ACCEL_HEADROOM, RATE_HEADROOM, STILL, board_keys, direction_code, jog_plan
+from codegen.firmware.avr.image import parse_pin
+from codegen.motion.jog import ACCEL_HEADROOM, RATE_HEADROOM, STILL, board_keys, direction_code, jog_plan
 from codegen.job import load_job
 
 JOB = """\

@@ -1,4 +1,4 @@
-"""Laser power (codegen/laser.py): M3 constant and M4 dynamic power as power records, played by the AVR's flash
+"""Laser power (codegen/tables/laser.py): M3 constant and M4 dynamic power as power records, played by the AVR's flash
 image and its streaming firmware and measured in simavr from the writes of the PWM's compare register."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.laser import POWER_STEP, event_power, planned_speed, played_counts, with_power
+from codegen.tables.laser import POWER_STEP, event_power, planned_speed, played_counts, with_power
 from codegen.link.protocol import Status
 from codegen.link.serial_port import status_line
-from codegen.pipeline import host_build
-from codegen.tables import POWER_BYTES, encode
-from codegen.twin import event_ticks
+from codegen.pipeline.host import host_build
+from codegen.tables.format import POWER_BYTES, encode
+from codegen.tables.twin import event_ticks
 from tests.helpers import make_schedule
 from tests.reference_player import play_stream
 
@@ -106,7 +106,7 @@ def test_the_simulated_pwm_plays_the_planned_power_at_every_step(tmp_path, capsy
 
 def test_verify_fails_a_pwm_that_differs_from_the_tables(tmp_path, monkeypatch, capsys):
     """The check can fail: the same simulated run against tables whose power records come one event later."""
-    import codegen.verify_laser as verify_laser
+    import codegen.verify.laser as verify_laser
 
     real = verify_laser.played_counts
     monkeypatch.setattr(verify_laser, "played_counts", lambda schedule: np.roll(real(schedule), 1))
@@ -118,11 +118,11 @@ def test_verify_fails_a_pwm_that_differs_from_the_tables(tmp_path, monkeypatch, 
 
 def test_status_while_streaming_reports_the_pwm(tmp_path):
     """A STATUS answer mid-cut carries the power the PWM holds then (what `stream` shows live)."""
-    from codegen import tables
-    from codegen.cli_stream import _firmware, streamed_host
+    import codegen.tables.format as tables
+    from codegen.cli.stream import _firmware, streamed_host
     from codegen.link.host import HostLink
     from codegen.sim.avr_link import simulate_stream
-    from codegen.streaming import stream_chunks, stream_setup
+    from codegen.pipeline.streaming import stream_chunks, stream_setup
     from tests.test_avr_stream import Scripted
 
     job = load_job(POWER_JOB)

@@ -15,11 +15,11 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.laser import POWER_STEP, event_power, played_counts
-from codegen.pipeline import host_build
-from codegen.tables import encode
+from codegen.tables.laser import POWER_STEP, event_power, played_counts
+from codegen.pipeline.host import host_build
+from codegen.tables.format import encode
 from tests.reference_player import play_stream
 
 HOST = settings(max_examples=30, deadline=None, derandomize=True, database=None, print_blob=True,

@@ -1,4 +1,4 @@
-"""Bandwidth in the plan (codegen/link/ring.py, codegen/windows.py): the ring's fill window by window, the
+"""Bandwidth in the plan (codegen/link/ring.py, codegen/pipeline/windows.py): the ring's fill window by window, the
 prefill, and stretches slowed where the link cannot carry their bytes; checked against a direct simulation of
 the bytes arriving and the records read, record by record."""
 
@@ -13,8 +13,8 @@ from codegen.errors import BuildError
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.ring import LinkBudget, Ring, link_budget
-from codegen.pipeline import host_build
-from codegen.tables import record_events
+from codegen.pipeline.host import host_build
+from codegen.tables.format import record_events
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 UNLIMITED = link_budget(2_000_000, 60000, 2)  # the streaming player's costs, a link that never holds it back

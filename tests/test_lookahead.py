@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codegen.lookahead as lookahead
+import codegen.motion.lookahead as lookahead
 from codegen.job import load_job
-from codegen.lookahead import Lookahead
+from codegen.motion.lookahead import Lookahead
 from codegen.kinematics import make_kinematics
-from codegen.pieces import pieces
-from codegen.pipeline import planner_limits
-from codegen.planner import plan
-from codegen.program import Program
-from codegen.segments import concat
+from codegen.motion.pieces import pieces
+from codegen.pipeline.host import planner_limits
+from codegen.motion.planner import plan
+from codegen.program.program import Program
+from codegen.toolpath.segments import concat
 from codegen.targets import target_info
 from tests.helpers import gcode_job_file
 

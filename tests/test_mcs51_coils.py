@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.mcs51 import HALF_STEPS, render_sources
+from codegen.firmware.mcs51.image import HALF_STEPS, render_sources
 from codegen.sim.mcs51 import coil_steps
 from tests.reference_player import play
 from tests.test_mcs51_firmware import build_and_run, check_plays, config, make_schedule
@@ -76,7 +76,7 @@ def test_bad_coil_boards_are_refused(tmp_path, monkeypatch):
     """Coil ports carry nothing that changes during the run; a socket has 4 coil pins on one port."""
     import shutil
 
-    import codegen.firmware.avr as avr
+    import codegen.firmware.avr.image as avr
     from codegen.paths import targets_dir
 
     folder = tmp_path / "targets"

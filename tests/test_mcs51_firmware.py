@@ -1,5 +1,5 @@
 """The 8051 player, end to end with the real SDCC and the real s51: hand-made schedules are rendered, built, run,
-and every simulated pulse is compared with tests/reference_player.py's plain reading of codegen/schedule.py.
+and every simulated pulse is compared with tests/reference_player.py's plain reading of codegen/tables/schedule.py.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen import tables
-from codegen.firmware.mcs51 import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+import codegen.tables.format as tables
+from codegen.firmware.mcs51.image import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
 from codegen.sim.mcs51 import simulate
 from tests.helpers import block_spans, make_schedule as hand_schedule
 from tests.reference_player import play
@@ -205,7 +205,7 @@ def test_step_pins_on_two_ports(tmp_path, monkeypatch):
     after the first port's; each motor keeps one constant latency."""
     import shutil
 
-    import codegen.firmware.avr as avr
+    import codegen.firmware.avr.image as avr
     from codegen.paths import targets_dir
 
     folder = tmp_path / "targets"

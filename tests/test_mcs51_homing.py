@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen.firmware.avr_homing import PHASE_PAUSE_US, backoff_limit, homing_steps
-from codegen.firmware.mcs51 import MAP_FILE, build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.avr.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
+from codegen.firmware.mcs51.image import MAP_FILE, build_image, render_sources
 from codegen.sim.mcs51 import PHASE_HOME, PHASE_RUN, simulate
 from tests.test_mcs51_firmware import check_plays, make_schedule
 
@@ -194,7 +194,7 @@ def test_a_cartesian_job_that_homes_verifies_through_the_cli(tmp_path, capsys):
                                   "--trace", trace)])
     result = json.loads(capsys.readouterr().out)
     assert code == 0 and result["pass"], result["problems"]
-    # Keys 20 and 35 mm from the start (codegen.verify), 3 mm of back off at 80 steps/mm, each way.
+    # Keys 20 and 35 mm from the start (codegen.verify.compare), 3 mm of back off at 80 steps/mm, each way.
     assert result["homing"] == {
         "x": {"steps": 1600 + 2 * 240, "expected_steps": 1600 + 2 * 240, "net": -1600, "expected_net": -1600,
               "switch": "x_min"},

@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.mcs51 import build_image, render_sources
-from codegen.firmware.mcs51_lcd import board_lcd
+from codegen.firmware.mcs51.image import build_image, render_sources
+from codegen.firmware.mcs51.lcd import board_lcd
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.keys import KeyPress
 from codegen.sim.mcs51 import simulate
 from tests.jog_checks import FINAL_LEVEL, SCRIPT, check_session

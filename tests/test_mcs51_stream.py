@@ -13,18 +13,18 @@ from functools import partial
 import numpy as np
 import pytest
 
-from codegen import tables
+import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen.firmware.avr_homing import homing_steps
-from codegen.firmware.mcs51 import MAP_FILE
-from codegen.firmware.mcs51_lcd import board_lcd
-from codegen.firmware.mcs51_stream import build_stream_image, render_stream_sources, ring_layout
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.avr.homing import homing_steps
+from codegen.firmware.mcs51.image import MAP_FILE
+from codegen.firmware.mcs51.lcd import board_lcd
+from codegen.firmware.mcs51.stream import build_stream_image, render_stream_sources, ring_layout
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.sim.mcs51_link import simulate_stream
-from codegen.twin import predict
+from codegen.tables.twin import predict
 from tests.helpers import make_schedule as hand_schedule
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,

@@ -15,18 +15,18 @@ import numpy as np
 import pytest
 import yaml
 
-import codegen.firmware.mcs51_stream as mcs51_stream
-from codegen.cli import main
+import codegen.firmware.mcs51.stream as mcs51_stream
+from codegen.cli.main import main
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig, HomingAxis, MotorPins
-from codegen.firmware.mcs51_stream import (STACK_RESERVE, build_stream_image, iram_need, render_stream_sources,
+from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.mcs51.stream import (STACK_RESERVE, build_stream_image, iram_need, render_stream_sources,
                                            ring_layout)
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.link.ring import link_budget
 from codegen.sim.mcs51_link import simulate_stream
-from codegen.twin import predict
+from codegen.tables.twin import predict
 from tests.test_mcs51_stream import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses, config,
                                      make_schedule, net_steps, short_schedule, stream_of)
 

@@ -9,18 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codegen.checks as checks
-import codegen.compress as compress_module
-import codegen.runfit as runfit
-import codegen.stepgen as stepgen
-import codegen.twin as twin
-import codegen.windows as windows
-from codegen.compress import TimingWindow, compress, numpy_windows, rate_gaps
+import codegen.tables.checks as checks
+import codegen.tables.compress as compress_module
+import codegen.tables.runfit as runfit
+import codegen.motion.stepgen as stepgen
+import codegen.tables.twin as twin
+import codegen.pipeline.windows as windows
+from codegen.tables.compress import TimingWindow, compress, numpy_windows, rate_gaps
 from codegen.job import load_job
 from codegen.native import library
-from codegen.pipeline import host_build
-from codegen.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
-from codegen.stepgen import generate, segment_steps
+from codegen.pipeline.host import host_build
+from codegen.tables.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
+from codegen.motion.stepgen import generate, segment_steps
 from tests.helpers import gcode_job_file, planned, polyline
 
 ROOT = Path(__file__).resolve().parent.parent

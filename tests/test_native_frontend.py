@@ -16,11 +16,11 @@ from codegen.errors import JobError, SourceRef
 from codegen.gcode.fast import NativeLines
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
-from codegen.pieces import pieces
-from codegen.program import Program
-from codegen.segments import flatten
-from codegen.staircase import staircase_error, staircase_error_numpy
-from codegen.toolpath import Lines, Toolpath, expanded
+from codegen.motion.pieces import pieces
+from codegen.program.program import Program
+from codegen.toolpath.segments import flatten
+from codegen.motion.staircase import staircase_error, staircase_error_numpy
+from codegen.toolpath.items import Lines, Toolpath, expanded
 from codegen.native import library
 from tests.helpers import machine
 

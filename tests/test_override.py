@@ -1,4 +1,4 @@
-"""Feed override above 100 % (codegen/headroom.py's ceiling records, the player's goal under them): a plotter that
+"""Feed override above 100 % (codegen/tables/headroom.py's ceiling records, the player's goal under them): a plotter that
 draws well below its motors' limits goes up to 200 % only where they allow it, comes back down before every
 corner and brake, and ends exact; in the host's model, in the flash image and in the streaming firmware (simavr),
 beside a laser whose M4 never burns more than its S; and the comparison fails for a twin that ignores the
@@ -13,18 +13,18 @@ import numpy as np
 import pytest
 import yaml
 
-import codegen.hold
-from codegen.checks import check
-from codegen.cli import _build
-from codegen.cli_stream import _firmware, streamed_host
+import codegen.tables.hold
+from codegen.tables.checks import check
+from codegen.cli.main import _build
+from codegen.cli.stream import _firmware, streamed_host
 from codegen.errors import BuildError, JobError
-from codegen.hold import F_ONE, dilate, event_ceilings, override_target
+from codegen.tables.hold import F_ONE, dilate, event_ceilings, override_target
 from codegen.job import load_job
-from codegen.pipeline import host_build, trains_from
-from codegen.report import plan_summary
-from codegen.streaming import stream_setup
-from codegen.tables import encode
-from codegen.verify_hold import hold_verify
+from codegen.pipeline.host import host_build, trains_from
+from codegen.report.summaries import plan_summary
+from codegen.pipeline.streaming import stream_setup
+from codegen.tables.format import encode
+from codegen.verify.hold import hold_verify
 from tests.reference_player import play_stream
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -173,7 +173,7 @@ def test_a_hold_above_100_percent_comes_to_rest_and_resumes_exact(plotter):
 def test_a_twin_that_ignores_the_ceilings_does_not_pass(plotter, monkeypatch):
     """The comparison can fail: a player whose factor went up to the override whatever the ceilings is found out."""
     host, image = plotter
-    monkeypatch.setattr(codegen.hold, "event_ceilings",
+    monkeypatch.setattr(codegen.tables.hold, "event_ceilings",
                         lambda schedule: np.full(int(schedule.run_count.sum()), override_target(20)))
     result, _ = hold_verify(host, image, None, 200)
     assert not result["pass"]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from codegen.toolpath import Arc, Line, Toolpath
+from codegen.toolpath.items import Arc, Line, Toolpath
 from tests.helpers import SRC, machine, planned, point, polyline
 
 KEEP = 0.98  # the planner's headroom below every limit
@@ -98,7 +98,7 @@ def test_time_at_matches_segment_ends():
 
 
 def _with_program_limits(toolpath, mach=None, **items):
-    from codegen.toolpath import Limits
+    from codegen.toolpath.items import Limits
     toolpath.items.insert(0, Limits(SRC, **items))
     return planned(toolpath, mach)
 

@@ -21,8 +21,8 @@ import pytest
 from codegen.gcode import GcodeStream
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
-from codegen.pieces import pieces
-from codegen.program import Program
+from codegen.motion.pieces import pieces
+from codegen.program.program import Program
 from codegen.progress import DELAY_ENV
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -139,7 +139,7 @@ def test_the_plan_counts_the_share_of_the_gcode_read_and_cut():
 
 def test_the_library_draws_no_bar(capfd):
     """Bars are off unless the command line turns them on: tests and scripts that call the library stay silent."""
-    from codegen.pipeline import host_build
+    from codegen.pipeline.host import host_build
 
     host_build(load_job(HIKING, None), keep=False)
     assert capfd.readouterr().err == ""

@@ -1,4 +1,4 @@
-"""plan --report and verify --report (codegen/report_html.py): the plots each kind of job's page has (and the one
+"""plan --report and verify --report (codegen/report/html.py): the plots each kind of job's page has (and the one
 line for each it cannot have), every embedded PNG decoded and not blank, the page rendered in headless Chromium with
 every image loaded at its size; no page for a bad job. The simulators are the real simavr and the real firmware."""
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from codegen.cli import main
+from codegen.cli.main import main
 
 ROOT = Path(__file__).resolve().parent.parent
 STAR, LASER, DELTA = (ROOT / "examples" / p for p in ("star.yaml", "laser/power.yaml", "delta-seed.yaml"))
@@ -173,9 +173,9 @@ def test_the_plan_report_gathers_its_motion_a_window_at_a_time():
     """plan --report keeps no pulses: the motors' motion it draws, gathered per window on a fine grid, is the one
     drawn from the whole job's twin (the star's grid is 10 ms, two of the fine grid's steps: the same positions)."""
     from codegen.job import load_job
-    from codegen.pipeline import host_build
-    from codegen.plan_samples import PlanSamples
-    from codegen.plots import motor_motion
+    from codegen.pipeline.host import host_build
+    from codegen.report.plan_samples import PlanSamples
+    from codegen.report.plots import motor_motion
 
     job = load_job(ROOT / "examples" / "star.yaml")
     whole = host_build(job)

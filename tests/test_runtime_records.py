@@ -1,4 +1,4 @@
-"""Heater and fan settings at their place in the tables (codegen/runtime.py, codegen/tables.py's runtime records):
+"""Heater and fan settings at their place in the tables (codegen/tables/runtime.py, codegen/tables/format.py's runtime records):
 the stream round-trips them and the twin ignores them; an AVR flash image plays them in simavr with the thermal
 plants (a target mid-print without a pause, a mid-program M109 that holds the player, M106 / M107 on the fan
 pin); the 8051 boards and the streaming firmware get none."""
@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.pipeline import host_build, runtime_outputs
-from codegen.schedule import RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
-from codegen.tables import RUNTIME_BYTES, RUNTIME_FLAGS, encode, record_events, stream_bytes
+from codegen.pipeline.host import host_build, runtime_outputs
+from codegen.tables.schedule import RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
+from codegen.tables.format import RUNTIME_BYTES, RUNTIME_FLAGS, encode, record_events, stream_bytes
 from codegen.targets import target_info
-from codegen.twin import predict
+from codegen.tables.twin import predict
 from tests.helpers import make_schedule
 from tests.reference_player import play, play_stream
 

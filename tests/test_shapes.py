@@ -12,7 +12,7 @@ from codegen.errors import JobError, SourceRef
 from codegen.job.expr import parse
 from codegen.shapes import build_toolpath
 from codegen.shapes.context import split_chords
-from codegen.toolpath import Arc, Curve, Line
+from codegen.toolpath.items import Arc, Curve, Line
 
 TOL = 0.002
 SRC = SourceRef("shape.yaml", 7, 5)

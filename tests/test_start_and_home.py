@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from codegen.job import load_job
-from codegen.pipeline import host_build
-from codegen.program import whole_toolpath
-from codegen.toolpath import Line
+from codegen.pipeline.host import host_build
+from codegen.program.program import whole_toolpath
+from codegen.toolpath.items import Line
 
 KOSSEL = """
 name: kossel

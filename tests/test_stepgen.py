@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from codegen.kinematics import make_kinematics
-from codegen.staircase import STAIRCASE_LIMIT, refine
-from codegen.schedule import MAX_MODULUS
-from codegen.staircase import split_long, staircase_bound, staircase_error
-from codegen.stepgen import generate, segment_steps
-from codegen.segments import flatten
+from codegen.motion.staircase import STAIRCASE_LIMIT, refine
+from codegen.tables.schedule import MAX_MODULUS
+from codegen.motion.staircase import split_long, staircase_bound, staircase_error
+from codegen.motion.stepgen import generate, segment_steps
+from codegen.toolpath.segments import flatten
 from tests.helpers import machine, planned, polyline
 
 
@@ -78,9 +78,9 @@ def test_refine_keeps_every_block_of_a_slicer_file_within_the_staircase_limit():
     order, so a second cut could miss its piece (the Benchy's line 16785 stayed 3 % over the limit)."""
     from codegen.job import load_job
     from codegen.kinematics import make_kinematics
-    from codegen.pieces import drop_empty
-    from codegen.program import whole_toolpath
-    from codegen.segments import flatten
+    from codegen.motion.pieces import drop_empty
+    from codegen.program.program import whole_toolpath
+    from codegen.toolpath.segments import flatten
 
     root = Path(__file__).resolve().parent.parent
     job = load_job(root / "examples" / "printers" / "benchy-mini.yaml")

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli import main
-from codegen.compress import TimingWindow
+from codegen.cli.main import main
+from codegen.tables.compress import TimingWindow
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCHY = ROOT / "examples" / "printers" / "benchy-mini.yaml"

@@ -15,18 +15,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen import tables
-from codegen.cli import main
-from codegen.cli_stream import _firmware, streamed_host
+import codegen.tables.format as tables
+from codegen.cli.main import main
+from codegen.cli.stream import _firmware, streamed_host
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.link.serial_port import status_line
 from codegen.sim.avr_link import StreamSim, simulate_stream_heaters
 from codegen.sim.avr_plant import Fault
-from codegen.streaming import stream_chunks, stream_setup
-from codegen.verify import simulated_switches
-from codegen.verify_heaters import job_plants
+from codegen.pipeline.streaming import stream_chunks, stream_setup
+from codegen.verify.compare import simulated_switches
+from codegen.verify.heaters import job_plants
 from tests.test_avr_stream import Scripted
 
 F_CPU = 16_000_000

@@ -22,15 +22,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli_stream import streamed_host
+from codegen.cli.stream import streamed_host
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import SimTrace
 from codegen.sim.avr_link import StreamSim
 from codegen.sim.pty_bridge import PtyBridge
-from codegen.streaming import StreamSetup, build_stream_firmware, stream_setup
-from codegen.verify import compare, simulated_switches
+from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_setup
+from codegen.verify.compare import compare, simulated_switches
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codegen.cli as cli
-import codegen.lookahead as lookahead
+import codegen.cli.main as cli
+import codegen.motion.lookahead as lookahead
 from codegen.job import load_job
-from codegen.pipeline import host_build
-from codegen.tables import encode
+from codegen.pipeline.host import host_build
+from codegen.tables.format import encode
 from tests.helpers import gcode_job_file
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -15,20 +15,20 @@ from pathlib import Path
 import pytest
 import yaml
 
-from codegen.cli import main
-from codegen.firmware.avr import _NOT_INTEGER_ONLY, _check_integer_only
-from codegen.firmware.avr_tune import build_tune_image, tune_setup
+from codegen.cli.main import main
+from codegen.firmware.avr.image import _NOT_INTEGER_ONLY, _check_integer_only
+from codegen.firmware.avr.tune import build_tune_image, tune_setup
 from codegen.heaters.control import fixed_gains
 from codegen.heaters.plant import heating_figures, simulate
 from codegen.heaters.tuning import Relay, RelayLoop, Switch, marlin_bias, relay_test
 from codegen.job import load_job
-from codegen.pipeline import host_build
+from codegen.pipeline.host import host_build
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
-from codegen.verify_heaters import job_plants
+from codegen.verify.heaters import job_plants
 from codegen.sim.avr_tune import TuneSim, simulate_tune
 from codegen.sim.pty_bridge import PtyBridge
 from codegen.link import protocol
-from codegen.tune_link import READY, STARTED, TuneHost
+from codegen.link.tune import READY, STARTED, TuneHost
 from tests.test_runtime_records import JOB as JOB_WITH_HEATERS
 
 ROOT = Path(__file__).resolve().parent.parent

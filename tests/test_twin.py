@@ -1,11 +1,11 @@
-"""The twin predicts exactly what the player semantics say: the compact stream's (codegen/tables.py), where a
+"""The twin predicts exactly what the player semantics say: the compact stream's (codegen/tables/format.py), where a
 block lasts `modulus` events and the rate runs go on across block starts."""
 
 import numpy as np
 
-from codegen import tables
-from codegen.schedule import Schedule
-from codegen.twin import predict
+import codegen.tables.format as tables
+from codegen.tables.schedule import Schedule
+from codegen.tables.twin import predict
 from tests.reference_player import play, play_stream
 
 

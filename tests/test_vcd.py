@@ -1,4 +1,4 @@
-"""verify --vcd (codegen/waveform.py): the simulated pins as a VCD waveform, read back with pyvcd's tokenizer and held
+"""verify --vcd (codegen/report/waveform.py): the simulated pins as a VCD waveform, read back with pyvcd's tokenizer and held
 against verify's JSON and its --trace CSV: each motor's rising STEP edges are its steps, the first and last at the
 CSV's times, DIR at every pulse as the CSV says; flash images and streamed jobs, on the ATmega2560 and the 8051.
 No file where the job's input is bad."""
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from vcd.reader import TokenKind, tokenize
 
-from codegen.cli import main
-from codegen.waveform import nanoseconds
+from codegen.cli.main import main
+from codegen.report.waveform import nanoseconds
 
 ROOT = Path(__file__).resolve().parent.parent
 STAR, ARC = ROOT / "examples" / "star.yaml", ROOT / "examples" / "arc.yaml"

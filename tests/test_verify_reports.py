@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.cli import main
+from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.pipeline import host_build
-from codegen.report import verify_json
+from codegen.pipeline.host import host_build
+from codegen.report.summaries import verify_json
 from codegen.sim.avr import simulate
-from codegen.verify import compare, simulated_switches
+from codegen.verify.compare import compare, simulated_switches
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,

@@ -20,7 +20,7 @@ from codegen.errors import Diagnostic, JobError
 from codegen.gcode.fast import NativeLines
 from codegen.gcode.interpreter import MAX_ERRORS, Interpreter
 from codegen.gcode.reader import LineReader, Origin
-from codegen.toolpath import Toolpath, expanded
+from codegen.toolpath.items import Toolpath, expanded
 
 __all__ = ["GcodeStream", "toolpath_from_gcode", "MAX_ERRORS"]
 

@@ -13,7 +13,7 @@ machine origin after homing); G30 without G30.1 goes to the home position.
 
 from __future__ import annotations
 
-from codegen.toolpath import Output
+from codegen.toolpath.items import Output
 
 SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59")
 PROBE_REASON = ("probes: the move stops where a contact closes, a measurement taken while the machine runs, "

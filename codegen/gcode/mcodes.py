@@ -9,7 +9,7 @@ targets in degrees C; fan S over 0..255.
 
 from __future__ import annotations
 
-from codegen.toolpath import Dwell, Limits, Output
+from codegen.toolpath.items import Dwell, Limits, Output
 
 FAN_FULL_SCALE = 255.0
 

@@ -12,7 +12,7 @@ import numpy as np
 from codegen.gcode import arcs
 from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
 from codegen.gcode.fast import RUN
-from codegen.toolpath import Arc, Home, Lines
+from codegen.toolpath.items import Arc, Home, Lines
 
 LINE, ARC, HOME = 0, 1, 2
 AXIS_INDEX = {letter: i for i, letter in enumerate(AXIS_LETTERS)}

@@ -192,7 +192,7 @@ def _speeds(v: Any) -> tuple[float, ...]:
 
 
 class Jog(_Model):
-    """Jog keys at power-up (codegen/jog.py): 8 directions in x and y, speed up and down, start."""
+    """Jog keys at power-up (codegen/motion/jog.py): 8 directions in x and y, speed up and down, start."""
 
     speeds: Annotated[tuple[float, ...], BeforeValidator(_speeds)] = (60.0, 300.0, 1200.0)  # mm/min, the levels
     accel: Optional[Positive] = None  # mm/s^2; default: the jogged motors' smallest max_accel
@@ -214,9 +214,9 @@ def _max_override(v: Any) -> int:
 
 
 class FeedHold(_Model):
-    """Feed hold, resume and feed override keys (codegen/hold.py): the player's clock slows down, stops and
+    """Feed hold, resume and feed override keys (codegen/tables/hold.py): the player's clock slows down, stops and
     comes back within the motors' limits (the board's `hold_keys`). Above 100 % the override goes only as far as
-    every motor's limits allow on the stretch being played (codegen/headroom.py)."""
+    every motor's limits allow on the stretch being played (codegen/tables/headroom.py)."""
 
     override: Annotated[int, BeforeValidator(_override)] = 100  # % the job starts with; feed- and feed+ step by 10
     # % the feed+ key goes up to; None: as far as the player goes (200 % on the ATmega2560, 100 % on the 8051)
@@ -343,7 +343,7 @@ class Machine(_Model):
     homing: Homing = Homing()
     delta: Optional[Delta] = None
     link: Link = Link()
-    jog: Optional[Jog] = None  # jog keys before the job (codegen/jog.py); None: no jog mode
+    jog: Optional[Jog] = None  # jog keys before the job (codegen/motion/jog.py); None: no jog mode
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
     feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none

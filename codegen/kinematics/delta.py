@@ -13,7 +13,7 @@ from functools import cached_property
 import numpy as np
 
 from codegen.kinematics.base import Kinematics, MotorLimits
-from codegen.segments import Segments
+from codegen.toolpath.segments import Segments
 
 MAX_ARM_RATIO = 12.0  # horizontal : vertical span of a rod beyond which the arm is too flat (Klipper's limit)
 SLACK = 1e-9  # mm: carriages exactly at their top (home) or a range end stay reachable despite rounding

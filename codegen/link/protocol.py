@@ -11,12 +11,12 @@ fails; there is no escaping (a SYNC inside a frame is data).
 
 Host to firmware; SEQ counts the host's frames (mod 256). The firmware takes a frame in sequence only: SEQ equal
 to the one it expects next, which it then counts on. HELLO and ABORT are taken whatever their SEQ.
-    DATA   0x01  table stream bytes (codegen/tables.py), appended to the ring; LEN 0 is a ping (asks for an ACK)
+    DATA   0x01  table stream bytes (codegen/tables/format.py), appended to the ring; LEN 0 is a ping (asks for an ACK)
     HELLO  0x02  a session begins: the firmware expects SEQ + 1 next and, when it is not playing, empties its ring
     START  0x03  play: home (if the machine homes), then play the ring's records from the first
     STATUS 0x04  asks for a STATUS frame
     ABORT  0x05  stop stepping at once
-    HOLD   0x06  feed hold (a firmware with machine.feed_hold, codegen/hold.py): slow down to a stop on the path
+    HOLD   0x06  feed hold (a firmware with machine.feed_hold, codegen/tables/hold.py): slow down to a stop on the path
     RESUME 0x07  go on after a hold or an M0/M1 pause, at the override
     FEED_DOWN 0x08, FEED_UP 0x09  the feed override 10 % lower or higher (10 % to machine.feed_hold.max_override),
                   as the hold keys'
@@ -56,7 +56,7 @@ import json
 import struct
 from dataclasses import dataclass, field
 
-from codegen.tables import LONG_RUN_BYTES, end_marker, long_block_bytes
+from codegen.tables.format import LONG_RUN_BYTES, end_marker, long_block_bytes
 
 VERSION = 1
 SYNC = 0x7E
@@ -151,7 +151,7 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
     """32 bits naming what a streaming firmware can play: the protocol and table format, the board, the motors
     and their sockets, pulse timing, homing, clocks, heaters, laser, jog keys. The job's program and name do not
     count."""
-    from codegen import tables
+    import codegen.tables.format as tables
 
     canonical = {
         "protocol": VERSION, "tables": tables.__doc__.split("\n\n")[0], "board": config.board,
@@ -198,7 +198,7 @@ class Status:
     position: tuple[int, ...]
     heaters: tuple[tuple[float, float], ...] = ()  # per heater: temperature and target, degC
     laser: int | None = None  # a laser firmware's power, in its PWM's counts
-    feed: int | None = None  # a feed hold firmware's factor F (codegen/hold.py F_ONE: 100 %; 0: at rest, held or paused)
+    feed: int | None = None  # a feed hold firmware's factor F (codegen/tables/hold.py F_ONE: 100 %; 0: at rest, held or paused)
 
     @staticmethod
     def parse(payload: bytes, motors: int) -> "Status":

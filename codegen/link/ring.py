@@ -27,7 +27,7 @@ import numpy as np
 
 from codegen.link import protocol
 from codegen.link.host import refill_byte_times
-from codegen.tables import end_marker
+from codegen.tables.format import end_marker
 
 RATE_MARGIN = 0.97  # of the link's stream bytes per second the plan counts on
 PAYLOAD_SHARE = 8  # DATA frames carry at most an eighth of the ring

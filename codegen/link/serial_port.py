@@ -14,7 +14,7 @@ import time
 from contextlib import contextmanager
 
 from codegen.errors import BuildError
-from codegen.hold import F_ONE
+from codegen.tables.hold import F_ONE
 from codegen.link.host import HostLink
 from codegen.link.protocol import FEED_DOWN, FEED_UP, HOLD, RESUME, Status
 

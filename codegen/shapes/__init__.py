@@ -17,7 +17,7 @@ from codegen.shapes.context import Pen
 from codegen.shapes.ellipse import ellipse
 from codegen.shapes.function import function
 from codegen.shapes.sine import sine
-from codegen.toolpath import Toolpath
+from codegen.toolpath.items import Toolpath
 
 BUILDERS = {
     "line": lines.line,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from codegen.shapes.context import Pen
-from codegen.toolpath import Arc, Item
+from codegen.toolpath.items import Arc, Item
 
 
 def arc(shape, pen: Pen) -> list[Item]:

@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from codegen.errors import Diagnostic, JobError
-from codegen.toolpath import FINE_STEPS, Curve, Item, Line
+from codegen.toolpath.items import FINE_STEPS, Curve, Item, Line
 
 SAME_POINT = 1e-9  # mm: closer than this, the tool is already there
 MAX_CHORDS = 100_000  # proven pieces per curve; far more chords than any target's flash holds

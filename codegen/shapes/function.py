@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, split_chords
-from codegen.toolpath import Item
+from codegen.toolpath.items import Item
 
 _NEAR = 1e-9  # relative half-width of the interval looked at when telling why a bound failed
 

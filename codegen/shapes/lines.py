@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from codegen.shapes.context import Pen
-from codegen.toolpath import Item
+from codegen.toolpath.items import Item
 
 
 def line(shape, pen: Pen) -> list[Item]:

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, max_cos, split_chords
-from codegen.toolpath import Item
+from codegen.toolpath.items import Item
 
 
 def sine(shape, pen: Pen) -> list[Item]:

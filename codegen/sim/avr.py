@@ -21,11 +21,11 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr import Pin, board_pins, load_target
-from codegen.firmware.avr_homing import homing_ticks_bound
-from codegen.firmware.avr_laser import laser_ocr_address
-from codegen.firmware.avr_player import START_TICKS
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.image import Pin, board_pins, load_target
+from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.avr.laser import laser_ocr_address
+from codegen.firmware.avr.player import START_TICKS
 from codegen.sim.keys import session
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
@@ -76,7 +76,7 @@ class SimTrace:
     laser_duty: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, counts
     ring_fill: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, bytes held
     # Every recorded pin as it was, by signal name: "x.step", "x.dir", "tool", and where recorded "x.enable",
-    # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/waveform.py writes them for GTKWave).
+    # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/report/waveform.py writes them for GTKWave).
     pins: dict[str, PinWave] = field(default_factory=dict)
 
     def run_only(self) -> SimTrace:
@@ -173,7 +173,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     A failed homing is not an error here: see `homing_failed`. `keys`: a jog image's key script
     (codegen/sim/keys.py; it must press start; without one, start alone; firmware.elf beside the hex), its time
     on top of the budget; the trace then has `jog_positions` (the firmware's counts at the end). `presses`: keys
-    to ground held down, (pin such as PL2, from cycle, to cycle): the feed hold keys (codegen/verify_hold.py)."""
+    to ground held down, (pin such as PL2, from cycle, to cycle): the feed hold keys (codegen/verify/hold.py)."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])

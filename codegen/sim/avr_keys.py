@@ -7,11 +7,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr import load_target, parse_pin
-from codegen.firmware.avr_jog import taken_pins
-from codegen.firmware.avr_stream import elf_symbols
-from codegen.jog import board_keys
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.image import load_target, parse_pin
+from codegen.firmware.avr.jog import taken_pins
+from codegen.firmware.avr.stream import elf_symbols
+from codegen.motion.jog import board_keys
 from codegen.sim.keys import KeyPress
 
 POSITION_BYTES = 4

@@ -1,4 +1,4 @@
-"""Closed-loop simulation of the streaming ATmega2560 firmware (codegen/firmware/avr_stream.py): a host with
+"""Closed-loop simulation of the streaming ATmega2560 firmware (codegen/firmware/avr/stream.py): a host with
 HostLink's interface (codegen/link/host.py; codegen/link/faults.py's Faulty) talks to the firmware's USART0 in
 simavr, in lockstep on simulated time.
 
@@ -6,7 +6,7 @@ The harness's link mode (simavr_link.c) puts the bytes host.transmit(now) gives 
 10 bit times each and runs until a frame from the firmware has fully arrived, the line has gone idle, or
 host.wake_at(); then host.receive(bytes, now) and host.transmit(now) again, with now = cycle / F_CPU. One round
 trip per frame, not per byte. The pins are logged as in codegen/sim/avr.py, so the session's SimTrace goes to
-codegen.verify.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
+codegen.verify.compare.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
 are the phase "home", and `resumes` tick 0 of each restart of its timer after a hold (a WAIT record).
 
 A jog firmware's keys are pressed by a key script (`keys`: codegen/sim/keys.py, times from reset), the sessions
@@ -29,11 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr import board_pins, load_target
-from codegen.firmware.avr_homing import homing_ticks_bound
-from codegen.firmware.avr_player import START_TICKS
-from codegen.firmware.avr_stream import elf_symbols, ring_layout
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.image import board_pins, load_target
+from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.avr.player import START_TICKS
+from codegen.firmware.avr.stream import elf_symbols, ring_layout
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
 from codegen.sim.keys import KeyPress

@@ -18,10 +18,10 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr import board_pins, load_target, parse_pin
-from codegen.firmware.avr_heaters import HEATERS_FAULT_BIT, PWM_CHANNELS, adc_channel
-from codegen.firmware.avr_player import START_TICKS
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.image import board_pins, load_target, parse_pin
+from codegen.firmware.avr.heaters import HEATERS_FAULT_BIT, PWM_CHANNELS, adc_channel
+from codegen.firmware.avr.player import START_TICKS
 from codegen.heaters.control import PID_PERIOD_S
 from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS

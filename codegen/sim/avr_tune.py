@@ -1,4 +1,4 @@
-"""`printer-codegen tune --sim`: the tune firmware (codegen/firmware/avr_tune.py) in simavr, its USART0 talking
+"""`printer-codegen tune --sim`: the tune firmware (codegen/firmware/avr/tune.py) in simavr, its USART0 talking
 to the same TuneHost as a real board's port, the heater's thermal plant behind its PWM and thermistor.
 
 The harness runs in link mode (simavr_link.c, in lockstep on simulated time: codegen/sim/avr_link.py) with the
@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware.avr import parse_pin
-from codegen.firmware.avr_tune import TuneImage
+from codegen.firmware.avr.image import parse_pin
+from codegen.firmware.avr.tune import TuneImage
 from codegen.sim.avr import harness_binary
 from codegen.sim.avr_link import BOOT_CYCLES, StreamSim
 from codegen.sim.avr_plant import Fault, HeaterPlant, _plant_file
-from codegen.tune_link import TuneHost
+from codegen.link.tune import TuneHost
 
 SIM_LIMIT_S = 1800.0  # Marlin's M303 gives up after 20 minutes (MAX_CYCLE_TIME_PID_AUTOTUNE); a little more here
 OFF_S = 5.0  # simulated time for OFF and its answer after the limit

@@ -3,7 +3,7 @@ drive it, with the datasheet's timing checked.
 
 Input: the records of port latch writes, (clock, port, latch value) rows in time order (codegen.sim.mcs51's
 `_records`; rows of other tags are ignored), and the wiring (`rs`, `e`, optional `rw`, `data` = D4-D7 or D0-D7
-pins with `.port` and `.bit`, as codegen.firmware.mcs51_lcd.LcdWiring). Ports come out of reset at 0xFF.
+pins with `.port` and `.bit`, as codegen.firmware.mcs51.lcd.LcdWiring). Ports come out of reset at 0xFF.
 
 The model (HD44780U datasheet): the display takes RS and the data lines on each falling edge of E. It powers up
 with an 8-bit interface (4-bit wiring: D3-D0 unconnected, read as 0) until a function set with DL = 0; then two
@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from codegen.firmware.mcs51 import Pin
-    from codegen.firmware.mcs51_lcd import LcdWiring
+    from codegen.firmware.mcs51.image import Pin
+    from codegen.firmware.mcs51.lcd import LcdWiring
 
 COLUMNS = 16
 OSC_HZ = 270_000  # the display's oscillator, for which the datasheet gives its execution times

@@ -1,6 +1,6 @@
 """Key presses for the simulators: a script of jog keys pressed and released at simulated times.
 
-A script is a list of KeyPress(key, press_s, release_s), key a function of codegen/jog.py (x+, x-y+, speed+,
+A script is a list of KeyPress(key, press_s, release_s), key a function of codegen/motion/jog.py (x+, x-y+, speed+,
 start, ...), times in simulated seconds from reset. Several keys may be held at once (x+ with y+ is a diagonal).
 A jog image waits in jog mode for its start key: simulated without a script (`verify`), it gets START_ONLY.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from codegen.errors import BuildError
-from codegen.jog import KEYS
+from codegen.motion.jog import KEYS
 
 START_S = 0.05  # START_ONLY's press: after the 8051 display's power-up waits (30 ms)
 

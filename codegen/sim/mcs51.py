@@ -4,7 +4,7 @@ s51 runs a command script: it loads the hex, sets a breakpoint on every byte wri
 pin (`break sfr w 0x90`: MOV/ORL/ANL/XRL) and on every bit write to a watched pin (`break bits w 0x91`: SETB, CLR,
 MOV bit,C), each of which prints `sim_ticks` (oscillator clocks, 12 per machine cycle) and the port latch, then
 runs on. Fetch breakpoints on `_timer_start` (the SETB TR0 of player_start) and `_halt` (from firmware.sym.json,
-written next to the hex by codegen.firmware.mcs51) mark tick 0 and the end; a conditional fetch breakpoint on the
+written next to the hex by codegen.firmware.mcs51.image) mark tick 0 and the end; a conditional fetch breakpoint on the
 Timer0 vector stops a run that outlives its cycle budget, and `timeout` bounds the wall time.
 
 Tick 0 of the table is the Timer0 overflow START_TICKS ticks after the timer starts: timer_start_cycle is the
@@ -32,11 +32,11 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr_homing import homing_ticks_bound
-from codegen.firmware.mcs51 import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
-from codegen.firmware.mcs51_homing import decode_status, endstops
-from codegen.firmware.mcs51_lcd import board_lcd
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.mcs51.image import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
+from codegen.firmware.mcs51.homing import decode_status, endstops
+from codegen.firmware.mcs51.lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
 from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model,
@@ -186,7 +186,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     hex_path = Path(hex_path).resolve()
     sym_path = hex_path.with_name(SYMBOLS_FILE)
     if not sym_path.is_file():
-        raise BuildError(f"{sym_path} is missing: build the image with codegen.firmware.mcs51")
+        raise BuildError(f"{sym_path} is missing: build the image with codegen.firmware.mcs51.image")
     sym = json.loads(sym_path.read_text(encoding="utf-8"))
     pins = board_pins(config)
     mem = memories(config.board)

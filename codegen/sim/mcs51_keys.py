@@ -1,7 +1,7 @@
 """Jog keys and feed hold keys in s51: the board's keys pressed and released at simulated times (codegen/sim/keys.py's
-script for jog keys; (function, first clock, last clock) for the hold keys of codegen/hold_runs.py's S51FlashRun).
+script for jog keys; (function, first clock, last clock) for the hold keys of codegen/verify/hold_runs.py's S51FlashRun).
 
-The script keeps the pressed keys in a simulator variable, `kp` (bit i: codegen/jog.py's KEYS[i]), set at every
+The script keeps the pressed keys in a simulator variable, `kp` (bit i: codegen/motion/jog.py's KEYS[i]), set at every
 entry of the firmware's key scan (`_jog_scan`, from firmware.map) from sim_ticks: a nested conditional over the
 script's changes, so a change is seen at the first scan after its time (the firmware scans every 2 ms; it
 could not see it earlier). Direct keys: at that entry each key's pin level goes on `pin<port>` (ucsim's levels
@@ -13,7 +13,7 @@ through two pressed keys are not modelled.)
 Each scan prints a record (TAG_SCAN, the index of the script's latest change in effect); at the end the firmware's
 jog positions are read from internal RAM (TAG_JOG_POS + byte index, a byte each, little-endian int32 per motor).
 
-Hold keys (codegen/firmware/mcs51_hold.py) likewise: the script keeps them in `hk` (bit i: HOLD_KEYS[i]), set at
+Hold keys (codegen/firmware/mcs51/hold.py) likewise: the script keeps them in `hk` (bit i: HOLD_KEYS[i]), set at
 every entry of the firmware's poll (`_hold_poll`), and a column reads low while a held key joins it to a row whose
 latch is low (beside the jog keys' model of the same matrix, it only pulls columns low after that model's update).
 Each poll prints a record (TAG_HOLD_POLL, the index of the latest change in effect): when the firmware first saw
@@ -25,11 +25,11 @@ from __future__ import annotations
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.mcs51 import SFR, board_data, parse_pin
-from codegen.firmware.mcs51_hold import HOLD_KEYS
-from codegen.firmware.mcs51_jog import taken_pins
-from codegen.jog import KEYS, board_keys
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.mcs51.image import SFR, board_data, parse_pin
+from codegen.firmware.mcs51.hold import HOLD_KEYS
+from codegen.firmware.mcs51.jog import taken_pins
+from codegen.motion.jog import KEYS, board_keys
 from codegen.sim.keys import KeyPress, key_events
 
 TAG_SCAN, TAG_HOLD_POLL, TAG_JOG_POS = 20, 21, 32  # record tags (TAG_JOG_POS + byte index)

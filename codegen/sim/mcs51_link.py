@@ -41,12 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware import FirmwareConfig
-from codegen.firmware.avr_homing import homing_ticks_bound
-from codegen.firmware.mcs51 import SFR, SYMBOLS_FILE, board_pins, memories
-from codegen.firmware.mcs51_homing import decode_status
-from codegen.firmware.mcs51_lcd import board_lcd
-from codegen.firmware.mcs51_stream import PAGE_BYTES, T2_CLOCKS_PER_BAUD, ring_layout
+from codegen.firmware.config import FirmwareConfig
+from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.mcs51.image import SFR, SYMBOLS_FILE, board_pins, memories
+from codegen.firmware.mcs51.homing import decode_status
+from codegen.firmware.mcs51.lcd import board_lcd
+from codegen.firmware.mcs51.stream import PAGE_BYTES, T2_CLOCKS_PER_BAUD, ring_layout
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import HOMING_FAILED, SimTrace, _homing_fault, switch_thresholds
 from codegen.sim.hd44780 import decode as decode_display
@@ -178,7 +178,7 @@ def _setup(hex_path: Path, sym: dict, config: FirmwareConfig, pins: dict, switch
 
 def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,
                     switches: dict[int, int | None] | None = None) -> tuple[SimTrace, LinkFigures]:
-    """Run the streaming firmware `hex_path` (built by codegen.firmware.mcs51_stream) against `host` (HostLink's
+    """Run the streaming firmware `hex_path` (built by codegen.firmware.mcs51.stream) against `host` (HostLink's
     interface: transmit, receive, wake_at, done) until the host's session ends; BuildError past `cycle_budget`
     CPU clocks (an image that homes gets its homing time on top) or when s51 misbehaves. `switches`: the endstop
     keys as codegen.sim.mcs51.simulate takes them. The trace's tick 0 is the player's after the first START."""
@@ -188,7 +188,7 @@ def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: 
     hex_path = Path(hex_path).resolve()
     sym = json.loads(hex_path.with_name(SYMBOLS_FILE).read_text(encoding="utf-8"))
     if "link_isr" not in sym:
-        raise BuildError(f"{hex_path} is not a streaming firmware (build it with codegen.firmware.mcs51_stream)")
+        raise BuildError(f"{hex_path} is not a streaming firmware (build it with codegen.firmware.mcs51.stream)")
     sym["link_isr_vector"] = VECTOR_SERIAL
     pins = board_pins(config)
     mem = memories(config.board)

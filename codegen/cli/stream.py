@@ -1,0 +1,237 @@
+"""The CLI's streaming verbs (CLI.md): build --stream, plan --stream, verify --stream, stream."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from codegen import __version__, progress
+import codegen.tables.format as tables
+from codegen.cli.config import job_fingerprint
+from codegen.errors import BuildError, render_all
+from codegen.job import load_job
+from codegen.link.host import HostLink
+from codegen.pipeline.host import HostBuild, host_build
+from codegen.report.summaries import human_plan, plan_summary, verify_json, write_json
+from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, build_stream_firmware, stream_chunks, stream_setup
+from codegen.verify.compare import compare, simulated_switches
+from codegen.verify.heaters import HEAT_LIMIT_S, heater_result, job_faults, job_plants
+from codegen.verify.hold import hold_verify, pauses
+
+
+def _out_dir(job, out: str | None) -> Path:
+    """The streaming firmware's folder: beside the job's flash image, never over it."""
+    return Path(out) if out else Path("build") / job.name / "stream"
+
+
+def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
+    lay = setup.layout
+    return {
+        "printer_codegen": __version__, "job": setup.config.job_name, "target": setup.target.target,
+        "board": setup.target.board, "mcu": setup.target.mcu, "stream": True,
+        "identity": f"{setup.identity:08x}",
+        "link": {"baud": lay.baud, "baud_error_pct": round(lay.baud_error_pct, 3), "ring_bytes": lay.ring_bytes,
+                 "ring_where": lay.where, "payload_bytes": setup.budget.payload},
+        "image": {"hex": image.hex_path.name, "elf": image.elf_path.name if image.elf_path else None,
+                  "flash_bytes": image.flash_bytes, "flash_capacity": image.flash_capacity,
+                  "ram_bytes": image.ram_bytes, "ram_capacity": image.ram_capacity,
+                  "flash_parts": dict(image.flash_parts), "sections": dict(image.sections)},
+        "sources": sorted(sources),
+    }
+
+
+def _firmware(job, setup: StreamSetup, out: str | None):
+    out_dir = _out_dir(job, out)
+    image, sources = build_stream_firmware(setup, out_dir)
+    report = {**_stream_report(setup, image, sources), "job_fingerprint": job_fingerprint(job, setup.config.baud)}
+    write_json(out_dir / "report.json", report)
+    return image, out_dir
+
+
+def cmd_build_stream(args) -> int:
+    job = load_job(Path(args.job), args.target, program_required=False)
+    setup = stream_setup(job)
+    image, out_dir = _firmware(job, setup, args.out)
+    print(f"built {out_dir / image.hex_path.name}: the streaming firmware for {setup.config.board} "
+          f"(identity {setup.identity:08x}): flash {image.flash_bytes} of {image.flash_capacity} bytes, RAM "
+          f"{image.ram_bytes} of {image.ram_capacity} bytes; {setup.describe()}")
+    return 0
+
+
+def streamed_host(job, setup: StreamSetup, strict: bool, keep: bool, tables_out=None) -> HostBuild:
+    host = host_build(job, strict, keep=keep, tables=tables_out, link=setup.budget)
+    if host.warnings:
+        print(render_all(host.warnings), file=sys.stderr)
+    host.homing = setup.config.homing  # the streaming firmware's homing (codegen/pipeline/streaming.py)
+    return host
+
+
+def cmd_plan_stream(args) -> int:
+    job = load_job(Path(args.job), args.target)
+    host = streamed_host(job, stream_setup(job, args.baud), args.strict, keep=args.report is not None)
+    summary = plan_summary(host)
+    print(json.dumps(summary, indent=2) if args.json else human_plan(summary))
+    if args.report:  # codegen/report/html.py, with matplotlib: imported only here
+        from codegen.report.html import write_plan_report
+        write_plan_report(Path(args.report), host, summary)
+    return 0 if summary["pass"] else 1
+
+
+def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
+    """verify --stream: the job's streaming firmware built and the job streamed to it in the simulator; the host
+    build, verify's result (with `link`), the trace, and the text's first lines (the CLI prints the rest)."""
+    job = load_job(Path(args.job), args.target)
+    setup = stream_setup(job, args.baud)
+    faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
+    image, out_dir = _firmware(job, setup, args.out)
+    host = streamed_host(job, setup, args.strict, keep=True)
+    if not host.findings.ok:
+        raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
+                         + "\n  ".join(host.findings.problems))
+    if args.hold is not None or args.override is not None or pauses(host):
+        result, trace = hold_verify(host, image, args.hold, args.override, setup)
+    else:
+        result, trace = _simulate_stream(host, setup, image, faults)
+    lk = result["link"]
+    headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: streamed to {out_dir / 'firmware.hex'} at "
+                f"{lk['baud']} baud, {result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s "
+                f"planned",
+                f"  link: {lk['bytes']} bytes in {lk['frames']} frames, {lk['retransmits']} retransmitted, lowest "
+                f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
+                f"{lk['underruns']} underruns"]
+    return host, result, trace, headline
+
+
+def _simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tuple[dict, object]:
+    """The job streamed to its firmware in the simulator: verify's result (with `link`) and the trace (on the
+    simulated clock)."""
+    import importlib
+
+    config = setup.config
+    link = new_link(host, setup)
+    simulator = importlib.import_module(SIM_MODULES[setup.target.target])
+    budget = session_budget_s(host, setup)
+    switches = simulated_switches(host)
+    cycles = int(budget * setup.target.f_cpu)
+    with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+        shown = ShownSession(link, bar)
+        if config.heaters:
+            run, figures = simulator.simulate_stream_heaters(image.hex_path, config, shown, cycles,
+                                                             job_plants(host.job, config), faults, switches)
+        else:
+            trace, figures = simulator.simulate_stream(image.hex_path, config, shown, cycles, switches=switches)
+    if config.heaters:
+        result, trace = heater_result(host, run, image, faults, switches, streamed=True)
+    else:
+        result = verify_json(host, compare(host, trace, switches, streamed=True), image)
+    return stream_result(host, link, figures, trace, result), trace
+
+
+class ShownSession:
+    """A simulated session's host (HostLink's interface, or a wrapper of it such as codegen/verify/hold_runs.py's
+    Scripted) whose stream bytes, as the firmware acknowledges them, move a progress bar; the session finds the
+    wrapped host as `link`."""
+
+    def __init__(self, link: HostLink, bar):
+        self.link, self.bar = link, bar
+
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)  # only for what this class does not define itself
+
+    def receive(self, data: bytes, now: float) -> None:
+        self.link.receive(data, now)
+        progress.move_to(self.bar, self.link.stats.data_bytes)
+
+
+def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
+    """The host's side of a simulated session: the job's table stream, as `stream` sends it."""
+    data = tables.encode(host.schedule).data
+    return HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in setup.config.heaters))
+
+
+def session_budget_s(host: HostBuild, setup: StreamSetup) -> float:
+    """Simulated seconds a session may take: the plan, the ring's fill and drain, a heat-up."""
+    return (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
+            + (HEAT_LIMIT_S if setup.config.heaters else 0.0))
+
+
+def stream_result(host: HostBuild, link: HostLink, figures, trace, result: dict) -> dict:
+    """verify's result of a session with the link's checks and figures (`link`)."""
+    problems = result["problems"]
+    if link.outcome not in ("finished", "fault"):
+        problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
+    expected = tuple(int(v) for v in host.pulses.final_positions())
+    if link.outcome == "finished" and link.position != expected:
+        problems.append(f"the firmware reports positions {list(link.position)} at the end, the twin "
+                        f"{list(expected)}")
+    if link.outcome == "fault":  # the positions it reports must be where its pulses took the motors
+        run = trace.run_only()
+        made = tuple(int(run.step_dir[run.step_motor == m].sum()) for m in range(len(host.kin.motors)))
+        if link.position != made:
+            problems.append(f"the firmware reports positions {list(link.position)} at the trip, its pulses made "
+                            f"{list(made)}")
+    if figures.lost_bytes:
+        problems.append(f"{figures.lost_bytes} received bytes were read too late: a real UART would have "
+                        f"lost them")
+    result["pass"] = result["pass"] and not problems
+    result["image"]["table_bytes"] = 0
+    result["link"] = {"baud": figures.baud, "bytes": figures.bytes, "frames": figures.frames,
+                      "retransmits": figures.retransmits, "min_ring_fill_bytes": figures.min_ring_fill_bytes,
+                      "underruns": figures.underruns, "lost_bytes": figures.lost_bytes,
+                      "planned_min_ring_fill_bytes": host.link_plan.min_ring_fill_bytes,
+                      "prefill_bytes": host.link_plan.prefill_bytes,
+                      "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
+    return result
+
+
+def cmd_stream(args) -> int:
+    from codegen.link import serial_port
+
+    job = load_job(Path(args.job), args.target)
+    setup = stream_setup(job, args.baud)
+    motors = len(setup.config.motors)
+    with tempfile.TemporaryFile() as table:
+        host = streamed_host(job, setup, args.strict, keep=False, tables_out=table)
+        if not host.findings.ok:
+            raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
+                             + "\n  ".join(host.findings.problems))
+        table.seek(0)
+        plan = host.link_plan
+        chunks = stream_chunks(table.read(), motors)
+        link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
+                        payload=setup.budget.payload, stream_bytes=plan.stream_bytes,
+                        answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S,
+                        heaters=tuple(h.name for h in setup.config.heaters),
+                        laser_top=setup.config.laser.top if setup.config.laser else 0)
+        port = serial_port.open_port(args.port, setup.layout.baud)
+        began = time.monotonic()
+        try:
+            with serial_port.terminal_keys(setup.config.hold is not None) as keys:
+                if setup.config.hold is not None and sys.stdin.isatty():
+                    print("keys: ! hold, ~ resume, - and + the feed override", file=sys.stderr)
+                interrupted = serial_port.run(link, port, plan.stream_bytes, progress=progress.enabled(),
+                                              motors=tuple(m.name for m in setup.config.motors), keys=keys)
+        finally:
+            port.close()
+    took = time.monotonic() - began
+    expected = tuple(int(v) for v in host.expected_final - host.start_steps)
+    if interrupted and link.outcome in ("aborted", None):  # else the session's own end came before the ABORT
+        machine = "did not answer" if link.outcome is None else f"stopped at positions {list(link.position)}"
+        print(f"error: interrupted: sent ABORT; the machine {machine}", file=sys.stderr)
+        return 1
+    if link.outcome != "finished":
+        detail = link.message or (f"the firmware reports positions {list(link.position)}" if link.position else "")
+        print(f"error: {job.name}: the stream ended {link.outcome}{': ' + detail if detail else ''}", file=sys.stderr)
+        return 1
+    if link.position != expected:
+        print(f"error: {job.name}: the machine ended at {list(link.position)} steps from its start, the job at "
+              f"{list(expected)}", file=sys.stderr)
+        return 1
+    print(f"streamed {job.name} to {args.port}: {link.stats.data_bytes} stream bytes in {took:.1f} s, "
+          f"{link.stats.retransmits} frames retransmitted; positions {list(link.position)} as planned")
+    return 0

@@ -1,0 +1,107 @@
+"""Lookahead over a stream of segments: the whole program's plan, one window at a time, in bounded memory.
+
+The planner's backward pass runs from a stop at the end of what it holds. A junction is *settled* when the
+segments after it, all held, gain at least its own limit at full acceleration: a stop at the end can then not
+reach back to it, and neither can anything that comes later, so its speed (and every speed before it) is the
+one a plan of the whole program gives (Grbl's planner and Klipper's lookahead hold no more than that either).
+Each window ends at the last settled corner (a junction that is not part of a curve), so that the stages after
+the planner, which look at a block's neighbours along a curve, never need a neighbour in another window. A segment's
+own limits wait for the junction after it (its curvature there), and the window's last segment stays held as
+the next window's context: every junction is planned from both of its segments, as in the whole program.
+
+The speeds are the whole program's to rounding: the passes sum their gains from the window's start rather than
+the program's, so junction speeds agree to a few units in the last place, and times to a few nanoseconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codegen.kinematics.base import Kinematics
+from codegen.motion.planner import Plan, PlannerLimits, finish, passes, profile, settled
+from codegen.toolpath.segments import Segments, concat
+
+MAX_HELD = 1 << 16  # segments held without a settled corner: then a window ends at a settled junction of a curve
+
+
+@dataclass
+class Window:
+    first: int  # the program's index of the window's first segment
+    segments: Segments
+    steps: np.ndarray  # (n, M) signed motor steps of every segment
+    plan: Plan
+    curve_cut: bool = False  # the window ends inside a curve (more than MAX_HELD segments without a corner)
+
+
+def merge(a: Window, b: Window) -> Window:
+    """Two consecutive windows as one."""
+    return Window(a.first, concat(a.segments, b.segments), np.concatenate([a.steps, b.steps]),
+                  Plan.join([a.plan, b.plan]), b.curve_cut)
+
+
+class Lookahead:
+    """`push` segments as they come (with their steps), `close` at the program's end; each returns the
+    windows whose plan is final, in order."""
+
+    def __init__(self, kin: Kinematics, limits: PlannerLimits):
+        self.kin, self.limits = kin, limits
+        self.held: Segments | None = None  # the last committed segment (context) first, when there is one
+        self.held_steps = np.zeros((0, len(kin.motors)), dtype=np.int64)
+        self.context = 0  # 1 once a window has been committed: held[0] is its last segment
+        self.first = 0  # the program's index of held[self.context]
+        self.w_first = 0.0  # v^2 at the junction before held[self.context]: final
+        self.t0 = 0.0  # s: when that junction is passed
+
+    def push(self, segments: Segments, steps: np.ndarray) -> list[Window]:
+        if len(segments) == 0:
+            return []
+        self.held = segments if self.held is None else concat(self.held, segments)
+        self.held_steps = np.concatenate([self.held_steps, steps])
+        return self._commit(final=False)
+
+    def close(self) -> list[Window]:
+        return self._commit(final=True)
+
+    def resume(self, w: float, t0: float) -> None:
+        """The window before was planned again, slower: the next one starts at v^2 = `w` at most, at `t0`."""
+        self.w_first, self.t0 = min(self.w_first, w), t0
+
+    def next_segment(self) -> Segments | None:
+        """The first segment after the windows so far (its geometry is final, its plan is not)."""
+        return self.held.take(np.arange(1, 2)) if self.held is not None and len(self.held) > 1 else None
+
+    def _commit(self, final: bool) -> list[Window]:
+        held = 0 if self.held is None else len(self.held) - self.context
+        if held == 0:
+            return []
+        prof = profile(self.held, self.kin, self.held_steps, self.limits).part(self.context, len(self.held))
+        curve_cut = False
+        if final:
+            end = held
+        else:
+            # The last segment's own limits wait for the junction after it (its curvature there).
+            prof = prof.part(0, held - 1)
+            plan = finish(prof, passes(prof, self.w_first, 0.0), self.t0)
+            ok = settled(prof)
+            ok[0] = ok[-1] = False
+            ends = np.flatnonzero(ok & plan.corner)
+            if len(ends) == 0 and held > MAX_HELD:
+                ends, curve_cut = np.flatnonzero(ok), True
+            if len(ends) == 0:
+                return []
+            end = int(ends[-1])
+        w = passes(prof, self.w_first, 0.0)
+        plan = finish(prof.part(0, end), w[:end + 1], self.t0)
+        lo = self.context
+        window = Window(self.first, self.held.take(np.arange(lo, lo + end)), self.held_steps[lo:lo + end], plan,
+                        curve_cut)
+        self.first += end
+        self.w_first = float(w[end])
+        self.t0 = plan.total if len(plan.duration) else self.t0
+        keep = np.arange(lo + end - 1, len(self.held))
+        self.held = self.held.take(keep).compact()
+        self.held_steps = self.held_steps[keep]
+        self.context = 1
+        return [window]

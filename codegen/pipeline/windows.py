@@ -1,0 +1,343 @@
+"""The stages after the planner, one lookahead window at a time: step times, curve timing, rate runs, the twin
+and its checks.
+
+A window hands the next one what the player carries across: its clock (the last event's time, to 1/256
+tick: the next window's runs count from there) and the motors' positions; and what the checks need of the
+pulses before (codegen/tables/motor_checks.py). Windows end at corners, so curve timing never joins two windows'
+blocks; rate runs start afresh at every window (one run more per window than a run over the whole program
+might need). The path check measures a window's first and last steps against the neighbouring windows'
+segments too.
+
+Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
+several blocks, a delta carriage between cut points), the window is planned again with the segments under
+that stretch slowed (its entry speed stays: the window before is final), and the next window starts no
+faster than it now ends.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+from typing import BinaryIO, Callable
+
+import numpy as np
+
+from codegen.tables.checks import Checker, MotorTrain, corner_jumps
+from codegen.tables.compress import Compressed, compress
+from codegen.errors import BuildError
+from codegen.tables.headroom import with_ceilings
+from codegen.tables.hold import HoldPlan
+from codegen.kinematics.base import Kinematics
+from codegen.tables.laser import LaserPwm, event_counts, power_error_of, with_power
+from codegen.link.ring import LinkBudget, Ring, Shortfall
+from codegen.motion.lookahead import Lookahead, Window, merge
+from codegen.tables.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
+from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
+                             segment_lengths)
+from codegen.toolpath.segments import Segments, concat
+from codegen.motion.stepgen import Events, generate
+from codegen.stopwatch import Stopwatch
+from codegen.tables.format import encode, end_marker, record_events
+from codegen.targets import TargetInfo
+from codegen.tables.twin import Pulses, predict
+
+RATE_ROUNDS = 8  # plans of a window at most: a stretch over a motor's rate or acceleration slows it
+LINK_ROUNDS = 16  # and where the ring runs short: slowing one stretch may move a shortfall on to the next
+RETRY_SHARE = 0.95  # of the rate and acceleration those segments (and their neighbours) then aim at
+
+
+@dataclass
+class Played:
+    """One window's results, on the program's clock: event times in s, ticks and positions absolute."""
+
+    window: Window
+    compressed: Compressed  # ideal and emitted ticks on the program's clock
+    origin_fx: int  # 1/256 tick: the player's clock when the window begins
+    events_count: int
+    timing_error_ticks: float  # the largest distance of an emitted event from its planned time
+    events: Events | None  # these two only when the stages keep them
+    pulses: Pulses | None  # ticks absolute, event_position counted from the program's start
+    prior_item: int = -1  # the item of the last block before the window (its runtime records come after it)
+    power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
+    ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
+
+
+@dataclass
+class Totals:
+    """What `plan` reports of the whole program, summed over its windows."""
+
+    duration_s: float = 0.0
+    windows: int = 0
+    segments: int = 0
+    blocks: int = 0
+    runs: int = 0
+    events: int = 0
+    table_bytes: int = 0  # the end marker included
+    max_timing_error_ticks: float = 0.0  # the largest distance of an emitted event from its planned time
+    link_slowdown_s: float = 0.0  # time the link's bandwidth added to the plan (streaming)
+    max_power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal
+    power_records: int = 0
+    ceiling_records: int = 0  # the feed override's headroom (codegen/tables/headroom.py)
+    ceiling_bytes: int = 0  # theirs and their runs' splits
+
+    def add(self, played: Played) -> None:
+        sched = played.compressed.schedule
+        end = len(end_marker(False))  # counted once for the whole program
+        self.duration_s = played.window.plan.total if len(played.window.plan.duration) else self.duration_s
+        self.windows += 1
+        self.segments += len(played.window.segments)
+        self.blocks += sched.n_blocks
+        self.runs += sched.n_runs
+        self.events += played.events_count
+        self.table_bytes += sched.table_bytes() - (end if self.table_bytes else 0)
+        self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
+        self.max_power_error = max(self.max_power_error, played.power_error)
+        self.power_records += sched.n_power
+        self.ceiling_records += sched.n_ceiling
+        self.ceiling_bytes += played.ceiling_bytes
+
+
+@dataclass
+class _Carried:
+    """What a window hands the next: the checks' state, the player's clock and positions, its last segment."""
+
+    checker: Checker
+    origin_fx: int  # 1/256 tick: the last event's time
+    position: np.ndarray  # (M,) steps after the last event, from the program's start
+    before: Segments | None  # the last segment
+    ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
+    block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
+    laser_counts: int = 0  # the laser's PWM counts after the last event
+
+
+class Stages:
+    """`play` each window of the lookahead in order; each call hands out the windows that are final (a window
+    stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
+
+    def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
+                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
+                 link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None,
+                 laser: LaserPwm | None = None, hold: HoldPlan | None = None,
+                 observe: Callable[[Played], None] | None = None):
+        """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
+        `tables` gets each final window's table records as it is made (a window ends at a block and a run
+        start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
+        stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
+        `runtime`: the program's runtime records so far (codegen/tables/runtime.py), whose cost the blocks after them
+        get; `laser`: the laser's PWM, whose power records the runs get (codegen/tables/laser.py); `hold`: the feed hold,
+        whose ceiling records they get where its override goes above 100 % (codegen/tables/headroom.py); `observe`
+        gets each final window with its pulses (which it drops after unless `keep`)."""
+        self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
+        self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
+        self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
+        self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
+                                np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
+        self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
+        self.totals = Totals()
+        self.runtime, self.laser, self.hold, self.observe = runtime, laser, hold, observe
+        motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
+        self.gaps = (target.run_gap_ticks(motors, pulse_us),
+                     target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
+
+    @property
+    def checker(self) -> Checker:
+        return self.carried.checker
+
+    def play(self, window: Window, after: Segments | None, last: bool) -> list[Played]:
+        """Window `window`, followed by segment `after` (None at the program's end; `last` then)."""
+        before = self.carried
+        out = []
+        played, carried, scale = self._attempt(window, after, last, before)
+        if scale is not None and self.open is not None:  # play the open window and this one again, as one
+            window, before = merge(self.open[0].window, window), self.open[1]
+            self.open = None
+            played, carried, scale = self._attempt(window, after, last, before)
+        w_exit, rounds = None, 0
+        while scale is not None and rounds < (RATE_ROUNDS if scale[2] is None else LINK_ROUNDS) - 1:
+            rounds += 1
+            was = window.plan.total
+            window, w_exit = self._plan_again(window, *scale[:2])
+            if scale[2] is not None:
+                self.totals.link_slowdown_s += window.plan.total - was
+            played, carried, scale = self._attempt(window, after, last, before)
+        if scale is not None and scale[2] is not None:
+            budget, short = carried.ring.budget, scale[2]
+            raise BuildError(f"the link at {budget.baud} baud cannot keep the streaming player's ring of "
+                             f"{budget.ring_bytes} bytes (the host keeps {budget.usable} of them filled) fed between "
+                             f"{short.begin_s:.3f} and {short.end_s:.3f} s into the job, even slowed "
+                             f"{rounds} times: a board with a larger ring (XRAM), a faster link "
+                             f"(machine.link.baud), or a larger machine.tolerance")
+        if w_exit is not None:
+            self.lookahead.resume(w_exit, window.plan.total)
+        if self.open is not None:
+            out.append(self.open[0])
+        self.open, self.carried = (played, before), carried
+        if last:
+            out.append(played)
+            self.open = None
+        for p in out:
+            self.totals.add(p)
+            if self.observe is not None:
+                self.observe(p)
+                p.pulses = p.pulses if self.keep else None
+            if self.tables is not None:
+                self.tables.write(encode(self._with_runtime(p, last and p is out[-1])).data[:-len(end_marker(False))])
+        return out
+
+    def _with_runtime(self, played: Played, last: bool):
+        """A final window's schedule with its runtime records, for the table stream."""
+        schedule = played.compressed.schedule
+        if self.runtime is None:
+            return schedule
+        return window_runtime(schedule, self.runtime(), played.window.segments.item, played.prior_item, last)
+
+    def finish(self) -> None:
+        if self.tables is not None:
+            self.tables.write(end_marker(False))
+
+    def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
+        """Play the window from what came before: its results, what it hands on, and how to slow it down where
+        the checks found a motor over its limits or the ring runs short: each segment's share of its speed and
+        of its acceleration, and the ring's first Shortfall (None for a motor's limits); None: nowhere."""
+        kin, target, watch = self.kin, self.target, self.watch
+        with watch("step times"):
+            events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
+                              curves=True, max_rate=self.max_rate)
+        block_item = window.segments.item[events.block_segment]
+        extra = None if self.runtime is None else block_extra_ticks(
+            self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
+        with watch("rate runs"):
+            compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=self.max_rate,
+                                  origin_fx=before.origin_fx, block_extra_ticks=extra)
+        laser_counts, power_error = before.laser_counts, 0.0
+        if self.laser is not None and len(events.time):
+            with watch("laser power"):
+                counts, ideal = event_counts(events, window.plan, window.segments, self.laser)
+                compressed.schedule = with_power(compressed.schedule, counts, before.laser_counts)
+                power_error = power_error_of(counts, ideal, self.laser.top)
+                laser_counts = int(counts[-1])
+        with watch("twin"):
+            pulses = predict(compressed.schedule, before.origin_fx, before.position)
+        ceiling_bytes = 0
+        if self.hold is not None and len(events.time):
+            with watch("feed ceilings"):  # they change no pulse
+                was = compressed.schedule.table_bytes()
+                compressed.schedule = with_ceilings(compressed.schedule, self.hold, pulses, before.position,
+                                                    self.max_rate, kin.limits.max_accel * kin.limits.steps_per_mm)
+                ceiling_bytes = compressed.schedule.table_bytes() - was
+        error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
+        played = Played(window, compressed, before.origin_fx, len(events.time), error,
+                        events if self.keep else None, pulses if self.keep or self.observe else None,
+                        before.block_item, power_error, ceiling_bytes)
+        # The checks see the neighbouring windows' segments around this one's.
+        parts = [p for p in (before.before, window.segments, after) if p is not None]
+        around = concat(*parts)
+        shift = 0 if before.before is None else 1
+        event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
+        trains = [MotorTrain(tick / target.tick_hz, direction)
+                  for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
+        with watch("checks"):
+            corners_t, jumps = self._corners(window, before.before)
+            checker = copy.deepcopy(before.checker)
+            hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+        n = len(window.segments)
+        position = pulses.event_position[-1] if len(pulses.event_position) else before.position
+        ring = None if before.ring is None else before.ring.copy()
+        carried = _Carried(checker, _end_fx(played), position,
+                           window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
+                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts)
+        scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
+        if ring is not None:
+            with watch("link"):
+                reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
+                                                           target.tick_hz)
+                shortfalls = ring.add(reads, sizes)
+            if scale is None and shortfalls:
+                record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
+                return played, carried, (*self._link_slow_down(window.plan, shortfalls, record_segment, sizes,
+                                                               ring.budget.rate), shortfalls[0])
+        return played, carried, None if scale is None else (*scale, None)
+
+    @staticmethod
+    def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,
+                        rate: float) -> tuple[np.ndarray, np.ndarray]:
+        """From the first stretch that drains the ring on, the segments whose records are denser than the link
+        carries, each slowed to the link's bytes a second (the ring absorbs no burst there any more: one round
+        suffices where slowing the stretches alone would move each shortfall on); and the segments of each
+        stretch, in acceleration, by the time it lacks: records come densest where a motor speeds up from rest (a
+        block and a run at once, then short runs), which a lower top speed leaves as it was."""
+        n = len(plan.duration)
+        span = slice(shortfalls[0].first, None)
+        need = np.bincount(record_segment[span], weights=sizes[span], minlength=n)
+        speed, accel = np.ones(n), np.ones(n)
+        dense = need * 1.0 > plan.duration * rate * RETRY_SHARE
+        speed[dense] = plan.duration[dense] * rate * RETRY_SHARE / need[dense]
+        for short in shortfalls:
+            seconds = short.end_s - short.begin_s
+            share = RETRY_SHARE * seconds / (seconds + short.extra_s) if seconds > 0 else RETRY_SHARE
+            stretch = slice(record_segment[short.first], record_segment[short.last] + 1)
+            accel[stretch] = np.minimum(accel[stretch], share ** 2)  # from rest, a distance takes 1 / sqrt(accel)
+        return speed, accel
+
+    def _corners(self, window: Window, last: Segments | None) -> tuple[np.ndarray, np.ndarray]:
+        """The window's corners (`corner_jumps`), the one where it meets the window before (whose last segment
+        is `last`) included."""
+        plan, segments = window.plan, window.segments
+        if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
+            return corner_jumps(plan, segments, self.kin)
+        _, before = segment_lengths(last)
+        joined = concat(last, segments)
+        both = replace(plan, direction=np.concatenate([before, plan.direction]),
+                       v_entry=np.concatenate([[0.0], plan.v_entry]),
+                       t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
+                       corner=np.concatenate([[True], plan.corner]))
+        return corner_jumps(both, joined, self.kin)
+
+    @staticmethod
+    def _slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list):
+        """The share of their peak speed and acceleration the segments under a stretch over a limit keep
+        (None where the checks found nothing); `event_segment`: the window's segment of every event."""
+        if not any(len(rate[0]) or len(accel[0]) for rate, accel in hits):
+            return None
+        n = len(plan.duration)
+        speed, accel = np.ones(n), np.ones(n)
+        for m, ((rate_end, rate_ratio), (begin, accel_ratio)) in enumerate(hits):
+            mine = event_segment[pulses.event[pulses.motor == m]]
+            for end, ratio in zip(rate_end, rate_ratio):
+                span = slice(max(mine[max(end - RATE_WINDOW, 0)] - 1, 0), mine[end] + 2)
+                speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio)
+            for t, ratio in zip(begin, accel_ratio):
+                first, last = np.searchsorted(plan.t_start, [t, t + 2 * ACCEL_WINDOW_S], side="right") - 1
+                span = slice(max(first - 1, 0), last + 2)
+                speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio))  # bends: v^2
+                accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio)
+        return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
+
+    def _plan_again(self, window: Window, speed: np.ndarray, accel: np.ndarray) -> tuple[Window, float]:
+        """The window with its segments slowed: the same entry speed, an exit no faster than before (v^2)."""
+        plan, segments = window.plan, window.segments
+        entry = plan.v_entry[0]
+        cap = np.maximum(plan.v_peak * speed, np.where(np.arange(len(speed)) == 0, entry, 0.0))
+        slowed = replace(segments, feed=np.minimum(segments.feed, cap),
+                         accel=np.minimum(segments.accel, plan.accel * accel))
+        prof = profile(slowed, self.kin, window.steps, self.limits)
+        w_last = min(plan.v_exit[-1] ** 2, prof.w_nominal[-1])
+        w = passes(prof, entry ** 2, w_last)
+        again = finish(prof, w, plan.t_start[0])
+        again.corner[0], again.corner[-1] = plan.corner[0], plan.corner[-1]
+        return replace(window, segments=slowed, plan=again), float(w[-1])
+
+
+def _record_reads(schedule, pulses: Pulses, origin_fx: int, tick_hz: int):
+    """When the player reads each record of a window (s, on the program's clock): at the event before the one
+    it starts (the window's first records at the last event before it); the records' bytes and events."""
+    event, size = record_events(schedule)
+    before = np.concatenate([[origin_fx >> 8], pulses.event_tick])
+    return before[event] / tick_hz, size, event
+
+
+def _end_fx(played: Played) -> int:
+    """1/256 tick: when the window's last event happens, as the player counts."""
+    sched = played.compressed.schedule
+    n, interval, add = sched.run_count, sched.run_interval, sched.run_add
+    return played.origin_fx + int(np.sum(interval * n + add * (n * (n - 1) // 2)))

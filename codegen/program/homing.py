@@ -1,0 +1,81 @@
+"""Homing: which axes find their switches at power-up, how, and where the tool is afterwards.
+
+Delta machines always home, every carriage up to its tower's max switch. Cartesian and corexy machines home when
+the job says so (`program.home: true`) or when their G-code starts with G28: x, y and z go down to their min
+switches, where each axis is at the low end of its `range` (0 without one; a corexy's x and y at 0: its ranges
+are the belts'). A corexy moves both belts for either axis, so it homes as Marlin and Klipper do, one axis at a
+time: x (with z) first, then y. The firmware does the motion; the host gives it the speeds, the travel after
+which a switch that never closed is a fault, and where the tool then is.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from codegen.errors import Diagnostic, JobError
+from codegen.firmware.config import HomingAxis
+from codegen.kinematics.base import Kinematics
+
+# kinematics -> its homed axes: (board endstop, the axis's direction towards it, {motor: its direction}, round)
+AXES = {
+    "cartesian": (("x_min", -1, {"x": -1}, 0), ("y_min", -1, {"y": -1}, 0), ("z_min", -1, {"z": -1}, 0)),
+    "corexy": (("x_min", -1, {"a": -1, "b": -1}, 0), ("z_min", -1, {"z": -1}, 0),
+               ("y_min", -1, {"a": -1, "b": 1}, 1)),  # A = X + Y, B = X - Y
+    "delta": (("x_max", 1, {"a": 1}, 0), ("y_max", 1, {"b": 1}, 0), ("z_max", 1, {"c": 1}, 0)),
+}
+TRAVEL_MARGIN = 1.2  # a switch may be this much further than the machine's travel before it is a fault
+DEFAULT_TRAVEL_MM = 1000.0  # an axis without a `range` (a corexy's x and y)
+
+
+def homes(job, leading_g28: bool) -> bool:
+    return job.machine.kinematics == "delta" or bool(job.program.home) or leading_g28
+
+
+def home_position(job, kin: Kinematics) -> np.ndarray:
+    """Where the tool is once homed (4-vector, mm)."""
+    if job.machine.kinematics == "delta":
+        return kin.home()
+    position = np.zeros(4)
+    for axis, name in enumerate("xyz"):
+        stepper = job.machine.steppers.get(name)
+        if stepper is not None and stepper.range:
+            position[axis] = stepper.range[0]
+    return position
+
+
+def homing_axes(job, kin: Kinematics, tick_hz: int) -> tuple[HomingAxis, ...]:
+    """The firmware's homing of every axis whose motors the machine has."""
+    settings = job.machine.homing
+    axes = []
+    for switch, direction, motor_directions, round_ in AXES[job.machine.kinematics]:
+        if not all(name in kin.motors for name in motor_directions):
+            continue
+        motors = tuple(kin.motors.index(name) for name in motor_directions)
+        stepper, *others = (job.machine.steppers[name] for name in motor_directions)
+        spm = stepper.steps_per_mm
+        for name, other in zip(list(motor_directions)[1:], others):
+            if other.steps_per_mm != spm:  # one homing step of each belt must move the tool straight along the axis
+                raise JobError([Diagnostic(other.steps_source, (
+                    f"machine.steppers.{name}.steps_per_mm: homing {switch[0]} steps "
+                    f"{' and '.join(motor_directions)} together, so they need the same steps_per_mm "
+                    f"({next(iter(motor_directions))} has {spm:g}, {name} {other.steps_per_mm:g})"))])
+        if len(motors) == 1 and stepper.range:
+            travel = stepper.range[1] - stepper.range[0]
+        elif job.machine.kinematics == "delta":
+            travel = float(kin.to_motor(kin.home()[None, :])[0, motors[0]])  # the carriage from the bed to the top
+        else:
+            travel = DEFAULT_TRAVEL_MM
+        axes.append(HomingAxis(
+            motors=motors,
+            motor_directions=tuple(motor_directions.values()),
+            switch=switch,
+            direction=direction,
+            max_steps=math.ceil(TRAVEL_MARGIN * travel * spm),
+            fast_interval=max(1, round(tick_hz / (settings.speed * spm))),
+            slow_interval=max(1, round(tick_hz / (settings.slow_speed * spm))),
+            backoff_steps=max(1, round(settings.backoff * spm)),
+            round=round_,
+        ))
+    return tuple(axes)

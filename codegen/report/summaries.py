@@ -1,0 +1,203 @@
+"""Reports: report.json of a build, the JSON of `plan` and `verify`, the trace CSV, and human summaries."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from codegen import __version__
+from codegen.cli.config import job_fingerprint
+from codegen.pipeline.host import HostBuild
+from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
+
+
+def _round(value: float, digits: int = 6) -> float:
+    return float(round(value, digits))
+
+
+def plan_summary(host: HostBuild) -> dict:
+    f, totals = host.findings, host.totals
+    return {
+        "job": host.job.name,
+        "duration_s": _round(totals.duration_s),
+        "table_bytes": totals.table_bytes,
+        "segments": totals.segments,
+        "windows": totals.windows,
+        "blocks": totals.blocks,
+        "runs": totals.runs,
+        "events": totals.events,
+        "motors": {
+            name: {"steps": f.steps[name], **positions(host, f, name),
+                   "max_rate_ratio": _round(f.rate_ratio[name], 4), "max_accel_ratio": _round(f.accel_ratio[name], 4)}
+            for name in host.kin.motors
+        },
+        "max_path_error_mm": _round(f.max_path_error_mm),
+        "path_limit_mm": _round(f.path_limit_mm),
+        "max_timing_error_us": _round(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
+        "pass": f.ok,
+        "problems": list(f.problems),
+        **(host.link_plan.summary() if host.link_plan is not None else {}),
+        **({"heaters": heaters_plan(host)} if host.heaters else {}),
+        **({"laser": laser_plan(host)} if host.laser else {}),
+        **({"feed_hold": feed_hold_plan(host)} if host.hold_plan is not None else {}),
+    }
+
+
+def feed_hold_plan(host: HostBuild) -> dict:
+    """Feed hold's ramp and keys, and the override's ceiling records (codegen/tables/headroom.py) with their bytes."""
+    plan = host.hold_plan
+    return {"ramp_s": _round(plan.ramp_seconds(host.target.tick_hz), 4), "max_override_pct": plan.max_step * 10,
+            "ceiling_records": host.totals.ceiling_records,
+            "ceiling_bytes": host.totals.ceiling_bytes, "keys": dict(plan.keys)}
+
+
+def laser_plan(host: HostBuild) -> dict:
+    """A laser's PWM and the tables' power records (codegen/tables/laser.py)."""
+    laser = host.laser
+    return {"pin": laser.pin, "pwm_hz": _round(laser.actual_hz, 3), "top": laser.top,
+            "power_records": host.totals.power_records,
+            "max_power_error_pct": _round(100 * host.totals.max_power_error, 4)}
+
+
+def heaters_plan(host: HostBuild) -> dict:
+    """The heaters of the image (or of the streaming firmware): how many target records the tables carry for each
+    and how many waits, its last target (degC), its pins, and its ADC table's flash bytes (int16 per reading)."""
+    out = {}
+    for h in host.heaters:
+        records = host.runtime_settings(h.name)
+        targets = records.value[records.command == HEATER_COMMANDS[h.name]]
+        out[h.name] = {"settings": len(targets), "waits": int(np.count_nonzero(records.command == RT_WAIT)),
+                       "last_target_c": float(targets[-1]) / 10 if len(targets) else 0.0, "pwm_pin": h.pwm_pin,
+                       "sensor_pin": h.sensor_pin, "table_bytes": 2 * len(h.table)}
+    return out
+
+
+def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, str]) -> dict:
+    table = host.schedule.table_bytes()
+    sections = dict(image.sections)
+    return {
+        "printer_codegen": __version__,
+        "job": host.job.name,
+        "job_file": str(host.job.path),
+        "target": host.target.target,
+        "board": host.target.board,
+        "mcu": host.target.mcu,
+        "fingerprint": fingerprint,
+        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/cli/config.py)
+        "image": {
+            "hex": image.hex_path.name,
+            "elf": image.elf_path.name if image.elf_path else None,
+            "flash_bytes": image.flash_bytes,
+            "flash_capacity": image.flash_capacity,
+            "ram_bytes": image.ram_bytes,
+            "ram_capacity": image.ram_capacity,
+            "table_bytes": table,
+            "flash_parts": dict(image.flash_parts),
+            "ram_parts": dict(image.ram_parts),
+            "sections": sections,
+        },
+        "sources": sorted(sources),
+        "plan": plan_summary(host),
+    }
+
+
+def positions(host: HostBuild, f, name: str) -> dict:
+    """A motor's end (CLI.md): `final` and `expected_final` count from its position when the program began
+    (after any homing); `end_position` and `expected_end_position` are absolute steps."""
+    start = int(host.start_steps[host.kin.motors.index(name)])
+    return {"final": f.final[name] - start, "expected_final": f.expected_final[name] - start,
+            "end_position": f.final[name], "expected_end_position": f.expected_final[name]}
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+
+
+def verify_json(host: HostBuild, verdict, image) -> dict:
+    f = verdict.findings
+    return {
+        "pass": verdict.ok,
+        "target": host.target.target,
+        "board": host.target.board,
+        "duration_s": _round(verdict.duration_s),
+        "planned_duration_s": _round(verdict.planned_duration_s),
+        "max_path_error_mm": _round(f.max_path_error_mm) if verdict.path_measured else None,
+        "path_limit_mm": _round(f.path_limit_mm),
+        "not_compared": verdict.not_compared,
+        "motors": {
+            name: {
+                "steps": f.steps[name],
+                **positions(host, f, name),
+                "max_timing_error_us": (None if name not in verdict.timing_error_us
+                                        else _round(verdict.timing_error_us[name], 3)),
+                "max_rate_ratio": _round(f.rate_ratio[name], 4),
+                "max_accel_ratio": _round(f.accel_ratio[name], 4),
+                "min_pulse_us": _round(verdict.pulse_width_us.get(name, 0.0), 3),
+                "min_dir_setup_us": (None if verdict.dir_setup_us.get(name) is None
+                                     else _round(verdict.dir_setup_us[name], 3)),
+            }
+            for name in host.kin.motors
+        },
+        "start_offset_us": _round(verdict.latency_us, 3),
+        "homing": verdict.homing,
+        "display": verdict.display,
+        **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
+        "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
+                  "table_bytes": host.schedule.table_bytes()},
+        "problems": verdict.problems + f.problems,
+    }
+
+
+def write_trace(path: Path, host: HostBuild, trace) -> None:
+    """One row per simulated step pulse: time_s,motor,dir,phase (CLI.md), written in chunks."""
+    order = np.argsort(trace.step_cycle, kind="stable")
+    names = np.asarray(host.kin.motors, dtype=object)
+    phases = np.asarray(trace.step_phase, dtype=object)
+    with path.open("w", encoding="utf-8") as out:
+        out.write("time_s,motor,dir,phase\n")
+        for lo in range(0, len(order), 1 << 16):
+            rows = order[lo:lo + (1 << 16)]
+            seconds = trace.step_cycle[rows] / trace.f_cpu
+            columns = zip(np.char.mod("%.9f", seconds), names[trace.step_motor[rows]],
+                          trace.step_dir[rows].tolist(), phases[rows])
+            out.write("".join(f"{t},{m},{d},{p}\n" for t, m, d, p in columns))
+
+
+def motion(m: dict) -> str:
+    """A motor's end in words: net steps against the job's, and the absolute position."""
+    return f"net {m['final']:+d} (job: {m['expected_final']:+d}), ends at step {m['end_position']}"
+
+
+def human_plan(summary: dict) -> str:
+    lines = [f"{summary['job']}: {summary['duration_s']:.3f} s planned, {summary['segments']} segments, "
+             f"{summary['blocks']} blocks, {summary['runs']} runs, {summary['table_bytes']} table bytes"]
+    for name, m in summary["motors"].items():
+        lines.append(f"  {name}: {m['steps']} steps, {motion(m)}, "
+                     f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
+    lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
+                 f"timing within {summary['max_timing_error_us']:.2f} us of the plan")
+    if "prefill_bytes" in summary:
+        low = summary["min_ring_fill_bytes"]
+        lines.append(f"  link {summary['baud']} baud: {summary['stream_bytes']} bytes to stream, prefill "
+                     f"{summary['prefill_bytes']} of the {summary['ring_bytes']}-byte ring, lowest fill "
+                     f"{'n/a (the stream fits the ring)' if low is None else f'{low} bytes'}, "
+                     f"{summary['link_slowdown_s']:.3f} s slower for the link")
+    for name, h in summary.get("heaters", {}).items():
+        lines.append(f"  heater {name} ({h['pwm_pin']}, thermistor {h['sensor_pin']}): {h['settings']} settings and "
+                     f"{h['waits']} waits in the tables, the last {h['last_target_c']:g} degC; ADC table "
+                     f"{h['table_bytes']} bytes")
+    if "laser" in summary:
+        laser = summary["laser"]
+        lines.append(f"  laser on {laser['pin']} at {laser['pwm_hz']:g} Hz ({laser['top']} counts): "
+                     f"{laser['power_records']} power changes, within {laser['max_power_error_pct']:.2f} % of "
+                     f"full scale of the plan")
+    if "feed_hold" in summary:
+        hold = summary["feed_hold"]
+        keys = ", ".join(f"{k} {v}" for k, v in hold["keys"].items())
+        lines.append(f"  feed hold ({keys}): {hold['ramp_s']:.4f} s from 100 % to rest; override up to "
+                     f"{hold['max_override_pct']} %, {hold['ceiling_records']} ceiling records "
+                     f"({hold['ceiling_bytes']} bytes of the tables, with the runs they split)")
+    lines.extend(f"  problem: {p}" for p in summary["problems"])
+    return "\n".join(lines)
