@@ -38,12 +38,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, MotorPins  # noqa: E402
+from codegen.program.homing import HomingAxis  # noqa: E402
 from codegen.firmware.avr.image import build_image, load_target, render_sources  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
 from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.sim.avr import SimTrace, simulate  # noqa: E402
 from codegen.tables.twin import predict  # noqa: E402
+from codegen.tables.format import stream_bytes
 from shortest import shortest  # noqa: E402 - beside this script
 
 MCU = "atmega2560"
@@ -113,7 +115,7 @@ def schedule(n_motors: int, interval: int, events: int, mode: str, tick_hz: int)
 def play(n_motors: int, interval: int, events: int, mode: str, workdir: Path, tick_hz: int,
          ) -> tuple[Schedule, SimTrace]:
     sched = schedule(n_motors, interval, events, mode, tick_hz)
-    image = build_image(render_sources(sched, config(n_motors)), workdir, sched.table_bytes())
+    image = build_image(render_sources(sched, config(n_motors)), workdir, stream_bytes(sched))
     cycles = (LEAD_TICKS + interval * int(sched.run_count.sum())) * (F_CPU // tick_hz)
     return sched, simulate(image.hex_path, config(n_motors), BUDGET_FACTOR * cycles + 1_000_000)
 
@@ -178,7 +180,7 @@ def homing_on_time(n_motors: int, interval: int, workdir: Path, tick_hz: int) ->
         mcu["homing_event_cycles"] = limit
     scale = F_CPU // tick_hz
     try:
-        image = build_image(sources, workdir, sched.table_bytes())
+        image = build_image(sources, workdir, stream_bytes(sched))
         trace = simulate(image.hex_path, cfg, 400 * interval * scale * 4 + 1_000_000,
                          switches={m: 40 + 10 * m for m in range(n_motors)})
     except BuildError:

@@ -40,6 +40,7 @@ from codegen.paths import targets_dir  # noqa: E402
 from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.tables.twin import predict  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
+from codegen.tables.format import stream_bytes
 from shortest import shortest  # noqa: E402 - beside this script
 
 TICK_HZ = 1_000_000
@@ -94,7 +95,7 @@ def play(n_motors: int, interval: int, events: int, mode: str, workdir: Path, bo
          ) -> tuple[Schedule, SimTrace]:
     sched = schedule(n_motors, interval, events, mode)
     cfg = config(n_motors, board)
-    image = build_image(render_sources(sched, cfg), workdir, sched.table_bytes())
+    image = build_image(render_sources(sched, cfg), workdir, stream_bytes(sched))
     total = int(sched.run_count.sum())
     return sched, simulate(image.hex_path, cfg, (2000 + interval * total) * CLOCKS * 2 + 1_000_000)
 

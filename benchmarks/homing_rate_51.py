@@ -21,11 +21,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, MotorPins  # noqa: E402
+from codegen.program.homing import HomingAxis  # noqa: E402
 from codegen.firmware.avr.image import load_target  # noqa: E402
 from codegen.firmware.mcs51.image import build_image, render_sources  # noqa: E402
 from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
+from codegen.tables.format import stream_bytes
 from shortest import shortest  # noqa: E402 - beside this script
 
 CLOCKS = 12  # CPU clocks per machine cycle
@@ -60,7 +62,7 @@ def homing_trace(board: str, n_motors: int, interval: int, workdir: Path) -> Sim
         sources = render_sources(sched, cfg)
     finally:
         mcu["homing_event_cycles"] = limit
-    image = build_image(sources, workdir, sched.table_bytes())
+    image = build_image(sources, workdir, stream_bytes(sched))
     return simulate(image.hex_path, cfg, 10_000_000, switches={m: -(40 + 10 * m) for m in range(n_motors)})
 
 

@@ -26,6 +26,7 @@ from codegen.targets import target_info
 from codegen.tables.twin import predict
 from codegen.toolpath.segments import REF_LINE, Segments
 from codegen.toolpath.items import FINE_STEPS
+from codegen.tables.format import stream_bytes
 
 
 def random_segments(n: int, delta: bool, seed: int = 1) -> Segments:
@@ -96,7 +97,7 @@ def main() -> None:
     n_steps = len(pulses.tick)
     path_mm = float(motion.length.sum())
     total = sum(stages.values())
-    table = packed.schedule.table_bytes()
+    table = stream_bytes(packed.schedule)
     print(f"{args.kinematics} job: {args.segments} segments ({len(segments)} blocks' worth after cutting), "
           f"{path_mm:.0f} mm of path, {n_steps} steps, "
           f"{motion.total:.1f} s of motion")

@@ -19,13 +19,14 @@ from codegen.heaters.control import bang_bang, pid_reference
 from codegen.tables.runtime import runtime_records
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
 from codegen.toolpath.segments import Flattener
-from codegen.heaters.settings import HeaterSettings, heater_settings
+from codegen.program.heater_settings import HeaterSettings, heater_settings
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
 from codegen.targets import board_heater_pins
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import on_twin_clock, settled_at
+from codegen.tables.format import stream_bytes
 from tests.helpers import gcode_job_file, make_schedule
 from tests.reference_player import play
 
@@ -67,7 +68,7 @@ def image(tmp_path, settings, schedule, motors, targets, wait=True, end_off=Fals
         config = FirmwareConfig("heaters", "tests/test_avr_heaters.py", "avr", "ramps-1.4",
                                 tuple(MotorPins(m, m.upper()) for m in motors))
     config = replace(config, heaters=heaters)
-    return build_image(render_sources(schedule, config), tmp_path, schedule.table_bytes()), config
+    return build_image(render_sources(schedule, config), tmp_path, stream_bytes(schedule)), config
 
 
 def plants(settings, config, **start_c):
@@ -188,7 +189,7 @@ def test_start_sequence_waits_then_moves_like_the_twin(tmp_path, settings):
     assert verdict.ok, verdict.problems
 
     plain = build_image(render_sources(host.schedule, host.firmware_config()), tmp_path / "plain",
-                        host.schedule.table_bytes())
+                        stream_bytes(host.schedule))
     baseline = simulate_heaters(plain.hex_path, host.firmware_config(), 30.0, {}, switches=switches).steps
     delayed = ((steps.step_cycle - steps.timer_start_cycle)
                - (baseline.step_cycle - baseline.timer_start_cycle))

@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.image import build_image, render_sources
 from codegen.firmware.avr.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.sim.avr import PHASE_HOME, PHASE_RUN, simulate
+from codegen.tables.format import stream_bytes
 from tests.reference_player import play
 from tests.test_avr_firmware import make_schedule
 
@@ -45,7 +47,7 @@ def delta_config(max_steps=2000):
 
 
 def build_and_run(schedule, cfg, out_dir, switches, budget=100_000_000):
-    image = build_image(render_sources(schedule, cfg), out_dir, schedule.table_bytes())
+    image = build_image(render_sources(schedule, cfg), out_dir, stream_bytes(schedule))
     return image, simulate(image.hex_path, cfg, budget, switches=switches)
 
 
@@ -181,7 +183,7 @@ def test_an_image_without_homing_is_unchanged(tmp_path):
     cfg = FirmwareConfig("plain", "tests/test_avr_homing.py", "avr", "ramps-1.4", (MotorPins("x", "X"),))
     sources = render_sources(sched, cfg)
     assert "homing.c" not in sources and "home" not in sources["player.c"] and "SWITCH" not in sources["config.h"]
-    image = build_image(sources, tmp_path, sched.table_bytes())
+    image = build_image(sources, tmp_path, stream_bytes(sched))
     assert "homing" not in image.flash_parts
     trace = simulate(image.hex_path, cfg, 10_000_000)
     assert trace.step_phase.tolist() == [PHASE_RUN] * 5 and not trace.homing_failed

@@ -18,6 +18,7 @@ from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.sim.avr import simulate
 from codegen.sim.keys import KeyPress
+from codegen.tables.format import stream_bytes
 from tests.jog_checks import SCRIPT, check_session, jog_pulses, moves
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
@@ -46,7 +47,7 @@ def built(folder: Path, speeds: str = "150, 600, 6000", spm: int = 80):
     path.write_text(JOB.format(speeds=speeds, spm=spm))
     host = host_build(load_job(path))
     config = host.firmware_config()
-    image = build_image(render_sources(host.schedule, config), folder / "out", host.schedule.table_bytes())
+    image = build_image(render_sources(host.schedule, config), folder / "out", stream_bytes(host.schedule))
     return host, config, image
 
 
@@ -81,7 +82,7 @@ def test_the_fastest_cruise_holds_while_keys_change_the_level(tmp_path):
 def test_jog_code_size_and_unchanged_image_without_jog(tmp_path):
     host, config, image = built(tmp_path)
     plain = build_image(render_sources(host.schedule, dataclasses.replace(config, jog=None)), tmp_path / "plain",
-                        host.schedule.table_bytes())
+                        stream_bytes(host.schedule))
     print(f"\nRAMPS flash: {plain.flash_bytes} bytes without jog, {image.flash_bytes} with "
           f"(+{image.flash_bytes - plain.flash_bytes}), RAM {plain.ram_bytes} -> {image.ram_bytes}")
     sources = render_sources(host.schedule, dataclasses.replace(config, jog=None))

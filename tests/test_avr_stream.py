@@ -15,7 +15,8 @@ import pytest
 
 import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.stream import build_stream_image, render_stream_sources
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults

@@ -8,6 +8,7 @@ from codegen.tables.compress import TimingWindow, compress, spread
 from codegen.motion.stepgen import generate
 from codegen.toolpath.items import Arc, Toolpath
 from codegen.tables.twin import predict
+from codegen.tables.format import stream_bytes
 from tests.helpers import SRC, machine, planned, point, polyline
 
 TICK = 16_000_000
@@ -49,7 +50,7 @@ def test_long_straight_line_is_a_handful_of_runs():
     assert len(events.time) == 16000
     assert c.schedule.n_blocks == 1
     assert c.schedule.n_runs <= 40
-    assert c.schedule.table_bytes() <= 400
+    assert stream_bytes(c.schedule) <= 400
 
 
 def test_circle_block_per_chord_and_exact_totals():

@@ -15,6 +15,7 @@ from codegen.cli.main import main
 from codegen.errors import JobError
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
+from codegen.tables.format import stream_bytes
 
 JOB = """\
 name: corexy-home
@@ -97,7 +98,7 @@ def test_a_y_switch_that_never_closes_stops_the_machine_after_x(tmp_path):
         ("x_min", (0, 1), (-1, -1), 0), ("z_min", (2,), (-1,), 0), ("y_min", (0, 1), (-1, 1), 1)]
     homing = config.homing[:2] + (replace(config.homing[2], max_steps=2000),)  # not 1.2 m of travel: quicker
     config = replace(config, homing=homing)
-    image = build_image(render_sources(host.schedule, config), tmp_path / "out", host.schedule.table_bytes())
+    image = build_image(render_sources(host.schedule, config), tmp_path / "out", stream_bytes(host.schedule))
     trace = simulate(image.hex_path, config, 10_000_000, switches={0: -400, 1: -100})  # y: never
     assert trace.homing_failed and trace.homing_fault == (
         "homing failed in the fast approach: axis y (switch y_min): the switch did not close within max_steps")

@@ -20,7 +20,7 @@ from codegen.heaters.protection import DEFAULT_PROTECTION, REASONS, fixed_protec
 from codegen.heaters.sensors import (
     THERMISTORS, adc_reading, adc_temperature_table, millivolts, resistance_ohm, sensor_limits, temperature_c,
 )
-from codegen.heaters.settings import heater_settings
+from codegen.program.heater_settings import heater_settings
 from codegen.heaters.tuning import relay_test
 from codegen.job import load_job
 

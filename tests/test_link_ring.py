@@ -14,7 +14,7 @@ from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.ring import LinkBudget, Ring, link_budget
 from codegen.pipeline.host import host_build
-from codegen.tables.format import record_events
+from codegen.tables.format import record_events, stream_bytes
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 UNLIMITED = link_budget(2_000_000, 60000, 2)  # the streaming player's costs, a link that never holds it back
@@ -85,7 +85,7 @@ def test_a_slow_link_slows_the_plan_and_the_ring_never_runs_dry(baud):
     ticks = np.concatenate([[0], host.pulses.event_tick])
     fills = direct_fill(ticks[event] / host.target.tick_hz, sizes, budget, plan.prefill_bytes)
     assert fills.min() >= budget.need
-    assert plan.stream_bytes == host.schedule.table_bytes() + len(protocol.tail_padding(2))
+    assert plan.stream_bytes == stream_bytes(host.schedule) + len(protocol.tail_padding(2))
 
 
 def test_a_fast_link_changes_nothing():

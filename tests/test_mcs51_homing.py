@@ -15,10 +15,12 @@ import pytest
 
 from codegen.cli.main import main
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.firmware.mcs51.image import MAP_FILE, build_image, render_sources
 from codegen.sim.mcs51 import PHASE_HOME, PHASE_RUN, simulate
+from codegen.tables.format import stream_bytes
 from tests.test_mcs51_firmware import check_plays, make_schedule
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
@@ -49,7 +51,7 @@ def delta_config(max_steps=2000, board="at89c52"):
 
 
 def build_and_run(schedule, cfg, out_dir, switches, budget=100_000_000):
-    image = build_image(render_sources(schedule, cfg), out_dir, schedule.table_bytes())
+    image = build_image(render_sources(schedule, cfg), out_dir, stream_bytes(schedule))
     return image, simulate(image.hex_path, cfg, budget, switches=switches)
 
 
@@ -162,7 +164,7 @@ def test_an_image_without_homing_is_unchanged(tmp_path):
     cfg = FirmwareConfig("plain", "tests/test_mcs51_homing.py", "mcs51", "at89c52", (MotorPins("x", "X"),))
     sources = render_sources(sched, cfg)
     assert "homing.c" not in sources and "home_axes" not in sources["player.c"]
-    image = build_image(sources, tmp_path, sched.table_bytes())
+    image = build_image(sources, tmp_path, stream_bytes(sched))
     trace = simulate(image.hex_path, cfg, 10_000_000)
     assert trace.step_phase.tolist() == [PHASE_RUN] * 5 and not trace.homing_failed
     with pytest.raises(ValueError, match="does not home"):

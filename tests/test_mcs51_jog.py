@@ -17,6 +17,7 @@ from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.sim.keys import KeyPress
 from codegen.sim.mcs51 import simulate
+from codegen.tables.format import stream_bytes
 from tests.jog_checks import FINAL_LEVEL, SCRIPT, check_session
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
@@ -50,7 +51,7 @@ def job_file(folder: Path, board: str = "seed-51", kinematics: str = "cartesian"
 def built(path: Path, out: Path):
     host = host_build(load_job(path))
     config = host.firmware_config()
-    image = build_image(render_sources(host.schedule, config), out, host.schedule.table_bytes())
+    image = build_image(render_sources(host.schedule, config), out, stream_bytes(host.schedule))
     return host, config, image
 
 
@@ -77,7 +78,7 @@ def test_seed51_jogs_in_8_directions_with_speed_changes(tmp_path):
 def test_jog_code_size_and_unchanged_image_without_jog(tmp_path):
     host, config, image = built(job_file(tmp_path), tmp_path / "jog")
     plain = build_image(render_sources(host.schedule, dataclasses.replace(config, jog=None)), tmp_path / "plain",
-                        host.schedule.table_bytes())
+                        stream_bytes(host.schedule))
     growth = image.flash_bytes - plain.flash_bytes
     print(f"\nseed-51 code: {plain.flash_bytes} bytes without jog, {image.flash_bytes} with (+{growth}), "
           f"internal RAM {plain.ram_bytes} -> {image.ram_bytes}")

@@ -15,7 +15,8 @@ import pytest
 
 import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.homing import homing_steps
 from codegen.firmware.mcs51.image import MAP_FILE
 from codegen.firmware.mcs51.lcd import board_lcd

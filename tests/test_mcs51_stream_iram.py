@@ -18,7 +18,8 @@ import yaml
 import codegen.firmware.mcs51.stream as mcs51_stream
 from codegen.cli.main import main
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.mcs51.stream import (STACK_RESERVE, build_stream_image, iram_need, render_stream_sources,
                                            ring_layout)
 from codegen.link import protocol

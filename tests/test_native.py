@@ -21,6 +21,7 @@ from codegen.native import library
 from codegen.pipeline.host import host_build
 from codegen.tables.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
 from codegen.motion.stepgen import generate, segment_steps
+from codegen.tables.format import stream_bytes
 from tests.helpers import gcode_job_file, planned, polyline
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -195,7 +196,7 @@ def test_without_the_helpers_the_tables_are_the_same(monkeypatch, example):
     for module in (compress_module, runfit, twin, checks, stepgen):
         monkeypatch.setattr(module, "library", lambda name: None)
     python = host_build(job)
-    assert python.compressed.schedule.table_bytes() == native.compressed.schedule.table_bytes()
+    assert stream_bytes(python.compressed.schedule) == stream_bytes(native.compressed.schedule)
     for name in ("run_count", "run_interval", "run_add", "block_steps", "block_init"):
         assert np.array_equal(getattr(python.compressed.schedule, name), getattr(native.compressed.schedule, name))
     assert python.findings.max_path_error_mm == pytest.approx(native.findings.max_path_error_mm, abs=1e-9)

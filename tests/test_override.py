@@ -23,7 +23,7 @@ from codegen.job import load_job
 from codegen.pipeline.host import host_build, trains_from
 from codegen.report.summaries import plan_summary
 from codegen.pipeline.streaming import stream_setup
-from codegen.tables.format import encode
+from codegen.tables.format import encode, stream_bytes
 from codegen.verify.hold import hold_verify
 from tests.reference_player import play_stream
 
@@ -136,7 +136,7 @@ def test_the_plan_accounts_for_every_byte_of_the_ceilings(plotter, tmp_path):
     plain = host_build(_job(tmp_path, max_override=100))
     hold = plan_summary(host)["feed_hold"]
     assert hold["ceiling_records"] == host.schedule.n_ceiling and hold["max_override_pct"] == 200
-    assert hold["ceiling_bytes"] == host.schedule.table_bytes() - plain.schedule.table_bytes() > 4 * hold[
+    assert hold["ceiling_bytes"] == stream_bytes(host.schedule) - stream_bytes(plain.schedule) > 4 * hold[
         "ceiling_records"]  # each record and the run it splits
     assert plan_summary(plain)["feed_hold"]["ceiling_bytes"] == 0
 

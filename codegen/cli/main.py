@@ -18,10 +18,12 @@ from codegen.firmware.config import Image
 from codegen.job import load_job
 from codegen.pipeline.host import HostBuild, host_build
 from codegen.verify.compare import compare, simulated_switches
-from codegen.report.summaries import build_report, human_plan, motion, plan_summary, verify_json, write_json, write_trace
+from codegen.report.summaries import build_report, human_plan, motion, plan_summary, write_json, write_trace
+from codegen.verify.results import verify_json
 from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify.hold import hold_lines, hold_verify, pauses
 from codegen.report.waveform import write_vcd
+from codegen.tables.format import stream_bytes
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -78,7 +80,7 @@ FIT_HINT = ("what helps: a larger machine.tolerance (fewer chords on curves), fe
 
 def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, object, Path]:
     host = _checked_host(job, strict)
-    table = host.schedule.table_bytes()
+    table = stream_bytes(host.schedule)
     if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
         raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
                          f"{host.target.mcu} has {host.target.flash_bytes}; {FIT_HINT}")
@@ -98,7 +100,7 @@ def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, 
     for name in IMAGE_FILES:  # never leave an older image next to a failed build
         (out_dir / name).unlink(missing_ok=True)
     try:
-        image = firmware.build_image(sources, out_dir, host.schedule.table_bytes())
+        image = firmware.build_image(sources, out_dir, stream_bytes(host.schedule))
     except BuildError as error:
         raise BuildError(f"job {job.name}: {error}") from None
     write_json(report_path, build_report(host, image, fingerprint, sources))
@@ -111,7 +113,7 @@ def cmd_build(args) -> int:
     job = load_job(Path(args.job), args.target)
     host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
     print(f"built {out_dir / image.hex_path.name}: flash {image.flash_bytes} of {image.flash_capacity} bytes "
-          f"(tables {host.schedule.table_bytes()}), RAM {image.ram_bytes} of {image.ram_capacity} bytes")
+          f"(tables {stream_bytes(host.schedule)}), RAM {image.ram_bytes} of {image.ram_capacity} bytes")
     print(human_plan(plan_summary(host)))
     return 0
 

@@ -15,7 +15,7 @@ from codegen.errors import BuildError
 from codegen.firmware.avr.tune import build_tune_image, tune_setup
 from codegen.heaters.control import PID_PERIOD_S, fixed_gains, max_duty
 from codegen.heaters.plant import heating_figures, simulate
-from codegen.heaters.settings import heater_settings
+from codegen.program.heater_settings import heater_settings
 from codegen.job import load_job
 from codegen.link.tune import TuneHost, heaters_snippet
 

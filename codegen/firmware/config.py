@@ -11,6 +11,7 @@ from codegen.errors import BuildError
 from codegen.tables.hold import HoldPlan
 from codegen.motion.jog import JogPlan
 from codegen.tables.laser import LaserPwm
+from codegen.program.homing import HomingAxis
 
 
 @dataclass(frozen=True)
@@ -20,26 +21,6 @@ class MotorPins:
     name: str  # the job's motor name: x, y, z, e, a, b, c
     socket: str  # the board's stepper socket: X, Y, Z, E0, E1
     invert_dir: bool = False
-
-
-@dataclass(frozen=True)
-class HomingAxis:
-    """How one axis homes: its motors step together towards its switch fast, back off, towards it again
-    slowly. A cartesian or delta axis is one motor; a corexy x or y moves both belts (a and b)."""
-
-    motors: tuple[int, ...]  # indices into FirmwareConfig.motors, stepping at the same events
-    motor_directions: tuple[int, ...]  # per motor, +1 / -1: the way it steps (its own coordinate) towards the switch
-    switch: str  # the board's endstop name: x_min, x_max, y_min, y_max, z_min, z_max
-    direction: int  # +1 / -1: the way the axis moves (in machine coordinates) to reach the switch
-    max_steps: int  # a switch that has not closed after this many steps stops the machine in an error state
-    fast_interval: int  # timer ticks between steps on the first approach
-    slow_interval: int  # timer ticks between steps on the second approach
-    backoff_steps: int  # steps away from the switch between the approaches
-    round: int = 0  # rounds home one after another (corexy: x, then y), the axes of one round together
-
-    def label(self, motor_names) -> str:
-        """The axis in messages and generated names: its motor's name, or for several its switch's axis (x)."""
-        return motor_names[self.motors[0]] if len(self.motors) == 1 else self.switch.split("_")[0]
 
 
 @dataclass(frozen=True)

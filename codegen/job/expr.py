@@ -56,18 +56,6 @@ class Expr:
         with np.errstate(all="ignore"):
             return np.broadcast_to(self._eval(x), x.shape).astype(float)
 
-    def derivative(self) -> Expr:
-        """d/dx, simplified trivially (0*, 1*, +0, constants folded); again an expression of the language."""
-        from codegen.job.calculus import derivative
-
-        return derivative(self)
-
-    def bound(self, lo: float, hi: float) -> tuple[float, float] | None:
-        """A guaranteed enclosure of f over [lo, hi], or None where f may be undefined or overflow there."""
-        from codegen.job.calculus import bound
-
-        return bound(self, lo, hi)
-
     def _eval(self, x: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 

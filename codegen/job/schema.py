@@ -344,7 +344,7 @@ class Machine(_Model):
     delta: Optional[Delta] = None
     link: Link = Link()
     jog: Optional[Jog] = None  # jog keys before the job (codegen/motion/jog.py); None: no jog mode
-    heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.heaters.settings)
+    heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.program.heater_settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
     feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none
 

@@ -56,6 +56,8 @@ import json
 import struct
 from dataclasses import dataclass, field
 
+import codegen.tables.format as table_format
+from codegen.heaters.protection import REASONS
 from codegen.tables.format import LONG_RUN_BYTES, end_marker, long_block_bytes
 
 VERSION = 1
@@ -151,10 +153,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
     """32 bits naming what a streaming firmware can play: the protocol and table format, the board, the motors
     and their sockets, pulse timing, homing, clocks, heaters, laser, jog keys. The job's program and name do not
     count."""
-    import codegen.tables.format as tables
-
     canonical = {
-        "protocol": VERSION, "tables": tables.__doc__.split("\n\n")[0], "board": config.board,
+        "protocol": VERSION, "tables": table_format.__doc__.split("\n\n")[0], "board": config.board,
         "target": config.target, "motors": [[m.name, m.socket, m.invert_dir] for m in config.motors],
         "step_pulse_us": config.step_pulse_us, "dir_setup_us": config.dir_setup_us,
         "homing": [repr(h) for h in config.homing], "f_cpu": f_cpu, "tick_hz": tick_hz,
@@ -225,8 +225,6 @@ class Fault:
 
     @staticmethod
     def parse(payload: bytes, motors: int) -> "Fault":
-        from codegen.heaters.protection import REASONS
-
         reason, heater = payload[0], payload[1]
         name = REASONS[reason - 1] if 1 <= reason <= len(REASONS) else f"reason {reason}"
         return Fault(name, heater, positions(payload, motors, 2))

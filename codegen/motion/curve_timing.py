@@ -25,16 +25,14 @@ may use that headroom (for rates up to 98.5 %: the compressor's windows may add 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
+from codegen.motion.blocks import Events
 from codegen.motion.planner import Plan, quantisation_factor
 from codegen.toolpath.segments import Segments
 
-if TYPE_CHECKING:  # stepgen calls this module while it makes the events
-    from codegen.motion.stepgen import Events
 
 # Of every motor's rate: the compressor's windows (5 % of a gap either way) may shorten 8 steps by 2 x 5 % of one
 # gap, 1.25 %, and 0.985 x 1.0125 < 1.

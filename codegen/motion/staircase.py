@@ -12,13 +12,11 @@ import ctypes
 
 import numpy as np
 
-from codegen.tables.checks import step_length_mm
 from codegen.kinematics.base import Kinematics
+from codegen.motion.blocks import MAX_MODULUS, bresenham, bresenham_init
 from codegen.native import contiguous, library, pointer
-from codegen.tables.schedule import MAX_MODULUS
 from codegen.toolpath.segments import Segments
-from codegen.motion.stepgen import bresenham_init, segment_steps
-from codegen.tables.twin import bresenham
+from codegen.motion.stepgen import segment_steps
 
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4
@@ -27,7 +25,7 @@ REFINE_ROUNDS = 4
 def refine(segments: Segments, kin: Kinematics) -> Segments:
     """Cut the blocks whose Bresenham staircase strays too far from their segment (the rounding of a block's
     two ends can tilt it): a few rounds, each looking only at the pieces the previous round cut."""
-    limit = STAIRCASE_LIMIT * step_length_mm(kin)
+    limit = STAIRCASE_LIMIT * kin.path_quantum()  # one step of the coarsest motor
     look = np.flatnonzero(staircase_bound(segments, kin) > limit)  # the others provably stay close
     for _ in range(REFINE_ROUNDS):
         bad = look[staircase_error(segments, kin, look) > limit]

@@ -9,29 +9,16 @@ block of step-less events that carry its time.
 from __future__ import annotations
 
 import ctypes
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from codegen.motion.curve_timing import CurveBlocks, curve_blocks, retime
 from codegen.kinematics.base import Kinematics
+from codegen.motion.blocks import Events, bresenham_init
 from codegen.native import contiguous, library, pointer
 from codegen.motion.planner import Plan
 from codegen.toolpath.segments import Segments
-
-
-@dataclass
-class Events:
-    """Blocks and the ideal time (s) of each of their events, in program order."""
-
-    block_segment: np.ndarray  # (B,) segment index
-    block_steps: np.ndarray  # (B, M) signed steps
-    block_modulus: np.ndarray  # (B,)
-    block_init: np.ndarray  # (B, M) Bresenham accumulator starts
-    block_tool: np.ndarray  # (B,) bool
-    block_first: np.ndarray  # (B + 1,) index of each block's first event
-    time: np.ndarray  # (E,) s
-    phase: np.ndarray  # (E,) 0 accelerating, 1 cruising, 2 decelerating, 3 dwell
 
 
 def segment_steps(segments: Segments, kin: Kinematics) -> np.ndarray:
@@ -120,22 +107,3 @@ def _times(segments: Segments, plan: Plan, master: _Crossings, blocks: np.ndarra
         time = np.where(is_dwell, dwell_time, time)
         phase = np.where(is_dwell, 3, phase)
     return time, phase
-
-
-def bresenham_init(x0: np.ndarray, x1: np.ndarray, master: np.ndarray, steps: np.ndarray,
-                   modulus: np.ndarray) -> np.ndarray:
-    """Accumulator starts that keep each slave near the exact line, not the line between rounded ends.
-
-    When the master reaches step P0 + i, the slave's exact count is i * |slope| + beta (its position minus
-    its rounded start). The player makes ceil((i * d - init) / N) steps, about i * d / N - init / N + 1/2.
-    The rounded total d differs from N * |slope|, so init centres the difference at the block's middle.
-    """
-    rows = np.arange(len(master))
-    mx0, mx1 = x0[rows, master], x1[rows, master]
-    span = (mx1 - mx0)[:, None]
-    slope = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
-    beta = ((x0 - np.round(x0)) + (np.round(mx0)[:, None] - mx0[:, None]) * slope) * np.sign(steps)
-    n = modulus[:, None].astype(float)
-    init = np.round(n * (0.5 - beta) + 0.5 * n * (np.abs(steps) - n * np.abs(slope)))
-    init = np.where(steps != 0, init, modulus[:, None] >> 1)
-    return np.clip(init, 0, modulus[:, None] - 1).astype(np.int64)

@@ -16,7 +16,8 @@ from codegen import progress
 from codegen.tables.checks import Findings, MotorTrain
 from codegen.tables.compress import Compressed
 from codegen.errors import BuildError, Diagnostic
-from codegen.firmware.config import FirmwareConfig, HeaterFirmware, HomingAxis, MotorPins
+from codegen.firmware.config import FirmwareConfig, HeaterFirmware, MotorPins
+from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.heaters import job_heaters, stream_heaters
 from codegen.program.heaters import HeaterProgram, heater_diagnostics
 from codegen.tables.hold import RAMP_SHARE, HoldPlan, hold_plan, plans_ramp_share
@@ -34,9 +35,9 @@ from codegen.program.program import Program
 from codegen.tables.runtime import RuntimeRecords, played_outputs, runtime_records, with_runtime
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
 from codegen.tables.format import RUNTIME_BYTES
-from codegen.heaters.settings import heater_settings
+from codegen.program.heater_settings import heater_settings
 from codegen.toolpath.segments import Flattener, Segments
-from codegen.motion.stepgen import Events
+from codegen.motion.blocks import Events
 from codegen.stopwatch import Stopwatch
 from codegen.targets import TargetInfo, target_info
 from codegen.tables.twin import Pulses

@@ -10,7 +10,7 @@ from codegen.tables.compress import Compressed
 from codegen.motion.planner import Plan
 from codegen.tables.schedule import Schedule
 from codegen.toolpath.segments import Segments, concat
-from codegen.motion.stepgen import Events
+from codegen.motion.blocks import Events
 from codegen.tables.twin import Pulses
 from codegen.pipeline.windows import Played
 

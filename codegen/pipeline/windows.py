@@ -35,9 +35,10 @@ from codegen.tables.runtime import RuntimeRecords, block_extra_ticks, runtime_cy
 from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
                              segment_lengths)
 from codegen.toolpath.segments import Segments, concat
-from codegen.motion.stepgen import Events, generate
+from codegen.motion.blocks import Events
+from codegen.motion.stepgen import generate
 from codegen.stopwatch import Stopwatch
-from codegen.tables.format import encode, end_marker, record_events
+from codegen.tables.format import encode, end_marker, record_events, stream_bytes
 from codegen.targets import TargetInfo
 from codegen.tables.twin import Pulses, predict
 
@@ -89,7 +90,7 @@ class Totals:
         self.blocks += sched.n_blocks
         self.runs += sched.n_runs
         self.events += played.events_count
-        self.table_bytes += sched.table_bytes() - (end if self.table_bytes else 0)
+        self.table_bytes += stream_bytes(sched) - (end if self.table_bytes else 0)
         self.max_timing_error_ticks = max(self.max_timing_error_ticks, played.timing_error_ticks)
         self.max_power_error = max(self.max_power_error, played.power_error)
         self.power_records += sched.n_power
@@ -221,10 +222,10 @@ class Stages:
         ceiling_bytes = 0
         if self.hold is not None and len(events.time):
             with watch("feed ceilings"):  # they change no pulse
-                was = compressed.schedule.table_bytes()
+                was = stream_bytes(compressed.schedule)
                 compressed.schedule = with_ceilings(compressed.schedule, self.hold, pulses, before.position,
                                                     self.max_rate, kin.limits.max_accel * kin.limits.steps_per_mm)
-                ceiling_bytes = compressed.schedule.table_bytes() - was
+                ceiling_bytes = stream_bytes(compressed.schedule) - was
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep else None, pulses if self.keep or self.observe else None,

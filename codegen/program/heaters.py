@@ -43,7 +43,7 @@ def code(item: Output) -> str:
 
 
 def _defaults() -> str:
-    """The board's default heaters in words (codegen.heaters.settings)."""
+    """The board's default heaters in words (codegen.program.heater_settings)."""
     pid, bang = DEFAULT_CONTROL["hotend"]["pid"], DEFAULT_CONTROL["bed"]["bang_bang"]
     pullup_k = Heater.model_fields["pullup_ohm"].default / 1000
     return (f"hotend and bed: {DEFAULT_SENSOR} on a {pullup_k:g} kOhm pull-up; hot end PID kp {pid['kp']:g}, "

@@ -11,11 +11,11 @@ which a switch that never closed is a fault, and where the tool then is.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from codegen.errors import Diagnostic, JobError
-from codegen.firmware.config import HomingAxis
 from codegen.kinematics.base import Kinematics
 
 # kinematics -> its homed axes: (board endstop, the axis's direction towards it, {motor: its direction}, round)
@@ -27,6 +27,26 @@ AXES = {
 }
 TRAVEL_MARGIN = 1.2  # a switch may be this much further than the machine's travel before it is a fault
 DEFAULT_TRAVEL_MM = 1000.0  # an axis without a `range` (a corexy's x and y)
+
+
+@dataclass(frozen=True)
+class HomingAxis:
+    """How one axis homes: its motors step together towards its switch fast, back off, towards it again
+    slowly. A cartesian or delta axis is one motor; a corexy x or y moves both belts (a and b)."""
+
+    motors: tuple[int, ...]  # indices into FirmwareConfig.motors, stepping at the same events
+    motor_directions: tuple[int, ...]  # per motor, +1 / -1: the way it steps (its own coordinate) towards the switch
+    switch: str  # the board's endstop name: x_min, x_max, y_min, y_max, z_min, z_max
+    direction: int  # +1 / -1: the way the axis moves (in machine coordinates) to reach the switch
+    max_steps: int  # a switch that has not closed after this many steps stops the machine in an error state
+    fast_interval: int  # timer ticks between steps on the first approach
+    slow_interval: int  # timer ticks between steps on the second approach
+    backoff_steps: int  # steps away from the switch between the approaches
+    round: int = 0  # rounds home one after another (corexy: x, then y), the axes of one round together
+
+    def label(self, motor_names) -> str:
+        """The axis in messages and generated names: its motor's name, or for several its switch's axis (x)."""
+        return motor_names[self.motors[0]] if len(self.motors) == 1 else self.switch.split("_")[0]
 
 
 def homes(job, leading_g28: bool) -> bool:

@@ -8,20 +8,18 @@ from pathlib import Path
 import numpy as np
 
 from codegen import __version__
-from codegen.cli.config import job_fingerprint
+from codegen.program.normalized import job_fingerprint
 from codegen.pipeline.host import HostBuild
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
-
-
-def _round(value: float, digits: int = 6) -> float:
-    return float(round(value, digits))
+from codegen.tables.format import stream_bytes
+from codegen.verify.results import positions, rounded
 
 
 def plan_summary(host: HostBuild) -> dict:
     f, totals = host.findings, host.totals
     return {
         "job": host.job.name,
-        "duration_s": _round(totals.duration_s),
+        "duration_s": rounded(totals.duration_s),
         "table_bytes": totals.table_bytes,
         "segments": totals.segments,
         "windows": totals.windows,
@@ -30,12 +28,12 @@ def plan_summary(host: HostBuild) -> dict:
         "events": totals.events,
         "motors": {
             name: {"steps": f.steps[name], **positions(host, f, name),
-                   "max_rate_ratio": _round(f.rate_ratio[name], 4), "max_accel_ratio": _round(f.accel_ratio[name], 4)}
+                   "max_rate_ratio": rounded(f.rate_ratio[name], 4), "max_accel_ratio": rounded(f.accel_ratio[name], 4)}
             for name in host.kin.motors
         },
-        "max_path_error_mm": _round(f.max_path_error_mm),
-        "path_limit_mm": _round(f.path_limit_mm),
-        "max_timing_error_us": _round(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
+        "max_path_error_mm": rounded(f.max_path_error_mm),
+        "path_limit_mm": rounded(f.path_limit_mm),
+        "max_timing_error_us": rounded(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
         "pass": f.ok,
         "problems": list(f.problems),
         **(host.link_plan.summary() if host.link_plan is not None else {}),
@@ -48,7 +46,7 @@ def plan_summary(host: HostBuild) -> dict:
 def feed_hold_plan(host: HostBuild) -> dict:
     """Feed hold's ramp and keys, and the override's ceiling records (codegen/tables/headroom.py) with their bytes."""
     plan = host.hold_plan
-    return {"ramp_s": _round(plan.ramp_seconds(host.target.tick_hz), 4), "max_override_pct": plan.max_step * 10,
+    return {"ramp_s": rounded(plan.ramp_seconds(host.target.tick_hz), 4), "max_override_pct": plan.max_step * 10,
             "ceiling_records": host.totals.ceiling_records,
             "ceiling_bytes": host.totals.ceiling_bytes, "keys": dict(plan.keys)}
 
@@ -56,9 +54,9 @@ def feed_hold_plan(host: HostBuild) -> dict:
 def laser_plan(host: HostBuild) -> dict:
     """A laser's PWM and the tables' power records (codegen/tables/laser.py)."""
     laser = host.laser
-    return {"pin": laser.pin, "pwm_hz": _round(laser.actual_hz, 3), "top": laser.top,
+    return {"pin": laser.pin, "pwm_hz": rounded(laser.actual_hz, 3), "top": laser.top,
             "power_records": host.totals.power_records,
-            "max_power_error_pct": _round(100 * host.totals.max_power_error, 4)}
+            "max_power_error_pct": rounded(100 * host.totals.max_power_error, 4)}
 
 
 def heaters_plan(host: HostBuild) -> dict:
@@ -75,7 +73,7 @@ def heaters_plan(host: HostBuild) -> dict:
 
 
 def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, str]) -> dict:
-    table = host.schedule.table_bytes()
+    table = stream_bytes(host.schedule)
     sections = dict(image.sections)
     return {
         "printer_codegen": __version__,
@@ -85,7 +83,7 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
         "board": host.target.board,
         "mcu": host.target.mcu,
         "fingerprint": fingerprint,
-        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/cli/config.py)
+        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/program/normalized.py)
         "image": {
             "hex": image.hex_path.name,
             "elf": image.elf_path.name if image.elf_path else None,
@@ -103,51 +101,8 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
     }
 
 
-def positions(host: HostBuild, f, name: str) -> dict:
-    """A motor's end (CLI.md): `final` and `expected_final` count from its position when the program began
-    (after any homing); `end_position` and `expected_end_position` are absolute steps."""
-    start = int(host.start_steps[host.kin.motors.index(name)])
-    return {"final": f.final[name] - start, "expected_final": f.expected_final[name] - start,
-            "end_position": f.final[name], "expected_end_position": f.expected_final[name]}
-
-
 def write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n", encoding="utf-8")
-
-
-def verify_json(host: HostBuild, verdict, image) -> dict:
-    f = verdict.findings
-    return {
-        "pass": verdict.ok,
-        "target": host.target.target,
-        "board": host.target.board,
-        "duration_s": _round(verdict.duration_s),
-        "planned_duration_s": _round(verdict.planned_duration_s),
-        "max_path_error_mm": _round(f.max_path_error_mm) if verdict.path_measured else None,
-        "path_limit_mm": _round(f.path_limit_mm),
-        "not_compared": verdict.not_compared,
-        "motors": {
-            name: {
-                "steps": f.steps[name],
-                **positions(host, f, name),
-                "max_timing_error_us": (None if name not in verdict.timing_error_us
-                                        else _round(verdict.timing_error_us[name], 3)),
-                "max_rate_ratio": _round(f.rate_ratio[name], 4),
-                "max_accel_ratio": _round(f.accel_ratio[name], 4),
-                "min_pulse_us": _round(verdict.pulse_width_us.get(name, 0.0), 3),
-                "min_dir_setup_us": (None if verdict.dir_setup_us.get(name) is None
-                                     else _round(verdict.dir_setup_us[name], 3)),
-            }
-            for name in host.kin.motors
-        },
-        "start_offset_us": _round(verdict.latency_us, 3),
-        "homing": verdict.homing,
-        "display": verdict.display,
-        **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
-        "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
-                  "table_bytes": host.schedule.table_bytes()},
-        "problems": verdict.problems + f.problems,
-    }
 
 
 def write_trace(path: Path, host: HostBuild, trace) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from codegen.job.calculus import bound, derivative
 from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, split_chords
 from codegen.toolpath.items import Item
 
@@ -18,8 +19,8 @@ _NEAR = 1e-9  # relative half-width of the interval looked at when telling why a
 
 def function(shape, pen: Pen) -> list[Item]:
     f = shape.expr
-    slope = f.derivative()
-    bend = slope.derivative()
+    slope = derivative(f)
+    bend = derivative(slope)
     start, stop = float(shape.x[0]), float(shape.x[1])
     x0, y0 = float(shape.origin[0]), float(shape.origin[1])
 
@@ -63,7 +64,7 @@ def _enclose(expr, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """The expression's enclosure on each [lo_i, hi_i]; nan where it has none."""
     low, high = np.full(lo.shape, np.nan), np.full(lo.shape, np.nan)
     for i, (a, b) in enumerate(zip(lo.tolist(), hi.tolist())):
-        found = expr.bound(a, b)
+        found = bound(expr, a, b)
         if found is not None:
             low[i], high[i] = found
     return low, high
@@ -75,6 +76,6 @@ def _why(f, err: ChordError, tolerance: float, text: str, span: float) -> str:
                 f"(y = {text})")
     t = 0.0 if abs(err.t) <= 1e-12 * span else err.t  # converging on 0 without reaching it
     near = _NEAR * max(1.0, abs(err.t))
-    if f.bound(err.t - near, err.t + near) is None:
+    if bound(f, err.t - near, err.t + near) is None:
         return f"function y is not defined or not bounded near x={t:g} (y = {text})"
     return f"function y: cannot bound the curvature near x={t:g} (y = {text})"

@@ -26,6 +26,7 @@ from codegen.firmware.avr.image import Pin, board_pins, load_target
 from codegen.firmware.avr.homing import homing_ticks_bound
 from codegen.firmware.avr.laser import laser_ocr_address
 from codegen.firmware.avr.player import START_TICKS
+from codegen.sim.avr_keys import jog_positions, key_args
 from codegen.sim.keys import session
 
 HARNESS_SOURCE = Path(__file__).with_name("simavr_harness.c")
@@ -186,8 +187,6 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     keyed: tuple = ([], [], 0)
     keys = session(config, keys)
     if keys is not None:
-        from codegen.sim.avr_keys import key_args  # here: that module builds on the firmware's
-
         keyed = key_args(config, keys, Path(hex_path).with_name("firmware.elf"), f_cpu)
         cycle_budget = int(cycle_budget) + int(max(k.release_s for k in keys) * f_cpu)
     with tempfile.TemporaryDirectory(prefix="printer-codegen-sim-") as tmp:
@@ -214,8 +213,6 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     status = [int(fields.get(k, "0")) for k in ("status", "status1", "status2")]
     trace = decode_edges(rec, config, state, cycles, tick0, _homing_fault(config, *status))
     if keys is not None:
-        from codegen.sim.avr_keys import jog_positions
-
         trace.jog_positions = jog_positions(fields["dump"], *keyed[1:])
     return trace
 

@@ -25,7 +25,7 @@ from codegen.native import contiguous, library, pointer
 from codegen.motion.planner import quantisation_factor
 from codegen.tables.runfit import fit_runs, fit_runs_native
 from codegen.tables.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
-from codegen.motion.stepgen import Events
+from codegen.motion.blocks import Events
 
 
 # Of a motor's rate that catching up may use (the planner keeps 2 %): the windows (5 % of a gap either way) may

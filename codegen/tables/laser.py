@@ -29,7 +29,7 @@ from codegen.tables.hold import F_ONE
 from codegen.motion.planner import Plan
 from codegen.tables.schedule import Schedule, in_force, split_runs
 from codegen.toolpath.segments import Segments
-from codegen.motion.stepgen import Events
+from codegen.motion.blocks import Events
 
 POWER_STEP = 0.01  # of full scale: M4's power steps
 PWM_PRESCALERS = (1, 8, 64, 256, 1024)  # Timer5's

@@ -45,9 +45,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from codegen.motion.blocks import MAX_MODULUS
+
 FRAC_BITS = 8
 FRAC_ONE = 1 << FRAC_BITS
-MAX_MODULUS = 32767
 MAX_COUNT = 65534  # a long run's count 0xFFFF is a ceiling record's mark (codegen/tables/format.py)
 MAX_INTERVAL = (1 << 32) - 1  # 24.8 fixed point: just under 2**24 ticks
 MAX_ADD = (1 << 23) - 1
@@ -112,11 +113,6 @@ class Schedule:
     def n_ceiling(self) -> int:
         """Ceiling records (the feed override's headroom, before the runs whose run_ceiling is >= 0)."""
         return int(np.count_nonzero(self.run_ceiling >= 0))
-
-    def table_bytes(self) -> int:
-        """Size of the encoded stream, end marker included."""
-        from codegen.tables.format import stream_bytes  # the stream's module imports this one
-        return stream_bytes(self)
 
     def block_flags(self) -> np.ndarray:
         bits = (self.block_dirs > 0).astype(np.int64) << np.arange(len(self.motors))[None, :]

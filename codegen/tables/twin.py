@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.native import contiguous, library, pointer
+from codegen.motion.blocks import bresenham
 from codegen.tables.schedule import FRAC_BITS, Schedule
 
 
@@ -56,28 +57,6 @@ def event_ticks(schedule: Schedule, origin_fx: int = 0) -> np.ndarray:
     k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n) + 1
     pos = origin[run] + k * interval[run] + add[run] * (k * (k - 1) // 2)
     return pos >> FRAC_BITS
-
-
-def bresenham(block_steps: np.ndarray, modulus: np.ndarray, init: np.ndarray,
-              events_per_block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per event: its block, which motors step (E, M) bool, and positions after it (E, M), counted from
-    the first block's start.
-
-    `block_steps` is signed. After i events of a block motor m has stepped ceil((i*d - init) / N) times;
-    in float64 that is exact (i*d < 2**31, and a non-integer quotient is at least 1/N from the next one)."""
-    block = np.repeat(np.arange(len(modulus), dtype=np.int64), events_per_block)
-    first = np.cumsum(events_per_block) - events_per_block
-    i = np.arange(len(block), dtype=np.float64) - first[block] + 1.0
-    d = np.abs(block_steps).astype(np.float64)
-    done = np.ceil((i[:, None] * d[block] - init[block]) / modulus[block][:, None].astype(np.float64))
-    done = done.astype(np.int32)
-    before = np.empty_like(done)  # steps done after the previous event of the same block
-    before[1:] = done[:-1]
-    before[first[events_per_block > 0]] = 0
-    stepped = done != before
-    base = (np.cumsum(block_steps, axis=0) - block_steps)[block]  # where each block starts
-    position = base + done * np.sign(block_steps)[block]
-    return block, stepped, position
 
 
 def predict(schedule: Schedule, origin_fx: int = 0, position: np.ndarray | None = None) -> Pulses:

@@ -33,13 +33,14 @@ from codegen.errors import Diagnostic, JobError, SourceRef, suggest
 from codegen.firmware.config import HeaterFirmware
 from codegen.firmware.avr.heaters import SETTLE_PERIODS, SETTLE_WINDOW_DC
 from codegen.firmware.avr.homing import homing_ticks_bound
-from codegen.heaters.settings import heater_settings
+from codegen.program.heater_settings import heater_settings
 from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
 from codegen.pipeline.host import HostBuild
-from codegen.report.summaries import verify_json
+from codegen.verify.results import verify_json
 from codegen.sim.avr import SimTrace, switch_thresholds
 from codegen.sim.avr_plant import FAULTS, Fault, HeaterPlant, HeaterRun, heater_summary, simulate_heaters
 from codegen.verify.compare import MAX_TIMING_ERROR_US, compare, planned_stepping_s, simulated_switches
+from codegen.tables.format import stream_bytes
 
 HEAT_LIMIT_S = 600.0  # simulated: the start sequence's waits are over by then, or the run fails
 HELD_AFTER_FACTOR, HELD_AFTER_S = 1.2, 1.0  # a holding image's run ends the table's planned duration x 1.2 + 1 s
@@ -272,7 +273,7 @@ def trip_result(host: HostBuild, run: HeaterRun, image) -> dict:
         "planned_duration_s": round(planned_stepping_s(host), 6),
         "motors": motors,
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
-                  "table_bytes": host.schedule.table_bytes()},
+                  "table_bytes": stream_bytes(host.schedule)},
         "problems": [f"heater {run.trip_heater} tripped: {run.trip} at {run.trip_s:.2f} s simulated"] + problems,
     }
 

@@ -13,10 +13,16 @@ from codegen import progress
 from codegen.errors import BuildError
 from codegen.link import protocol
 from codegen.pipeline.host import HostBuild
-from codegen.report.summaries import verify_json
+from codegen.verify.results import verify_json
 from codegen.pipeline.streaming import SIM_MODULES
 from codegen.sim.avr import simulate
+from codegen.sim.avr_plant import simulate_heaters
+from codegen.sim.mcs51 import simulate as simulate_51
+from codegen.sim.mcs51_keys import seen_at
 from codegen.verify.compare import simulated_switches
+from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, hold_problems,
+                                    job_plants, on_twin_clock, wait_ticks)
+from codegen.verify.stream import ShownSession, new_link, session_budget_s, stream_result
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
@@ -60,16 +66,11 @@ class S51FlashRun(FlashRun):
     display's updates, so each press reaches the firmware at the first poll that sees it."""
 
     def tick0(self, pauses: bool) -> int:
-        from codegen.sim.mcs51 import simulate as simulate_51
-
         held = [("resume", 1, MAX_CLOCK)] if pauses else []  # down all along: every M0/M1 goes on at once
         return simulate_51(self.image.hex_path, self.config, self.budget, switches=self.switches,
                            hold_keys=held).timer_start_cycle
 
     def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
-        from codegen.sim.mcs51 import simulate as simulate_51
-        from codegen.sim.mcs51_keys import seen_at
-
         hold = int(PRESS_S * self.f_cpu)
         keys = [(function, cycle, cycle + hold) for function, cycle in presses]
         budget = int(self.budget * slower) + max((c for _, c in presses), default=0) + int(2 * self.f_cpu)
@@ -85,9 +86,6 @@ class HeatedRun(FlashRun):
 
     def __init__(self, host: HostBuild, image):
         super().__init__(host, image)
-        from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR,  # here: it builds on the CLI's
-                                            HELD_AFTER_S, job_plants, wait_ticks)
-
         self.plants = job_plants(host.job, self.config)
         self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
@@ -99,8 +97,6 @@ class HeatedRun(FlashRun):
         self.heated = None
 
     def _run(self, keys: list, slower: float):
-        from codegen.sim.avr_plant import simulate_heaters
-
         return simulate_heaters(self.image.hex_path, self.config, self.seconds * slower, self.plants, (),
                                 self.switches, self.held_after_s * slower, presses=keys)
 
@@ -115,8 +111,6 @@ class HeatedRun(FlashRun):
         return self.start
 
     def run(self, presses: list[tuple[str, int, int]], slower: float) -> tuple[object, list[int]]:
-        from codegen.verify.heaters import on_twin_clock
-
         refuse_before(presses, self.start, self.after, self.f_cpu)
         pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
         keys = [(pins[function], cycle + self.shift, cycle + self.shift + hold) for function, cycle in presses]
@@ -185,16 +179,11 @@ class StreamRun:
         self.link = self.figures = self.heated = None
         self.waits = None
         if host.heaters:
-            from codegen.verify.heaters import wait_ticks  # here: it builds on the CLI's
-
             self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
         self.start = self.shift = self.after = 0  # as HeatedRun's
 
     def _session(self, scripted: Scripted, slower: float):
-        from codegen.cli.stream import ShownSession, session_budget_s  # here: the CLI builds on this module
-        from codegen.verify.heaters import job_plants
-
         simulator = importlib.import_module(SIM_MODULES[self.setup.target.target])
         budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
         config = self.setup.config
@@ -208,8 +197,6 @@ class StreamRun:
         return self.heated.steps, figures
 
     def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:
-        from codegen.cli.stream import new_link  # here: the CLI builds on this module
-
         return Scripted(new_link(self.host, self.setup), script, self.f_cpu, resume_every)
 
     def tick0(self, pauses: bool) -> int:
@@ -232,14 +219,10 @@ class StreamRun:
         for i, cycle in zip(order, scripted.arrived):
             arrived[i] = cycle - self.shift
         if self.heated is not None:
-            from codegen.verify.heaters import on_twin_clock
-
-            trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
+                trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
         return trace, arrived
 
     def result(self, verdict, trace) -> dict:
-        from codegen.cli.stream import stream_result
-
         result = stream_result(self.host, self.link, self.figures, trace, verify_json(self.host, verdict, self.image))
         return result if self.heated is None else with_heaters(result, self.host, self.heated, self.waits)
 
@@ -261,8 +244,6 @@ def refuse_before(presses: list[tuple[str, int]], start: int, after: int, f_cpu:
 
 def with_heaters(result: dict, host: HostBuild, run, waits) -> dict:
     """verify's result with the heaters' figures and the waits' holds (codegen/verify/heaters.py)."""
-    from codegen.verify.heaters import heater_figures, hold_problems
-
     result["problems"] += hold_problems(run.steps, waits)
     result["pass"] = result["pass"] and not result["problems"]
     result.update(heater_figures(host, run, waits, None), faults=[])

@@ -24,7 +24,7 @@ from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID
 from codegen.heaters.protection import REASONS
 from codegen.program.heaters import HeaterProgram
 from codegen.tables.schedule import HEATER_COMMANDS, RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT, WAIT_MASKS
-from codegen.heaters.settings import HeaterSettings, heater_settings
+from codegen.program.heater_settings import HeaterSettings, heater_settings
 
 PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
 SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...
@@ -57,7 +57,7 @@ TIMER_SETUP = {
 
 
 def heater_firmware(settings: HeaterSettings, pins: tuple[str, str]) -> HeaterFirmware:
-    """A job's heater (codegen.heaters.settings) as the firmware's config, on the board's pins (MOSFET and
+    """A job's heater (codegen.program.heater_settings) as the firmware's config, on the board's pins (MOSFET and
     thermistor: codegen.targets.board_heater_pins)."""
     pwm_pin, sensor_pin = pins
     return HeaterFirmware(settings.name, pwm_pin, sensor_pin, tuple(int(v) for v in settings.table()),

@@ -22,7 +22,8 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HomingAxis
+from codegen.firmware.config import FirmwareConfig
+from codegen.program.homing import HomingAxis
 
 if TYPE_CHECKING:
     from codegen.firmware.avr.image import BoardPins

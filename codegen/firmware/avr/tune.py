@@ -19,7 +19,7 @@ from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.avr.image import CFLAGS, _check_integer_only, _run, load_target, parse_pin
 from codegen.firmware.avr.heaters import heater_firmware, heaters_context
 from codegen.heaters.control import PID_PERIOD_S
-from codegen.heaters.settings import HeaterSettings, heater_settings
+from codegen.program.heater_settings import HeaterSettings, heater_settings
 from codegen.heaters.tuning import RELAY_MIN_DWELL_S
 from codegen.firmware.render import render
 from codegen.targets import board_heater_pins

@@ -1,6 +1,6 @@
 """A job's heaters with every default filled in, and what the firmware needs of each.
 
-    from codegen.heaters.settings import heater_settings
+    from codegen.program.heater_settings import heater_settings
     for name, h in heater_settings(job).items():     # "hotend", "bed"
         h.table(), h.limits(), h.fixed_control(), h.fixed_protection(), h.plant
 

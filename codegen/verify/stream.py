@@ -1,0 +1,97 @@
+"""`verify --stream`: the job streamed to its streaming firmware in the simulator, through the host's own link
+code (codegen/link/host.py), and verify's result with the link's checks and figures."""
+
+from __future__ import annotations
+
+import importlib
+
+from codegen import progress
+import codegen.tables.format as tables
+from codegen.link.host import HostLink
+from codegen.pipeline.host import HostBuild
+from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, stream_chunks
+from codegen.verify.compare import compare, simulated_switches
+from codegen.verify.heaters import HEAT_LIMIT_S, heater_result, job_plants
+from codegen.verify.results import verify_json
+
+
+def simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tuple[dict, object]:
+    """The job streamed to its firmware in the simulator: verify's result (with `link`) and the trace (on the
+    simulated clock)."""
+    config = setup.config
+    link = new_link(host, setup)
+    simulator = importlib.import_module(SIM_MODULES[setup.target.target])
+    budget = session_budget_s(host, setup)
+    switches = simulated_switches(host)
+    cycles = int(budget * setup.target.f_cpu)
+    with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+        shown = ShownSession(link, bar)
+        if config.heaters:
+            run, figures = simulator.simulate_stream_heaters(image.hex_path, config, shown, cycles,
+                                                             job_plants(host.job, config), faults, switches)
+        else:
+            trace, figures = simulator.simulate_stream(image.hex_path, config, shown, cycles, switches=switches)
+    if config.heaters:
+        result, trace = heater_result(host, run, image, faults, switches, streamed=True)
+    else:
+        result = verify_json(host, compare(host, trace, switches, streamed=True), image)
+    return stream_result(host, link, figures, trace, result), trace
+
+
+class ShownSession:
+    """A simulated session's host (HostLink's interface, or a wrapper of it such as codegen/verify/hold_runs.py's
+    Scripted) whose stream bytes, as the firmware acknowledges them, move a progress bar; the session finds the
+    wrapped host as `link`."""
+
+    def __init__(self, link: HostLink, bar):
+        self.link, self.bar = link, bar
+
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)  # only for what this class does not define itself
+
+    def receive(self, data: bytes, now: float) -> None:
+        self.link.receive(data, now)
+        progress.move_to(self.bar, self.link.stats.data_bytes)
+
+
+def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
+    """The host's side of a simulated session: the job's table stream, as `stream` sends it."""
+    data = tables.encode(host.schedule).data
+    return HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in setup.config.heaters))
+
+
+def session_budget_s(host: HostBuild, setup: StreamSetup) -> float:
+    """Simulated seconds a session may take: the plan, the ring's fill and drain, a heat-up."""
+    return (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
+            + (HEAT_LIMIT_S if setup.config.heaters else 0.0))
+
+
+def stream_result(host: HostBuild, link: HostLink, figures, trace, result: dict) -> dict:
+    """verify's result of a session with the link's checks and figures (`link`)."""
+    problems = result["problems"]
+    if link.outcome not in ("finished", "fault"):
+        problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
+    expected = tuple(int(v) for v in host.pulses.final_positions())
+    if link.outcome == "finished" and link.position != expected:
+        problems.append(f"the firmware reports positions {list(link.position)} at the end, the twin "
+                        f"{list(expected)}")
+    if link.outcome == "fault":  # the positions it reports must be where its pulses took the motors
+        run = trace.run_only()
+        made = tuple(int(run.step_dir[run.step_motor == m].sum()) for m in range(len(host.kin.motors)))
+        if link.position != made:
+            problems.append(f"the firmware reports positions {list(link.position)} at the trip, its pulses made "
+                            f"{list(made)}")
+    if figures.lost_bytes:
+        problems.append(f"{figures.lost_bytes} received bytes were read too late: a real UART would have "
+                        f"lost them")
+    result["pass"] = result["pass"] and not problems
+    result["image"]["table_bytes"] = 0
+    result["link"] = {"baud": figures.baud, "bytes": figures.bytes, "frames": figures.frames,
+                      "retransmits": figures.retransmits, "min_ring_fill_bytes": figures.min_ring_fill_bytes,
+                      "underruns": figures.underruns, "lost_bytes": figures.lost_bytes,
+                      "planned_min_ring_fill_bytes": host.link_plan.min_ring_fill_bytes,
+                      "prefill_bytes": host.link_plan.prefill_bytes,
+                      "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
+    return result
