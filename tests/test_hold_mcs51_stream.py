@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli.stream import _firmware, new_link, streamed_host
+from codegen.cli.stream import _firmware, streamed_host
+from codegen.verify.stream import new_link
 from codegen.tables.hold import F_ONE
 from codegen.verify.hold_runs import StreamRun
 from codegen.job import load_job

@@ -14,7 +14,8 @@ import pytest
 
 from codegen.verify import hold_runs
 from codegen.cli.main import _build, main
-from codegen.cli.stream import _firmware, new_link, streamed_host
+from codegen.cli.stream import _firmware, streamed_host
+from codegen.verify.stream import new_link
 from codegen.errors import JobError
 from codegen.tables.hold import F_ONE
 from codegen.verify.hold_runs import Scripted

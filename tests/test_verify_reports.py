@@ -12,7 +12,7 @@ import pytest
 from codegen.cli.main import main
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
-from codegen.report.summaries import verify_json
+from codegen.verify.results import verify_json
 from codegen.sim.avr import simulate
 from codegen.verify.compare import compare, simulated_switches
 
