@@ -13,7 +13,7 @@ import pytest
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, HomingAxis, MotorPins
 from codegen.firmware.avr.image import build_image, render_sources
-from codegen.firmware.avr.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
+from codegen.firmware.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.sim.avr import PHASE_HOME, PHASE_RUN, simulate
 from tests.reference_player import play
 from tests.test_avr_firmware import make_schedule
