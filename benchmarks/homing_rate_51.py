@@ -21,9 +21,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.config import FirmwareConfig, MotorPins  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, MotorPins, load_target  # noqa: E402
 from codegen.program.homing import HomingAxis  # noqa: E402
-from codegen.firmware.avr.image import load_target  # noqa: E402
 from codegen.firmware.mcs51.image import build_image, render_sources  # noqa: E402
 from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402

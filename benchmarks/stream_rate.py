@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import codegen.tables.format as tables  # noqa: E402
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.avr.image import load_target  # noqa: E402
+from codegen.firmware.config import load_target  # noqa: E402
 from codegen.firmware.avr.stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
 from codegen.link import protocol  # noqa: E402
 from codegen.link.host import HostLink  # noqa: E402

@@ -39,7 +39,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import codegen.tables.format as tables  # noqa: E402
-from codegen.firmware.mcs51.image import MAP_FILE, SYMBOLS_FILE, read_map  # noqa: E402
+from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, read_map  # noqa: E402
 from codegen.firmware.mcs51.stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
 from codegen.link import protocol  # noqa: E402
 from codegen.link.host import HostLink, LinkStats  # noqa: E402

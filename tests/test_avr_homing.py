@@ -14,7 +14,7 @@ from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.image import build_image, render_sources
-from codegen.firmware.avr.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
+from codegen.firmware.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.sim.avr import PHASE_HOME, PHASE_RUN, simulate
 from codegen.tables.format import stream_bytes
 from tests.reference_player import play

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError, JobError
-from codegen.firmware.avr.image import parse_pin
+from codegen.firmware.avr.board import parse_pin
 from codegen.motion.jog import ACCEL_HEADROOM, RATE_HEADROOM, STILL, board_keys, direction_code, jog_plan
 from codegen.job import load_job
 

@@ -76,7 +76,7 @@ def test_bad_coil_boards_are_refused(tmp_path, monkeypatch):
     """Coil ports carry nothing that changes during the run; a socket has 4 coil pins on one port."""
     import shutil
 
-    import codegen.firmware.avr.image as avr
+    import codegen.firmware.config as firmware_config
     from codegen.paths import targets_dir
 
     folder = tmp_path / "targets"
@@ -91,15 +91,15 @@ def test_bad_coil_boards_are_refused(tmp_path, monkeypatch):
     }
     for k, (_, body) in enumerate(bad.items()):
         (folder / f"bad-{k}.yaml").write_text(body.replace("name: coil-51", f"name: bad-{k}"))
-    monkeypatch.setattr(avr, "targets_dir", lambda: folder)
-    avr.load_target.cache_clear()
+    monkeypatch.setattr(firmware_config, "targets_dir", lambda: folder)
+    firmware_config.load_target.cache_clear()
     try:
         sched = make_schedule(("x", "y"), COIL_SCHEDULE[:1])
         for k, message in enumerate(bad):
             with pytest.raises(BuildError, match=message):
                 render_sources(sched, config(("x", "y"), ("X", "Y"), board=f"bad-{k}"))
     finally:
-        avr.load_target.cache_clear()
+        firmware_config.load_target.cache_clear()
 
 
 COIL_JOB = """\

@@ -14,7 +14,8 @@ from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.program.homing import HomingAxis
 import codegen.tables.format as tables
-from codegen.firmware.mcs51.image import MAP_FILE, SYMBOLS_FILE, build_image, render_sources
+from codegen.firmware.mcs51.image import build_image, render_sources
+from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE
 from codegen.sim.mcs51 import simulate
 from codegen.tables.format import stream_bytes
 from tests.helpers import block_spans, make_schedule as hand_schedule
@@ -207,7 +208,7 @@ def test_step_pins_on_two_ports(tmp_path, monkeypatch):
     after the first port's; each motor keeps one constant latency."""
     import shutil
 
-    import codegen.firmware.avr.image as avr
+    import codegen.firmware.config as firmware_config
     from codegen.paths import targets_dir
 
     folder = tmp_path / "targets"
@@ -217,8 +218,8 @@ def test_step_pins_on_two_ports(tmp_path, monkeypatch):
         "target: mcs51\nmcu: at89c52\nenable_active_low: true\nsteppers:\n"
         "  X: {step: P1.0, dir: P1.1, enable: P3.6}\n  Y: {step: P2.5, dir: P2.6, enable: P3.7}\n"
         "tool: {pin: P3.4, active_high: true}\n")
-    monkeypatch.setattr(avr, "targets_dir", lambda: folder)
-    avr.load_target.cache_clear()
+    monkeypatch.setattr(firmware_config, "targets_dir", lambda: folder)
+    firmware_config.load_target.cache_clear()
     try:
         sched = make_schedule(("x", "y"), [
             ((1, -1), (40, 25), 40, (20, 3), True, [(900 * 256, -300, 20), (700 * 256, 0, 20)]),
@@ -226,7 +227,7 @@ def test_step_pins_on_two_ports(tmp_path, monkeypatch):
         cfg = config(("x", "y"), ("X", "Y"), board="two-ports")
         _, trace = build_and_run(sched, cfg, tmp_path / "out")
     finally:
-        avr.load_target.cache_clear()
+        firmware_config.load_target.cache_clear()
     pulses = play(sched)
     latency = []
     for m in range(2):

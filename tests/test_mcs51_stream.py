@@ -17,8 +17,8 @@ import codegen.tables.format as tables
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.program.homing import HomingAxis
-from codegen.firmware.avr.homing import homing_steps
-from codegen.firmware.mcs51.image import MAP_FILE
+from codegen.firmware.homing import homing_steps
+from codegen.firmware.mcs51.sdcc import MAP_FILE
 from codegen.firmware.mcs51.lcd import board_lcd
 from codegen.firmware.mcs51.stream import build_stream_image, render_stream_sources, ring_layout
 from codegen.link import protocol

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from codegen.cli.main import main
-from codegen.firmware.avr.image import _NOT_INTEGER_ONLY, _check_integer_only
+from codegen.firmware.avr.toolchain import NOT_INTEGER_ONLY, check_integer_only
 from codegen.firmware.avr.tune import build_tune_image, tune_setup
 from codegen.heaters.control import fixed_gains
 from codegen.heaters.plant import heating_figures, simulate
@@ -113,12 +113,12 @@ def test_a_thermistor_fault_mid_relay_stops_the_tune(hotend_image, fault, reason
 def test_the_tune_firmware_links_no_division_or_float(hotend_image):
     _image, hex_path = hotend_image
     elf = hex_path.with_suffix(".elf")
-    _check_integer_only(elf, elf.parent)  # the build's own check, again on the image it left
+    check_integer_only(elf, elf.parent)  # the build's own check, again on the image it left
     symbols = subprocess.run(["avr-nm", "--defined-only", str(elf)], capture_output=True, text=True,
                              check=True).stdout.split("\n")
     names = [line.split()[-1] for line in symbols if line.strip()]
     assert {"main", "__vector_25", "__vector_32"} <= set(names)  # USART0_RX and TIMER3_COMPA: its interrupts
-    assert not [n for n in names if _NOT_INTEGER_ONLY.match(n)]
+    assert not [n for n in names if NOT_INTEGER_ONLY.match(n)]
 
 
 @needs_tools

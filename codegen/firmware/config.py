@@ -5,11 +5,15 @@ from __future__ import annotations
 import re
 import subprocess
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
+
+import yaml
 
 from codegen.errors import BuildError
 from codegen.tables.hold import HoldPlan
 from codegen.motion.jog import JogPlan
+from codegen.paths import targets_dir
 from codegen.tables.laser import LaserPwm
 from codegen.program.homing import HomingAxis
 
@@ -55,6 +59,15 @@ class FirmwareConfig:
     jog: JogPlan | None = None  # jog keys at power-up, before homing and the table (codegen/motion/jog.py)
     hold: HoldPlan | None = None  # feed hold, resume and override keys (codegen/tables/hold.py; AVR flash image)
     hold_override: int = 100  # %: the override the image starts with
+
+
+@lru_cache(maxsize=None)
+def load_target(name: str) -> dict:
+    """A targets/<name>.yaml file (an MCU or a board)."""
+    path = targets_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise BuildError(f"unknown target or board `{name}` (no {path})")
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
 
 
 def board_pin_uses(board: dict, pin: re.Pattern, skip: set[str]) -> dict[str, str]:

@@ -21,9 +21,9 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.image import Pin, board_pins, load_target
-from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.avr.board import Pin, board_pins
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.avr.laser import laser_ocr_address
 from codegen.firmware.avr.player import START_TICKS
 from codegen.sim.avr_keys import jog_positions, key_args

@@ -7,8 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.image import load_target, parse_pin
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.avr.board import parse_pin
 from codegen.firmware.avr.jog import taken_pins
 from codegen.firmware.avr.stream import elf_symbols
 from codegen.motion.jog import board_keys

@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.image import board_pins, load_target
-from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.avr.board import board_pins
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.avr.stream import elf_symbols, ring_layout
 from codegen.link import protocol

@@ -18,8 +18,8 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.image import board_pins, load_target, parse_pin
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.avr.board import board_pins, parse_pin
 from codegen.firmware.avr.heaters import HEATERS_FAULT_BIT, PWM_CHANNELS, adc_channel
 from codegen.firmware.avr.player import START_TICKS
 from codegen.heaters.control import PID_PERIOD_S

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware.avr.image import parse_pin
+from codegen.firmware.avr.board import parse_pin
 from codegen.firmware.avr.tune import TuneImage
 from codegen.sim.avr import harness_binary
 from codegen.sim.avr_link import BOOT_CYCLES, StreamSim

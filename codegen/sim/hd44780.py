@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from codegen.firmware.mcs51.image import Pin
+    from codegen.firmware.mcs51.board import Pin
     from codegen.firmware.mcs51.lcd import LcdWiring
 
 COLUMNS = 16

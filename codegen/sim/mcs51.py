@@ -33,8 +33,10 @@ import numpy as np
 from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.homing import homing_ticks_bound
-from codegen.firmware.mcs51.image import HALF_STEPS, MAP_FILE, SFR, SYMBOLS_FILE, VECTOR_TIMER0, board_pins, memories, read_map
+from codegen.firmware.homing import homing_ticks_bound
+from codegen.firmware.mcs51.board import SFR, board_pins, memories
+from codegen.firmware.mcs51.image import HALF_STEPS
+from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, VECTOR_TIMER0, read_map
 from codegen.firmware.mcs51.homing import decode_status, endstops
 from codegen.firmware.mcs51.lcd import board_lcd
 from codegen.sim.hd44780 import decode as decode_display

@@ -26,7 +26,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.mcs51.image import SFR, board_data, parse_pin
+from codegen.firmware.mcs51.board import SFR, board_data, parse_pin
 from codegen.firmware.mcs51.hold import HOLD_KEYS
 from codegen.firmware.mcs51.jog import taken_pins
 from codegen.motion.jog import KEYS, board_keys

@@ -32,7 +32,7 @@ import numpy as np
 from codegen.errors import Diagnostic, JobError, SourceRef, suggest
 from codegen.firmware.config import HeaterFirmware
 from codegen.firmware.avr.heaters import SETTLE_PERIODS, SETTLE_WINDOW_DC
-from codegen.firmware.avr.homing import homing_ticks_bound
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.program.heater_settings import heater_settings
 from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
 from codegen.pipeline.host import HostBuild

@@ -19,7 +19,8 @@ from __future__ import annotations
 import math
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HeaterFirmware
+from codegen.firmware.config import FirmwareConfig, HeaterFirmware, load_target
+from codegen.firmware.avr.board import parse_pin
 from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid
 from codegen.heaters.protection import REASONS
 from codegen.program.heaters import HeaterProgram
@@ -119,8 +120,6 @@ def _table_lines(table: tuple[int, ...]) -> list[str]:
 def heaters_context(config: FirmwareConfig, f_cpu: int, tick_hz: int, stream: bool = False) -> dict:
     """heaters.c.j2's context (and the player's: `heaters`, the hook's SLICE_TICKS; `stream`: the streaming
     firmware's)."""
-    from codegen.firmware.avr.image import load_target, parse_pin  # avr.py imports this module
-
     if not config.heaters:
         return {"heaters": []}
     heaters, timers, pins_used = [], {}, set()

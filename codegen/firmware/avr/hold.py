@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, board_pin_uses
+from codegen.firmware.config import FirmwareConfig, board_pin_uses, load_target
 from codegen.firmware.avr.player import NEED_BIT0
 from codegen.tables.hold import CLAMP, F_ONE, RESUME_TICKS, override_target
 from codegen.tables.schedule import RT_PAUSE
@@ -41,8 +41,6 @@ def hold_context(config: FirmwareConfig, motors: list[dict], stream: bool, tick_
     plan = config.hold
     if plan is None:
         return {"hold": None}
-    from codegen.firmware.avr.image import load_target  # here: that module builds on this one
-
     taken = board_pin_uses(load_target(config.board), PIN, {"name", "target", "mcu", "hold_keys"})
     keys = []
     for function in HOLD_KEYS:

@@ -11,28 +11,25 @@ import math
 import re
 import subprocess
 import tempfile
-from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from codegen import progress
 import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, Image, board_socket, run_tool
+from codegen.firmware.config import FirmwareConfig, Image, load_target
+from codegen.firmware.avr.board import board_pins
 from codegen.firmware.avr.heaters import heaters_context
 from codegen.firmware.avr.homing import homing_context
 from codegen.firmware.avr.hold import hold_context
+from codegen.firmware.avr.jog import jog_context
 from codegen.firmware.avr.laser import laser_context
 from codegen.firmware.avr.player import isr_context, table_chunks
-from codegen.paths import targets_dir
+from codegen.firmware.avr.toolchain import ASFLAGS, CFLAGS, check_integer_only, run_avr
 from codegen.firmware.render import render
 from codegen.tables.schedule import RT_PAUSE, TOOL_BIT, Schedule
 
-CFLAGS = ("-std=gnu11", "-Os", "-Wall", "-Wextra", "-Werror", "-fno-toplevel-reorder")
-ASFLAGS = ("-Wa,--fatal-warnings",)
 STEP_ISR = "__vector_17"  # TIMER1_COMPA on the ATmega2560
 # The objects whose functions and variables _memory_parts counts as each part of flash and RAM.
 OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link": ("stream", "link_rx", "link_tx"),
@@ -41,90 +38,8 @@ OBJECT_PARTS = {"player": ("player", "player_isr"), "homing": ("homing",), "link
 _STACK_USE = re.compile(
     r"\b(push|pop|call|rcall|icall|eicall)\b|\b(ldd|std|ld|st)\b[^;]*\bY|\b(in|out)\b[^;]*0x3[de]\b")
 _TEXT_FULL = re.compile(r"region [`']text'")  # ld: "will not fit in region `text'" / "region `text' overflowed"
-# libgcc's division and float routines: the firmware does integer arithmetic without division (DESIGN.md).
-_NOT_INTEGER_ONLY = re.compile(r"^__(u?divmod\w*|u?div[a-z]{2}\d|fp_\w+|fix\w+|float\w+|\w+[sd]f\d?)$")
 UNBOUNDED_FLASH = 8 << 20  # a link that only measures an oversized image
 MAX_STEP_PORTS = 4  # one PEND register each (the format has at most 4 motors)
-
-
-@dataclass(frozen=True)
-class Pin:
-    name: str  # PF0
-    port: str  # F
-    bit: int  # 0
-
-
-@dataclass(frozen=True)
-class MotorWiring:
-    """A job motor's pins on the board."""
-
-    name: str
-    socket: str
-    step: Pin
-    dir: Pin
-    enable: Pin
-    invert_dir: bool
-
-
-@dataclass(frozen=True)
-class Endstop:
-    """A board's endstop input: a switch read with the internal pull-up."""
-
-    name: str  # x_min, x_max, ...
-    pin: Pin
-    closed_high: bool  # the level the pin reads while the switch is closed (RAMPS: a switch to ground, low)
-
-
-@dataclass(frozen=True)
-class BoardPins:
-    mcu: str
-    motors: tuple[MotorWiring, ...]
-    tool: Pin
-    tool_active_high: bool
-    enable_active_low: bool
-    endstops: tuple[Endstop, ...] = ()
-
-    def endstop(self, name: str) -> Endstop | None:
-        return next((e for e in self.endstops if e.name == name), None)
-
-
-def parse_pin(text: str) -> Pin:
-    match = re.fullmatch(r"P([A-L])([0-7])", str(text).strip())
-    if not match:
-        raise BuildError(f"bad AVR pin `{text}` in a board file (expected e.g. PF0)")
-    return Pin(match.group(0), match.group(1), int(match.group(2)))
-
-
-@lru_cache(maxsize=None)
-def load_target(name: str) -> dict:
-    """A targets/<name>.yaml file (an MCU or a board)."""
-    path = targets_dir() / f"{name}.yaml"
-    if not path.is_file():
-        raise BuildError(f"unknown target or board `{name}` (no {path})")
-    return yaml.safe_load(path.read_text(encoding="utf-8"))
-
-
-def board_pins(config: FirmwareConfig) -> BoardPins:
-    board = load_target(config.board)
-    motors = []
-    for m in config.motors:
-        s = board_socket(config.board, board, m)
-        motors.append(MotorWiring(m.name, m.socket, parse_pin(s["step"]), parse_pin(s["dir"]),
-                                  parse_pin(s["enable"]), m.invert_dir))
-    tool = board["tool"]
-    return BoardPins(board["mcu"], tuple(motors), parse_pin(tool["pin"]), bool(tool["active_high"]),
-                     bool(board["enable_active_low"]), _endstops(config.board, board.get("endstops") or {}))
-
-
-def _endstops(board: str, table: dict) -> tuple[Endstop, ...]:
-    """The board file's `endstops: {x_max: {pin: PE4, closed: low}, ...}`."""
-    out = []
-    for name, spec in table.items():
-        if not isinstance(spec, dict) or set(spec) != {"pin", "closed"} or spec["closed"] not in ("low", "high"):
-            raise BuildError(f"board {board}: endstop {name} must read {{pin: PE4, closed: low}} (closed: low or "
-                             f"high, the level of the pin while the switch is closed), not {spec!r}")
-        out.append(Endstop(str(name), parse_pin(spec["pin"]), spec["closed"] == "high"))
-    return tuple(out)
 
 
 def _ident(name: str) -> str:
@@ -208,8 +123,6 @@ def player_context(config: FirmwareConfig, stream: bool) -> dict:
     context.update(homing_context(config, pins, motors, mcu))
     context.update(heaters_context(config, f_cpu, tick_hz, stream))
     context.update(laser_context(config))
-    from codegen.firmware.avr.jog import jog_context  # here: that module builds on this one
-
     context.update(jog_context(config, motors))
     context.update(hold_context(config, motors, stream, tick_hz))
     return context
@@ -227,12 +140,8 @@ def pad_plan(cycles: int) -> dict:
     return {"loops": loops, "rjmps": left // 2, "nops": left % 2}
 
 
-def _run(cmd: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
-    return run_tool(cmd, cwd, what, "gcc-avr, binutils-avr and avr-libc")
-
-
 def _section_sizes(elf: Path, cwd: Path) -> dict[str, int]:
-    out = _run(["avr-size", "-A", elf.name], cwd, "avr-size").stdout
+    out = run_avr(["avr-size", "-A", elf.name], cwd, "avr-size").stdout
     sizes = {}
     for line in out.splitlines():
         parts = line.split()
@@ -243,7 +152,7 @@ def _section_sizes(elf: Path, cwd: Path) -> dict[str, int]:
 
 def _check_table_contiguous(elf: Path, cwd: Path) -> None:
     """The player reads the chunks as one stream: each must start where the previous one ends."""
-    out = _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout
+    out = run_avr(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout
     chunks = {}
     for line in out.splitlines():
         parts = line.split()
@@ -266,13 +175,13 @@ def _memory_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> tuple[dict[
     ram_own: dict[str, set[str]] = {}
     for part, objects in OBJECT_PARTS.items():
         for obj in (name for name in objects if (cwd / f"{name}.o").exists()):
-            symbols = [line.split() for line in _run(["avr-nm", "--defined-only", f"{obj}.o"], cwd,
+            symbols = [line.split() for line in run_avr(["avr-nm", "--defined-only", f"{obj}.o"], cwd,
                                                      "avr-nm").stdout.splitlines()]
             flash_own.setdefault(part, set()).update(s[-1] for s in symbols if s[-2] in "TtRr")
             ram_own.setdefault(part, set()).update(s[-1] for s in symbols if s[-2] in "DdBbRr")  # .rodata: in RAM
     flash, ram = dict.fromkeys(flash_own, 0), dict.fromkeys(ram_own, 0)
     table = 0
-    for line in _run(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
+    for line in run_avr(["avr-nm", "-S", elf.name], cwd, "avr-nm").stdout.splitlines():
         parts = line.split()
         if len(parts) != 4 or parts[2] not in "TtDdBb":
             continue
@@ -293,20 +202,12 @@ def _memory_parts(elf: Path, cwd: Path, sections: dict[str, int]) -> tuple[dict[
 
 def _check_isr_stackless(elf: Path, cwd: Path) -> None:
     """The step interrupt (assembly) saves nothing and has no frame: no push, call or stack access in it."""
-    out = _run(["avr-objdump", "-d", "--no-show-raw-insn", elf.name], cwd, "avr-objdump").stdout
+    out = run_avr(["avr-objdump", "-d", "--no-show-raw-insn", elf.name], cwd, "avr-objdump").stdout
     body = out.split(f"<{STEP_ISR}>:", 1)[1].split("\n\n", 1)[0] if f"<{STEP_ISR}>:" in out else ""
     bad = [line.strip() for line in body.splitlines() if _STACK_USE.search(line)]
     if not body or bad:
         raise BuildError(f"the step interrupt {STEP_ISR} uses the stack, which it may not (it saves nothing): "
                          f"{'; '.join(bad[:3]) or 'not found'}")
-
-
-def _check_integer_only(elf: Path, cwd: Path) -> None:
-    """No division and no float in the image: none of libgcc's routines for them is linked in."""
-    out = _run(["avr-nm", "--defined-only", elf.name], cwd, "avr-nm").stdout
-    found = sorted({line.split()[-1] for line in out.splitlines() if _NOT_INTEGER_ONLY.match(line.split()[-1])})
-    if found:
-        raise BuildError(f"the firmware links division or float routines ({', '.join(found)}): integers only")
 
 
 def _link(arch: list[str], objects: list[str], elf: str, flash: int, ram: int,
@@ -346,7 +247,7 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
             bar.set_postfix_str(name)
             objects.append(name[:-2] + ".o")
             flags = CFLAGS if name.endswith(".c") else ASFLAGS
-            _run(["avr-gcc", *arch, *flags, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
+            run_avr(["avr-gcc", *arch, *flags, "-c", name, "-o", objects[-1]], work, f"avr-gcc on {name}")
             bar.update()
         bar.set_postfix_str("link and checks")
         done = _link(arch, objects, "firmware.elf", flash, ram, work)
@@ -361,10 +262,10 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int) -> Ima
         elf = work / "firmware.elf"
         _check_table_contiguous(elf, work)
         _check_isr_stackless(elf, work)
-        _check_integer_only(elf, work)
+        check_integer_only(elf, work)
         sections = {k: v for k, v in _section_sizes(elf, work).items() if k in (".text", ".data", ".bss")}
         flash_parts, ram_parts = _memory_parts(elf, work, sections)
-        _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
+        run_avr(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
         # Both files appear together, complete: the ELF first, the hex (what gets flashed) last.
         (work / "firmware.elf").replace(elf_path)
         (work / "firmware.hex").replace(hex_path)

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, Image
-from codegen.firmware.avr.image import _run, build_image, load_target, player_context
+from codegen.firmware.config import FirmwareConfig, Image, load_target
+from codegen.firmware.avr.image import build_image, player_context
+from codegen.firmware.avr.toolchain import run_avr
 from codegen.firmware.avr.hold import HOLD_STREAM_VARIABLES, HOLD_VARIABLES
 from codegen.firmware.avr.laser import LASER_HOLD_VARIABLES, LASER_VARIABLES
 from codegen.link import protocol
@@ -187,6 +188,6 @@ def build_stream_image(sources: dict[str, str], out_dir: Path) -> StreamImage:
 
 def elf_symbols(elf: Path) -> dict[str, int]:
     """Every symbol's value in an ELF (data addresses without avr-ld's 0x800000)."""
-    out = _run(["avr-nm", elf.name], elf.parent, "avr-nm").stdout
+    out = run_avr(["avr-nm", elf.name], elf.parent, "avr-nm").stdout
     return {parts[2]: int(parts[0], 16) & 0x7FFFFF for parts in (line.split() for line in out.splitlines())
             if len(parts) == 3}

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.image import CFLAGS, _check_integer_only, _run, load_target, parse_pin
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.avr.board import parse_pin
+from codegen.firmware.avr.toolchain import CFLAGS, check_integer_only, run_avr
 from codegen.firmware.avr.heaters import heater_firmware, heaters_context
 from codegen.heaters.control import PID_PERIOD_S
 from codegen.program.heater_settings import HeaterSettings, heater_settings
@@ -103,10 +104,10 @@ def build_tune_image(image: TuneImage, out_dir: Path) -> Path:
             (work / name).write_text(text, encoding="utf-8")
         objects = [name[:-2] + ".o" for name in sorted(sources) if name.endswith(".c")]
         for obj in objects:
-            _run(["avr-gcc", *arch, *CFLAGS, "-c", obj[:-2] + ".c", "-o", obj], work, f"avr-gcc on {obj[:-2]}.c")
-        _run(["avr-gcc", *arch, "-o", "firmware.elf", *objects], work, "linking the tune firmware")
-        _check_integer_only(work / "firmware.elf", work)
-        _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
+            run_avr(["avr-gcc", *arch, *CFLAGS, "-c", obj[:-2] + ".c", "-o", obj], work, f"avr-gcc on {obj[:-2]}.c")
+        run_avr(["avr-gcc", *arch, "-o", "firmware.elf", *objects], work, "linking the tune firmware")
+        check_integer_only(work / "firmware.elf", work)
+        run_avr(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", "firmware.elf", "firmware.hex"], work, "avr-objcopy")
         (work / "firmware.elf").replace(elf_path)
         (work / "firmware.hex").replace(hex_path)
     return hex_path

@@ -2,10 +2,10 @@
 board and the MCU, and what templates/mcs51/homing.c.j2 needs.
 
 The sequence is the ATmega2560's (codegen/firmware/avr/homing.py: fast approach, back off, slow approach, the
-same step counts, `homing_steps` and `backoff_limit`, the same pause before each phase), timed by Timer1 while
-Timer0 and its interrupt wait for the player. Intervals are in timer ticks (machine cycles, 12 CPU clocks).
-Endstops come from the board file: `endstops: {x_min: {pin: P3.2, closed: low}, ...}`; several names may share
-a pin (one key per socket, at whichever end its machine homes to).
+same step counts, `homing_steps` and `backoff_limit` of codegen/firmware/homing.py, the same pause before each
+phase), timed by Timer1 while Timer0 and its interrupt wait for the player. Intervals are in timer ticks
+(machine cycles, 12 CPU clocks). Endstops come from the board file: `endstops: {x_min: {pin: P3.2, closed: low},
+...}`; several names may share a pin (one key per socket, at whichever end its machine homes to).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.avr.homing import (PHASE_PAUSE_US, axis_context, axis_problems, homed_axes, rounds_context,
-                                         stepping_motors)
-from codegen.firmware.mcs51.image import Pin, board_data, parse_pin
+from codegen.firmware.homing import (PHASE_PAUSE_US, axis_context, axis_problems, homed_axes, rounds_context,
+                                     stepping_motors)
+from codegen.firmware.mcs51.board import Pin, board_data, parse_pin
 
 ARM_STOP_TICKS = 8  # cycles Timer1 stands still in timer1_wait: clr TR1 .. setb TR1 (calibrated in s51)
 PULSE_BASE_TICKS = 2  # machine cycles a STEP pin stays high in homing_pulse besides the hold, per STEP port
@@ -61,7 +61,7 @@ def shortest_interval(mcu: dict, n_motors: int, pulse_ticks: int) -> int:
 
 def homing_context(config: FirmwareConfig, pins: dict, motors: list[dict], pulse_ticks: int) -> dict:
     """Template variables for homing (`homing` is empty without it); BuildError lists every problem.
-    `pins` is mcs51.board_pins(config), `motors` the player's motor entries."""
+    `pins` is board.board_pins(config), `motors` the player's motor entries."""
     _, mcu = board_data(config.board)
     tick_hz = int(mcu["tick_hz"])
     context = {"homing": [], "homing_rounds": [], "homing_step_ports": [], "switch_ports": [],

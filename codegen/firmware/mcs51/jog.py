@@ -14,7 +14,8 @@ import math
 
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
-from codegen.firmware.mcs51.image import board_data, parse_pin
+from codegen.firmware.mcs51.board import board_data, parse_pin
+from codegen.firmware.mcs51.lcd import pin_uses
 from codegen.motion.jog import DIRECTIONS, KEYS, STILL, board_keys, check_jog_rate
 
 SCAN_US = 2000  # between key scans
@@ -35,8 +36,6 @@ KEY_IDS = {"x+": "XP", "x-": "XM", "y+": "YP", "y-": "YM", "x+y+": "XP_YP", "x-y
 def taken_pins(board: dict) -> dict[str, str]:
     """The board's pins other than its jog keys (pin name -> what), without its external RAM's bus (idle in a
     flash image: see the top of this file)."""
-    from codegen.firmware.mcs51.lcd import pin_uses  # here: that module builds on mcs51.py as this one does
-
     return pin_uses({k: v for k, v in board.items() if k != "jog_keys"}, 0)
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from codegen.errors import BuildError
 from codegen.firmware.config import board_pin_uses
-from codegen.firmware.mcs51.image import Pin, board_data, memories, parse_pin
+from codegen.firmware.mcs51.board import Pin, board_data, memories, parse_pin
 from codegen.firmware.render import render
 
 MODES = {"4bit": 4, "8bit": 8}

@@ -15,10 +15,12 @@ from pathlib import Path
 from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware.config import Image, run_tool
+from codegen.firmware.mcs51.board import memories
 
 VECTOR_TIMER0 = 0x000B
 SYMBOLS_FILE = "firmware.sym.json"
 MAP_FILE = "firmware.map"
+START_TICKS = 16  # from the timer start to tick 0 (main reaches idle before it)
 _ROM_FULL = "Insufficient ROM/EPROM/FLASH memory"
 _XRAM_FULL = "Insufficient EXTERNAL RAM memory"
 _IRAM_FULL = re.compile(r"Could not get (\d+) consecutive bytes in internal RAM for area (\w+)")
@@ -28,7 +30,7 @@ FLASH_SYMBOLS = (("halt", "_halt"), ("timer_start", "_timer_start"), ("isr", "_p
 
 @dataclass(frozen=True)
 class BuildPlan:
-    """How build_image builds beyond a flashed player's defaults (the streaming player's: mcs51_stream.py)."""
+    """How build_image builds beyond a flashed player's defaults (the streaming player's: stream.py)."""
 
     model: str | None = None  # SDCC's memory model (None: the board's)
     xram: int | None = None  # XRAM bytes SDCC may place variables in (None: all the board has)
@@ -129,8 +131,6 @@ def build_image(sources: dict[str, str], out_dir: Path, table_bytes: int, plan: 
         stale.unlink(missing_ok=True)
     for name, text in sorted(sources.items()):
         (out_dir / name).write_text(text, encoding="utf-8")
-    from codegen.firmware.mcs51.image import START_TICKS, memories  # here: that module renders what this one builds
-
     board = re.search(r'#define BOARD_NAME "([^"]+)"', sources.get("config.h", ""))
     if not board:
         raise BuildError("config.h does not name its board")

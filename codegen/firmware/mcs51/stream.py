@@ -23,7 +23,8 @@ from pathlib import Path
 
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, Image
-from codegen.firmware.mcs51.image import board_data, memories, player_context, render_player
+from codegen.firmware.mcs51.board import board_data, memories
+from codegen.firmware.mcs51.image import player_context, render_player
 from codegen.firmware.mcs51.sdcc import BuildPlan, build_image
 from codegen.link import protocol
 from codegen.link.ring import MIN_PAYLOAD, link_budget
