@@ -45,7 +45,9 @@ def planned(toolpath, mach=None, jd=0.01, tolerance=0.002, max_event_rate=np.inf
     return kin, segments, steps, plan(segments, kin, steps, PlannerLimits(jd, max_event_rate=max_event_rate))
 
 
-GCODE_DATA = Path(__file__).resolve().parent / "data" / "gcode"
+ROOT = Path(__file__).resolve().parent.parent  # the repository
+DATA = ROOT / "tests" / "data"
+GCODE_DATA = DATA / "gcode"
 _PRINTER = """name: {name}
 target: {target}
 machine:

@@ -24,7 +24,7 @@ The derivative is low-passed (D moves 1/2**D_FILTER_SHIFT of the way to the raw 
 constant of 1.6 s, like Marlin's K1 = 0.95 smoothing) because the reading moves in ADC steps: near 210 degC one
 step of the EPCOS table is 0.5 degC, which Marlin's kd = 114 s would turn into a 570-duty spike for one period.
 Unfiltered, both Marlin's default gains and DEFAULT_CONTROL chatter between full power and off in the default
-plant, stuck at 200 and 204 degC, and never reach 210 degC (tests/test_heaters_host.py shows it).
+plant, stuck at 200 and 204 degC, and never reach 210 degC (tests/heaters/test_heaters.py shows it).
 
 Bang-bang (`FixedBangBang`: hysteresis_dc, max_duty; state: on (bool)), a watermark controller for a bed:
     if s == 0:                    on = false
@@ -53,7 +53,7 @@ INT32_MAX = 2**31 - 1
 MAX_SHIFT = 30
 MAX_GAIN_ERROR = 0.01  # the relative rounding error allowed for every non-zero gain
 
-# The board's defaults, chosen with plant.simulate() on DEFAULT_PLANTS (figures in tests/test_heaters_host.py).
+# The board's defaults, chosen with plant.simulate() on DEFAULT_PLANTS (figures in tests/heaters/test_heaters.py).
 # Hot end: kp >= 25.5 makes P alone give full power at the bottom of the functional range (the heater never
 # loiters at its edge, where the integrator is reset); ki and kd were picked on a grid for the least overshoot
 # over 27 variants of the plant (half to twice the capacity, 0.7 to 1.4 times the loss, 30 to 60 W).

@@ -1,5 +1,5 @@
-/* Event times in one pass (codegen/stepgen.py and codegen/curve_timing.py have the numpy versions, which this
- * must match to the bit: tests/test_native.py): every master event of every block timed on the plan's
+/* Event times in one pass (codegen/motion/stepgen.py and codegen/motion/curve_timing.py have the numpy versions, which this
+ * must match to the bit: tests/native/test_tables.py): every master event of every block timed on the plan's
  * trapezoids where the master crosses a half-step point along its chord, or along the curve (a Hermite cubic
  * of the master's position) where curve timing applies; a dwell's step-less events spread evenly over it. Each
  * expression is written in the numpy version's order, so the floating-point results are the same.

@@ -1,6 +1,6 @@
 /* The G-code interpreter's short way in C: stretches of plain G0/G1 lines (words X Y Z E F S, each at most once)
  * and comment lines, read and run as codegen/gcode/reader.py and Interpreter.line (codegen/gcode/interpreter.py)
- * do, which stay the reference (tests/test_native_frontend.py compares them). Any other line, and a plain line
+ * do, which stay the reference (tests/native/test_frontend.py compares them). Any other line, and a plain line
  * that would be an error, is left to Python: the run stops before it. The arithmetic is Python's, operation
  * by operation (no FMA: -std=c99 contracts nothing); numbers are read by strtod, correctly rounded as float().
  *

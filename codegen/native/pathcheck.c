@@ -1,5 +1,5 @@
-/* The path check's distances in one pass (codegen/checks.py has the numpy version, which this must match to
- * rounding: tests/test_native.py): from each tool position (xyz) to the job's path along its segment, lines
+/* The path check's distances in one pass (codegen/tables/checks.py has the numpy version, which this must match to
+ * rounding: tests/native/test_tables.py): from each tool position (xyz) to the job's path along its segment, lines
  * exactly, arcs by their radius, other curves by their samples; a position further than `near` from its own
  * segment is measured against either neighbour too (a step just past a corner is on the path it is on).
  *

@@ -1,6 +1,6 @@
 /* Rate runs: each event's timing window, then the greedy fit of runs (interval, add, count) that keep every event
- * within its window. The algorithm, its units and its reasoning are in codegen/runfit.py; its Python version and
- * the numpy windows of codegen/compress.py are the reference this must match exactly (tests/test_native.py). It
+ * within its window. The algorithm, its units and its reasoning are in codegen/tables/runfit.py; its Python version and
+ * the numpy windows of codegen/tables/compress.py are the reference this must match exactly (tests/native/test_tables.py). It
  * is C because a run's search follows the runs before it, a loop numpy cannot vectorise; the windows come along
  * so that numpy's two dozen passes over the events become two (and leave_room's a third, backwards).
  *
@@ -11,9 +11,9 @@
 #include <stdlib.h>
 
 #define NO_FAIL 0
-#define GUESS_STRIDE 8 /* codegen/runfit.py */
+#define GUESS_STRIDE 8 /* codegen/tables/runfit.py */
 
-/* The timing windows of codegen/compress.py (`numpy_windows`), each expression in numpy's order so that the
+/* The timing windows of codegen/tables/compress.py (`numpy_windows`), each expression in numpy's order so that the
  * floating-point results are the same bits (np.cumsum and np.maximum.accumulate are sequential too): the planned
  * ticks pushed apart (a running maximum of the planned tick less the pushes' running sum) and each event's window,
  * as a range of positions counted from tick `base`. block_first: B + 1 entries, from 0 to the number of events;
@@ -72,7 +72,7 @@ static int smaller_magnitude(int64_t a, int64_t b)
     return (a < 0 ? -a : a) < (b < 0 ? -b : b);
 }
 
-/* `leave_room` of codegen/runfit.py backwards: room[k] = min(hi[k], room[k + 1] - 256 * needed[k + 1]). */
+/* `leave_room` of codegen/tables/runfit.py backwards: room[k] = min(hi[k], room[k + 1] - 256 * needed[k + 1]). */
 static void leave_room(int64_t events, const int64_t *hi, const int64_t *needed, int64_t *room)
 {
     for (int64_t k = events - 1; k >= 0; k--)
@@ -80,7 +80,7 @@ static void leave_room(int64_t events, const int64_t *hi, const int64_t *needed,
                                                                                 : hi[k];
 }
 
-/* `add_guess` of codegen/runfit.py at one event (the last sample's for the events it cannot reach). */
+/* `add_guess` of codegen/tables/runfit.py at one event (the last sample's for the events it cannot reach). */
 static int64_t add_guess(int64_t events, const int64_t *lo, const int64_t *hi, int64_t k)
 {
     const int64_t s = GUESS_STRIDE;

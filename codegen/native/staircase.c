@@ -1,5 +1,5 @@
-/* How far the Bresenham staircase of each block strays from its segment's line (codegen/staircase.py has the
- * numpy version, which this must match exactly: tests/test_native_frontend.py): the player's accumulators
+/* How far the Bresenham staircase of each block strays from its segment's line (codegen/motion/staircase.py has the
+ * numpy version, which this must match exactly: tests/native/test_frontend.py): the player's accumulators
  * step the motors event by event, the tool's position after each event is taken through the linear
  * kinematics' inverse, and its distance to the segment's line (not clamped to the segment) is measured.
  * Linear kinematics only (cartesian, corexy); the arithmetic is in the numpy version's order, without FMA.

@@ -1,7 +1,7 @@
-/* The twin's player in one pass (codegen/twin.py has the numpy version, which this must match exactly:
- * tests/test_native.py): every event's tick and the motor positions after it, every pulse in time order
+/* The twin's player in one pass (codegen/tables/twin.py has the numpy version, which this must match exactly:
+ * tests/native/test_tables.py): every event's tick and the motor positions after it, every pulse in time order
  * (events in order, motors in table order within an event), and each motor's own pulses. Integer arithmetic
- * only; the semantics are codegen/schedule.py's.
+ * only; the semantics are codegen/tables/schedule.py's.
  *
  * Built at first use into the user's cache (codegen/native/__init__.py) and called through ctypes.
  */

@@ -1,5 +1,5 @@
 """A pseudo-terminal between a real `printer-codegen stream` process and the simulated streaming firmware: the
-end-to-end test of the command users run against a board (tests/test_stream_pty.py).
+end-to-end test of the command users run against a board (tests/cli/test_stream_pty.py).
 
     with StreamSim(hex_path, config) as sim, PtyBridge(motors=2) as bridge:    # codegen/sim/avr_link.py
         process = subprocess.Popen([..., "stream", job, "--port", bridge.port, "--quiet"])

@@ -30,7 +30,7 @@ from codegen.program.heater_settings import HeaterSettings, heater_settings
 PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
 SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...
 SETTLE_PERIODS = 30  # ... for 3 s
-SLICE_CYCLES = 400  # a stage (274 measured: tests/test_avr_heaters.py) and the hook around it (77 counted)
+SLICE_CYCLES = 400  # a stage (274 measured: tests/firmware/avr/test_heaters.py) and the hook around it (77 counted)
 # The streaming firmware runs a stage with the link's interrupts on: room for two receive interrupts and a transmit
 # one (targets/atmega2560.yaml: 121 cycles at the most each) that may come during it.
 STREAM_SLICE_CYCLES = SLICE_CYCLES + 3 * 121

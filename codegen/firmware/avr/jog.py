@@ -24,7 +24,7 @@ START_US = 100  # a move's first step after its DIR change (the drivers' DIR set
 # Measured in simavr (avr-gcc 5.4 -Os, RAMPS's 11 direct keys), keys changing the level at every debounce while
 # the motors cruise: every step within a tick of its interval at a 41-tick cruise, steps up to 5 ticks late at 35
 # (a step with a scan and a debounce's end takes about 40 ticks). With margin: the shortest step interval
-# (EVENT_TICKS; tests/test_avr_jog.py runs at 64) and the most a scan alone may take before a step. Ticks (0.5 us).
+# (EVENT_TICKS; tests/firmware/avr/test_jog.py runs at 64) and the most a scan alone may take before a step. Ticks (0.5 us).
 SCAN_WORK_TICKS = 50
 EVENT_TICKS = 60
 # The streaming firmware answers a STATUS at a scan only this far before the next step: link_status() with its call

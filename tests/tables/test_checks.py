@@ -1,0 +1,58 @@
+"""The checks that judge the twin (and the simulator) find what is wrong: each fault below must be reported."""
+
+
+import numpy as np
+
+from codegen.tables.checks import MotorTrain, check
+from codegen.job import load_job
+from codegen.pipeline.host import host_build, trains_from
+from tests.helpers import ROOT
+
+HOST = host_build(load_job(ROOT / "examples" / "star.yaml"))
+
+
+def judge(trains=None, positions=None):
+    h = HOST
+    if trains is None:
+        trains = trains_from(h.pulses.tick / h.target.tick_hz, h.pulses.motor, h.pulses.dir, len(h.kin.motors))
+    if positions is None:
+        positions = h.pulses.event_position
+    return check(trains, positions, h.event_segments(), h.segments, h.plan, h.kin, h.expected_final,
+                 h.start_steps, h.job.machine.tolerance)
+
+
+def test_the_twin_of_the_star_passes():
+    assert judge().ok
+
+
+def test_a_lost_step_is_a_wrong_end_position():
+    h = HOST
+    trains = trains_from(h.pulses.tick / h.target.tick_hz, h.pulses.motor, h.pulses.dir, 2)
+    last = int(trains[0].dir[-1])
+    trains[0] = MotorTrain(trains[0].time[:-1], trains[0].dir[:-1])
+    found = judge(trains=trains)
+    assert found.problems[0] == f"motor a ends at step {h.expected_final[0] - last}, the job ends at step " \
+                                f"{h.expected_final[0]}"
+
+
+def test_a_tool_two_steps_off_the_path_is_reported():
+    shifted = HOST.pulses.event_position.copy()
+    shifted[len(shifted) // 2:, 0] += 2  # belt a slips two steps half-way
+    found = judge(positions=shifted)
+    assert any(p.startswith("the tool strays") for p in found.problems)
+    assert found.max_path_error_mm > found.path_limit_mm
+
+
+def test_steps_too_close_together_exceed_the_rate():
+    h = HOST
+    trains = trains_from(h.pulses.tick / h.target.tick_hz * 0.9, h.pulses.motor, h.pulses.dir, 2)  # 11 % faster
+    found = judge(trains=trains)
+    assert any("exceeds its rate over 8 steps" in p for p in found.problems)
+
+
+def test_a_velocity_jump_off_the_corners_exceeds_the_acceleration():
+    h = HOST
+    time = h.pulses.tick / h.target.tick_hz
+    time = np.where(time > 1.0, 1.0 + (time - 1.0) * 0.8, time)  # suddenly 25 % faster after one second
+    found = judge(trains=trains_from(time, h.pulses.motor, h.pulses.dir, 2))
+    assert any("exceeds its acceleration" in p for p in found.problems)
