@@ -1,0 +1,1 @@
+"""The toolpath: the front ends' items in machine millimetres, and the segments they flatten into."""
