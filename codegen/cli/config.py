@@ -13,7 +13,8 @@ import yaml
 
 from codegen import __version__
 from codegen.firmware.config import MotorPins, board_socket
-from codegen.program.homing import AXES, homes
+from codegen.program.homing import AXES
+from codegen.pipeline.settings import homing_settings
 from codegen.job import load_job
 from codegen.job.schema import HEATERS, Job
 from codegen.kinematics import make_kinematics
@@ -98,7 +99,7 @@ def normalized_job(job: Job) -> dict:
 def _program(job: Job) -> dict:
     program = job.program
     out = program.model_dump(mode="json", by_alias=True, exclude={"shapes", "gcode"})
-    if "start" not in program.model_fields_set and homes(job, False):
+    if "start" not in program.model_fields_set and homing_settings(job).always:
         del out["start"]  # where a machine homes, a `start` given adds a travel move from home (codegen/program/program.py)
     if program.shapes is not None:
         out["shapes"] = [_shape(shape) for shape in program.shapes]
