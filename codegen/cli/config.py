@@ -1,6 +1,6 @@
 """`printer-codegen config JOB`: the job as the loader holds it, every default filled in, printed as YAML (as
 ESPHome's `config`), followed by `board_info:`, the board's pins for this job. Everything above `board_info:`
-loads back as the same job (the normalized job: codegen/program/normalized.py)."""
+loads back as the same job (the normalized job: codegen/pipeline/normalized.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import yaml
 
 from codegen.firmware.config import MotorPins, board_socket
 from codegen.program.homing import AXES
-from codegen.program.normalized import LiteralText, Section, normalized_job
+from codegen.pipeline.normalized import LiteralText, Section, normalized_job
 from codegen.job import load_job
 from codegen.job.schema import Job
 from codegen.kinematics import make_kinematics

@@ -2,7 +2,7 @@
 job to the board through its serial bootloader. The ATmega2560 (Arduino Mega's bootloader) with avrdude, the
 STC89C52RC (STC's ISP loader in its boot ROM) with stcgal. The AT89C52 has no bootloader at all: it is programmed
 out of the board, in the ZIF socket of a TL866II+ or T48 on USB, with minipro (no --port). Nothing is flashed unless
-the image matches the job as it is now: report.json's `job_fingerprint` (codegen/program/normalized.py)."""
+the image matches the job as it is now: report.json's `job_fingerprint` (codegen/pipeline/normalized.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from codegen.program.normalized import job_fingerprint
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.errors import BuildError
 from codegen.job import load_job
 from codegen.pipeline.streaming import stream_setup

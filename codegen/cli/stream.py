@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from codegen import __version__, progress
-from codegen.program.normalized import job_fingerprint
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.errors import BuildError, render_all
 from codegen.job import load_job
 from codegen.link.host import HostLink

@@ -8,6 +8,16 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class StepperLimits:
+    """One stepper's limits as the job gives them (mm of motor travel), for the stages that need a few of them
+    without the kinematics (jog mode, the feed hold's ramp)."""
+
+    steps_per_mm: float
+    max_velocity: float  # mm/s
+    max_accel: float  # mm/s^2
+
+
+@dataclass(frozen=True)
 class MotorLimits:
     names: tuple[str, ...]
     steps_per_mm: np.ndarray  # (M,)

@@ -20,12 +20,13 @@ ACCEL_HEADROOM of the smallest max_accel (or `jog.accel`, never above it).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from codegen.errors import BuildError
+from codegen.kinematics.base import StepperLimits
 
 # The keys' functions, in the order of their bits in the firmware's key mask.
 DIRECTIONS = {"x+": (1, 0), "x-": (-1, 0), "y+": (0, 1), "y-": (0, -1),
@@ -63,12 +64,22 @@ class JogPlan:
     keys: str | None  # matrix | direct: which of the board's `jog_keys` the firmware scans; None: the board's one
 
 
-def jog_plan(job, motor_names: tuple[str, ...], tick_hz: int) -> JogPlan:
-    """The ramp and cruise intervals of `job.machine.jog` for a firmware whose motors are `motor_names`;
+@dataclass(frozen=True)
+class JogSettings:
+    """`machine.jog` and the limits of the machine's steppers."""
+
+    kinematics: str  # cartesian | corexy: which motors jog (JOGGED)
+    speeds: tuple[float, ...]  # mm/min of each level, slowest first
+    accel: float | None  # mm/s^2; None: the jogged motors' smallest max_accel
+    keys: str | None  # matrix | direct; None: the kind the board has
+    steppers: Mapping[str, StepperLimits]  # every stepper's, by name
+
+
+def jog_plan(jog: JogSettings, motor_names: tuple[str, ...], tick_hz: int) -> JogPlan:
+    """The ramp and cruise intervals of `machine.jog` for a firmware whose motors are `motor_names`;
     BuildError for a level the 16-bit intervals cannot hold."""
-    machine, jog = job.machine, job.machine.jog
-    shares = JOGGED[machine.kinematics]
-    steppers = [machine.steppers[name] for name in shares]
+    shares = JOGGED[jog.kinematics]
+    steppers = [jog.steppers[name] for name in shares]
     spm = steppers[0].steps_per_mm
     max_rate = min(s.max_velocity for s in steppers) * spm
     max_accel = min([s.max_accel for s in steppers] + ([jog.accel] if jog.accel else [])) * spm

@@ -8,7 +8,8 @@ first, no more segments go on to the planner.
 
 from __future__ import annotations
 
-from typing import Iterator
+from dataclasses import dataclass
+from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -28,12 +29,21 @@ MAX_REACH_ERRORS = 20
 CHUNK_EVENTS = 1 << 17
 
 
-def front_end(job, kin: Kinematics, program: Program, watch: Stopwatch) -> Iterator[tuple[Segments, np.ndarray]]:
+@dataclass(frozen=True)
+class FrontEndSettings:
+    """What the front end needs of the machine: how far a piece may stray from the path, and each motor's range."""
+
+    tolerance_mm: float  # machine.tolerance
+    ranges: Mapping[str, tuple[float, float] | None]  # stepper name -> its `range` (mm of motor travel), None: any
+
+
+def front_end(settings: FrontEndSettings, kin: Kinematics, program: Program,
+              watch: Stopwatch) -> Iterator[tuple[Segments, np.ndarray]]:
     """`pieces`, made in a child process on another core where there is one (codegen/overlap.py); `program`
     knows what the child's copy of it knew when each part was made, `watch` gets its stages' times."""
     def produce():
         own = Stopwatch()
-        for part in pieces(job, kin, program, own):
+        for part in pieces(settings, kin, program, own):
             yield part, program.state(), None
         yield None, program.state(), own.seconds
 
@@ -45,7 +55,7 @@ def front_end(job, kin: Kinematics, program: Program, watch: Stopwatch) -> Itera
             watch.merge(seconds, "front end: ")
 
 
-def pieces(job, kin: Kinematics, program: Program,
+def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
            watch: Stopwatch | None = None) -> Iterator[tuple[Segments, np.ndarray]]:
     """Segments and their motor steps, a batch of the program's items at a time."""
     watch = watch or Stopwatch()
@@ -58,15 +68,15 @@ def pieces(job, kin: Kinematics, program: Program,
             break
         with watch("segments"):
             if flattener is None:
-                flattener = Flattener(program.start, job.machine.tolerance, program.plays_runtime)
+                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime)
             first = flattener.items
             segments = drop_empty(flattener(batch))
             program.settings += flattener.settings
             flattener.settings = []
-            found = reach_problems(job, kin, batch, first, segments)
+            found = reach_problems(settings, kin, batch, first, segments)
             if not found:
-                segments = refine(split_long(kin.subdivide(segments, job.machine.tolerance), kin), kin)
-                found = reach_problems(job, kin, batch, first, segments)  # a carriage may peak between samples
+                segments = refine(split_long(kin.subdivide(segments, settings.tolerance_mm), kin), kin)
+                found = reach_problems(settings, kin, batch, first, segments)  # a carriage may peak between samples
             problems += found
             parts = [] if problems or not len(segments) else _parts(segments, segment_steps(segments, kin))
         was, now = program.handed_on, program.read_share
@@ -95,7 +105,8 @@ def drop_empty(segments: Segments) -> Segments:
     return segments.take(np.flatnonzero(keep))
 
 
-def reach_problems(job, kin: Kinematics, batch: list, offset: int, segments: Segments) -> list[Diagnostic]:
+def reach_problems(settings: FrontEndSettings, kin: Kinematics, batch: list, offset: int,
+                   segments: Segments) -> list[Diagnostic]:
     """Every point of the path reachable and within each motor's `range`: an error at the item (of `batch`,
     whose first is the program's item `offset`) that leaves it, at its first such point."""
     if not len(segments):
@@ -113,7 +124,7 @@ def reach_problems(job, kin: Kinematics, batch: list, offset: int, segments: Seg
                  lambda k: f"the machine cannot reach ({at(points[k])})" + (
                      "" if np.allclose(points[k], ends[k]) else f" on the way to ({at(ends[k])})"))]
     for m, name in enumerate(kin.motors):
-        span = job.machine.steppers[name].range
+        span = settings.ranges[name]
         if span:
             outside = np.flatnonzero((motor[:, m] < span[0] - 1e-9) | (motor[:, m] > span[1] + 1e-9))
             problems.append((outside, lambda k, m=m, name=name, span=span:

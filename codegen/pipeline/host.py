@@ -20,7 +20,7 @@ from codegen.firmware.config import FirmwareConfig, HeaterFirmware, MotorPins
 from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.heaters import job_heaters, stream_heaters
 from codegen.program.heaters import HeaterProgram, heater_diagnostics
-from codegen.tables.hold import RAMP_SHARE, HoldPlan, hold_plan, plans_ramp_share
+from codegen.tables.hold import HoldPlan, hold_plan
 from codegen.program.homing import homes, homing_axes
 from codegen.motion.jog import jog_plan
 from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_segments
@@ -31,6 +31,7 @@ from codegen.link.ring import LinkBudget, LinkPlan, link_plan
 from codegen.motion.lookahead import Lookahead, Window
 from codegen.motion.pieces import front_end
 from codegen.motion.planner import Plan, PlannerLimits, plan
+from codegen.pipeline.settings import JobSettings, job_settings, planner_limits
 from codegen.program.program import Program
 from codegen.tables.runtime import RuntimeRecords, played_outputs, runtime_records, with_runtime
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
@@ -46,7 +47,8 @@ from codegen.pipeline.windows import Played, Stages, Totals
 
 @dataclass
 class HostBuild:
-    job: object
+    job: object  # for the firmware's names and pins (firmware_config), the heaters and the reports
+    settings: JobSettings  # the stages' settings, made once from the job (codegen/pipeline/settings.py)
     target: TargetInfo
     kin: Kinematics
     start: np.ndarray  # (4,) mm: where the program starts
@@ -86,17 +88,17 @@ class HostBuild:
             start_steps=tuple(int(v) for v in self.start_steps),
             heaters=self.heaters,
             laser=self.laser,
-            jog=jog_plan(self.job, self.kin.motors, self.target.tick_hz) if self.job.machine.jog else None,
+            jog=jog_plan(self.settings.jog, self.kin.motors, self.target.tick_hz) if self.settings.jog else None,
             hold=self.hold_plan,
-            hold_override=self.job.machine.feed_hold.override if self.job.machine.feed_hold else 100,
+            hold_override=self.settings.hold.override if self.settings.hold else 100,
         )
 
     @cached_property
     def hold_plan(self) -> HoldPlan | None:
         """The feed hold of the image (codegen/tables/hold.py); BuildError where the player cannot hold."""
-        if self.job.machine.feed_hold is None:
+        if self.settings.hold is None:
             return None
-        return hold_plan(self.job, self.target.tick_hz, self.target.board, self.target.board_data,
+        return hold_plan(self.settings.hold, self.target.tick_hz, self.target.board, self.target.board_data,
                          streamed=self.link_plan is not None)
 
     @cached_property
@@ -125,16 +127,6 @@ def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray
     return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
 
 
-def planner_limits(job, kin: Kinematics, target: TargetInfo, heaters: bool = False) -> PlannerLimits:
-    """`heaters`: the image runs heater stages beside the player (their check may delay a pulse). A laser's
-    machine does not stop where the tool switches (Grbl's laser mode): its power records land at their step."""
-    pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
-    return PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
-                         block_overhead=target.block_overhead_s(motors, pulse_us, setup_us),
-                         pulse_jitter_s=target.pulse_jitter_s(heaters), tool_stops=job.machine.laser is None,
-                         accel_share=1.0 - RAMP_SHARE if plans_ramp_share(job) else 1.0)
-
-
 def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
                tables: BinaryIO | None = None, link: LinkBudget | None = None,
                observe: Callable[[Played], None] | None = None) -> HostBuild:
@@ -157,26 +149,27 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     except FileNotFoundError:
         raise BuildError(f"the {job.target} target is not supported yet: targets/ has no board '{job.board}'") \
             from None
+    settings = job_settings(job)
     hold = None
-    if job.machine.feed_hold is not None:  # its errors before any planning
-        hold = hold_plan(job, target.tick_hz, target.board, target.board_data, streamed=link is not None)
+    if settings.hold is not None:  # its errors before any planning
+        hold = hold_plan(settings.hold, target.tick_hz, target.board, target.board_data, streamed=link is not None)
     kin = make_kinematics(job.machine)
-    program = Program(job, kin, strict)
+    program = Program(job, kin, settings.homing, strict)
     played_out = runtime_outputs(job, target, link is not None)
     program.plays_runtime = bool(played_out)
     runtime = (lambda: runtime_records(program.settings, played_out)) if played_out else None
     limits = planner_limits(job, kin, target, bool(played_out))
-    laser = laser_pwm(job, target.board_data, target.f_cpu)
+    laser = laser_pwm(settings.laser, job.board, target.board_data, target.f_cpu)
     ahead = Lookahead(kin, limits)
     stages: Stages | None = None
     played: list[Played] = []
-    chunks = front_end(job, kin, program, watch)
+    chunks = front_end(settings.front_end, kin, program, watch)
     while True:
         with watch("front end (waiting for it)"):
             chunk = next(chunks, None)
         if stages is None:
-            stages = Stages(job, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep, watch,
-                            tables, link, runtime, laser, hold, observe)
+            stages = Stages(settings.stages, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep,
+                            watch, tables, link, runtime, laser, hold, observe)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -188,16 +181,17 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
         if chunk is None:
             break
     homing: tuple[HomingAxis, ...] = ()
-    if homes(job, program.homes_first):
-        homing = homing_axes(job, kin, target.tick_hz)
+    if homes(settings.homing, program.homes_first):
+        homing = homing_axes(settings.homing, kin, target.tick_hz)
     start_steps = stages.checker.start_steps
     expected_final = kin.to_steps(np.asarray(program.end, float)[None, :])[0]
     if stages.totals.events == 0 and not played:  # nothing moves: an empty program
-        played = stages.play(_no_window(job, kin, program), None, True)
+        played = stages.play(_no_window(kin, program, settings.front_end.tolerance_mm, limits), None, True)
     stages.finish()
-    heater_notes = heater_diagnostics(job, target.heater_pins, program.heater_program,
+    machine_heaters = None if job.machine.heaters is None else tuple(job.machine.heaters)
+    heater_notes = heater_diagnostics(job.board, machine_heaters, target.heater_pins, program.heater_program,
                                       link is not None and not played_out)
-    host = HostBuild(job, target, kin, program.start, program.end, stages.totals,
+    host = HostBuild(job, settings, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
                      program.warnings + heater_notes, homing, program.heater_program, laser=laser)
     if link is not None:
@@ -237,8 +231,8 @@ def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:
     return played + pauses if played else pauses
 
 
-def _no_window(job, kin: Kinematics, program: Program) -> Window:
+def _no_window(kin: Kinematics, program: Program, tolerance_mm: float, limits: PlannerLimits) -> Window:
     """The window of a program that does not move."""
-    segments = Flattener(program.start, job.machine.tolerance)([])
+    segments = Flattener(program.start, tolerance_mm)([])
     steps = np.zeros((0, len(kin.motors)), dtype=np.int64)
-    return Window(0, segments, steps, plan(segments, kin, steps, PlannerLimits(job.machine.junction_deviation)))
+    return Window(0, segments, steps, plan(segments, kin, steps, PlannerLimits(limits.junction_deviation)))

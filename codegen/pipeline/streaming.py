@@ -17,13 +17,14 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.firmware.avr.heaters import stream_heaters
-from codegen.tables.hold import HoldPlan, hold_plan
+from codegen.tables.hold import HoldPlan, HoldSettings, hold_plan
 from codegen.program.homing import homing_axes
 from codegen.motion.jog import jog_plan
 from codegen.kinematics import make_kinematics
 from codegen.tables.laser import laser_pwm
 from codegen.link import protocol
 from codegen.link.ring import LinkBudget, link_budget
+from codegen.pipeline.settings import job_settings
 from codegen.targets import TargetInfo, target_info
 
 STREAM_MODULES = {"avr": "codegen.firmware.avr.stream", "mcs51": "codegen.firmware.mcs51.stream"}
@@ -53,17 +54,12 @@ def stream_module(target: str):
         raise BuildError(f"the {target} target has no streaming firmware yet") from None
 
 
-def stream_homes(job) -> bool:
-    """A streaming firmware homes at START when the machine homes: a delta, or a job that says so."""
-    return job.machine.kinematics == "delta" or bool(job.program is not None and job.program.home)
-
-
-def _hold(job, target) -> HoldPlan | None:
+def _hold(hold: HoldSettings | None, target) -> HoldPlan | None:
     """The streaming firmware's feed hold (the link's HOLD, RESUME, FEED_DOWN, FEED_UP, and on the AVR the board's
     keys)."""
-    if job.machine.feed_hold is None:
+    if hold is None:
         return None
-    return hold_plan(job, target.tick_hz, target.board, target.board_data, streamed=True)
+    return hold_plan(hold, target.tick_hz, target.board, target.board_data, streamed=True)
 
 
 def stream_setup(job, baud: int | None = None) -> StreamSetup:
@@ -73,18 +69,20 @@ def stream_setup(job, baud: int | None = None) -> StreamSetup:
     except FileNotFoundError:
         raise BuildError(f"targets/ has no board '{job.board}'") from None
     kin = make_kinematics(job.machine)
+    settings = job_settings(job)
     steppers = job.machine.steppers
     config = FirmwareConfig(
         job_name=job.name, job_file=job.path.name, target=target.target, board=target.board,
         motors=tuple(MotorPins(m, kin.socket(m), bool(steppers[m].invert_dir)) for m in kin.motors),
         step_pulse_us=job.machine.step_pulse_us, dir_setup_us=job.machine.dir_setup_us,
-        homing=homing_axes(job, kin, target.tick_hz) if stream_homes(job) else (),
+        # A streaming firmware homes at START when the machine homes: a delta, or a job that says so.
+        homing=homing_axes(settings.homing, kin, target.tick_hz) if settings.homing.always else (),
         baud=int(baud or job.machine.link.baud or 0),
         heaters=stream_heaters(job, target.heater_pins) if target.target == "avr" else (),
-        laser=laser_pwm(job, target.board_data, target.f_cpu),
-        jog=jog_plan(job, kin.motors, target.tick_hz) if job.machine.jog else None,
-        hold=_hold(job, target),
-        hold_override=job.machine.feed_hold.override if job.machine.feed_hold else 100)
+        laser=laser_pwm(settings.laser, job.board, target.board_data, target.f_cpu),
+        jog=jog_plan(settings.jog, kin.motors, target.tick_hz) if settings.jog else None,
+        hold=_hold(settings.hold, target),
+        hold_override=settings.hold.override if settings.hold else 100)
     module = stream_module(target.target)
     layout = module.ring_layout(config)
     budget = link_budget(layout.baud, layout.ring_bytes, len(config.motors),

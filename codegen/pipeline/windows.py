@@ -98,6 +98,15 @@ class Totals:
         self.ceiling_bytes += played.ceiling_bytes
 
 
+@dataclass(frozen=True)
+class StageSettings:
+    """What the stages after the planner need of the machine: the checks' tolerance, the player's pulse timing."""
+
+    tolerance_mm: float  # machine.tolerance: how far from the path the checks let a step put the tool
+    step_pulse_us: float  # STEP high time
+    dir_setup_us: float  # DIR before STEP
+
+
 @dataclass
 class _Carried:
     """What a window hands the next: the checks' state, the player's clock and positions, its last segment."""
@@ -115,30 +124,31 @@ class Stages:
     """`play` each window of the lookahead in order; each call hands out the windows that are final (a window
     stays open until the next one has passed its checks: a stretch over a limit that begins in it slows both)."""
 
-    def __init__(self, job, kin: Kinematics, target: TargetInfo, limits: PlannerLimits, start_steps: np.ndarray,
-                 lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None, tables: BinaryIO | None = None,
-                 link: LinkBudget | None = None, runtime: Callable[[], RuntimeRecords] | None = None,
-                 laser: LaserPwm | None = None, hold: HoldPlan | None = None,
-                 observe: Callable[[Played], None] | None = None):
-        """`keep`: the windows handed out keep their events and pulses (for `join`); `watch` times the stages;
-        `tables` gets each final window's table records as it is made (a window ends at a block and a run
-        start, so they join into the whole program's stream; `finish` adds the end marker); `link`: the
+    def __init__(self, settings: StageSettings, kin: Kinematics, target: TargetInfo, limits: PlannerLimits,
+                 start_steps: np.ndarray, lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None,
+                 tables: BinaryIO | None = None, link: LinkBudget | None = None,
+                 runtime: Callable[[], RuntimeRecords] | None = None, laser: LaserPwm | None = None,
+                 hold: HoldPlan | None = None, observe: Callable[[Played], None] | None = None):
+        """`settings`: the machine's tolerance and pulse timing; `keep`: the windows handed out keep their events
+        and pulses (for `join`); `watch` times the stages; `tables` gets each final window's table records as it
+        is made (a window ends at a block and a run start, so they join into the whole program's stream;
+        `finish` adds the end marker); `link`: the
         stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
         `runtime`: the program's runtime records so far (codegen/tables/runtime.py), whose cost the blocks after them
         get; `laser`: the laser's PWM, whose power records the runs get (codegen/tables/laser.py); `hold`: the feed hold,
         whose ceiling records they get where its override goes above 100 % (codegen/tables/headroom.py); `observe`
         gets each final window with its pulses (which it drops after unless `keep`)."""
-        self.job, self.kin, self.target, self.limits, self.lookahead = job, kin, target, limits, lookahead
+        self.kin, self.target, self.limits, self.lookahead = kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
-        self.carried = _Carried(Checker(kin, start_steps, job.machine.tolerance), 0,
+        self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
         self.runtime, self.laser, self.hold, self.observe = runtime, laser, hold, observe
-        motors, pulse_us = len(kin.motors), job.machine.step_pulse_us
+        motors, pulse_us = len(kin.motors), settings.step_pulse_us
         self.gaps = (target.run_gap_ticks(motors, pulse_us),
-                     target.block_gap_ticks(pulse_us, job.machine.dir_setup_us))
+                     target.block_gap_ticks(pulse_us, settings.dir_setup_us))
 
     @property
     def checker(self) -> Checker:

@@ -8,7 +8,7 @@ without heater outputs, a streaming firmware without heaters, a heater the machi
     collector = HeaterProgram()
     for batch in batches: collector.feed(batch)          # codegen/program/program.py does this, in the front end's process
     collector.first                                     # {"hotend": Output(...), ...}: each heater's first setting
-    heater_diagnostics(job, board_heaters, collector, streamed)   # the build's notes and warnings
+    heater_diagnostics(board, machine_heaters, board_heaters, collector, streamed)  # the notes and warnings
 """
 
 from __future__ import annotations
@@ -50,27 +50,29 @@ def _defaults() -> str:
             f"ki {pid['ki']:g}, kd {pid['kd']:g}; bed bang-bang {bang['hysteresis_c']:g} degC")
 
 
-def heater_diagnostics(job, board_heaters: dict, program: HeaterProgram, streamed: bool) -> list[Diagnostic]:
+def heater_diagnostics(board: str, machine_heaters: tuple[str, ...] | None, board_heaters: dict,
+                       program: HeaterProgram, streamed: bool) -> list[Diagnostic]:
     """What a build says about the program's heaters, once each, at the G-code that sets them: the board's
     defaults in use (a machine without `heaters:`), settings the image does not play (a board without heater
     outputs, such as the 8051 boards; a heater the machine does not list; `streamed`: a streaming firmware that
-    runs no heaters)."""
+    runs no heaters). `board`: the board's name; `machine_heaters`: the heaters of the machine's `heaters:`
+    section (None without one)."""
     if not program.first:
         return []
     first = next(iter(program.first.values()))
     where, named = first.source, code(first)
     if not board_heaters:
-        return [Diagnostic(where, f"'{named}' ignored (board {job.board} has no heater outputs: every heater "
+        return [Diagnostic(where, f"'{named}' ignored (board {board} has no heater outputs: every heater "
                                   "setting of the program is ignored)", "warning")]
     if streamed:
         return [Diagnostic(where, f"'{named}' ignored (the machine's streaming firmware runs heaters only for a "
                                   "machine with an extruder e or a `heaters:` section: every heater setting of the "
                                   "program is ignored)", "warning")]
     out = []
-    if job.machine.heaters is None:
-        out.append(Diagnostic(where, f"the machine has no `heaters:` section: board {job.board}'s defaults are "
+    if machine_heaters is None:
+        out.append(Diagnostic(where, f"the machine has no `heaters:` section: board {board}'s defaults are "
                                      f"used ({_defaults()})", "note"))
-    listed = HEATERS if job.machine.heaters is None else tuple(job.machine.heaters)
+    listed = HEATERS if machine_heaters is None else machine_heaters
     for name, item in program.first.items():
         if name not in listed or name not in board_heaters:
             out.append(Diagnostic(item.source, f"'{code(item)}' ignored (the machine has no {name} heater: every "

@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
-from codegen.errors import Diagnostic, JobError
+from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
 
 # kinematics -> its homed axes: (board endstop, the axis's direction towards it, {motor: its direction}, round)
@@ -49,31 +50,51 @@ class HomingAxis:
         return motor_names[self.motors[0]] if len(self.motors) == 1 else self.switch.split("_")[0]
 
 
-def homes(job, leading_g28: bool) -> bool:
-    return job.machine.kinematics == "delta" or bool(job.program.home) or leading_g28
+@dataclass(frozen=True)
+class HomedStepper:
+    """What homing needs of one stepper."""
+
+    steps_per_mm: float
+    range: tuple[float, float] | None  # mm of motor travel; None: none given
+    steps_source: SourceRef  # where the job file gives steps_per_mm (an error about it points there)
 
 
-def home_position(job, kin: Kinematics) -> np.ndarray:
+@dataclass(frozen=True)
+class HomingSettings:
+    """`machine.homing`, the machine's steppers, and whether it homes whatever its program says."""
+
+    kinematics: str
+    always: bool  # the machine homes at power-up: a delta, or `program.home: true`
+    speed: float  # mm/s of motor travel on the first approach
+    slow_speed: float  # mm/s on the second
+    backoff: float  # mm away from the switches between them
+    steppers: Mapping[str, HomedStepper]  # by name
+
+
+def homes(settings: HomingSettings, leading_g28: bool) -> bool:
+    return settings.always or leading_g28
+
+
+def home_position(settings: HomingSettings, kin: Kinematics) -> np.ndarray:
     """Where the tool is once homed (4-vector, mm)."""
-    if job.machine.kinematics == "delta":
+    if settings.kinematics == "delta":
         return kin.home()
     position = np.zeros(4)
     for axis, name in enumerate("xyz"):
-        stepper = job.machine.steppers.get(name)
+        stepper = settings.steppers.get(name)
         if stepper is not None and stepper.range:
             position[axis] = stepper.range[0]
     return position
 
 
-def homing_axes(job, kin: Kinematics, tick_hz: int) -> tuple[HomingAxis, ...]:
+def homing_axes(settings: HomingSettings, kin: Kinematics, tick_hz: int) -> tuple[HomingAxis, ...]:
     """The firmware's homing of every axis whose motors the machine has."""
-    settings = job.machine.homing
     axes = []
-    for switch, direction, motor_directions, round_ in AXES[job.machine.kinematics]:
+    for switch, direction, motor_directions, round_ in AXES[settings.kinematics]:
         if not all(name in kin.motors for name in motor_directions):
             continue
         motors = tuple(kin.motors.index(name) for name in motor_directions)
-        stepper, *others = (job.machine.steppers[name] for name in motor_directions)
+        stepper, *others = (settings.steppers[name] for name in motor_directions)
         spm = stepper.steps_per_mm
         for name, other in zip(list(motor_directions)[1:], others):
             if other.steps_per_mm != spm:  # one homing step of each belt must move the tool straight along the axis
@@ -83,7 +104,7 @@ def homing_axes(job, kin: Kinematics, tick_hz: int) -> tuple[HomingAxis, ...]:
                     f"({next(iter(motor_directions))} has {spm:g}, {name} {other.steps_per_mm:g})"))])
         if len(motors) == 1 and stepper.range:
             travel = stepper.range[1] - stepper.range[0]
-        elif job.machine.kinematics == "delta":
+        elif settings.kinematics == "delta":
             travel = float(kin.to_motor(kin.home()[None, :])[0, motors[0]])  # the carriage from the bed to the top
         else:
             travel = DEFAULT_TRAVEL_MM

@@ -21,7 +21,7 @@ import numpy as np
 from codegen.errors import Diagnostic
 from codegen.gcode import GcodeStream
 from codegen.program.heaters import HeaterProgram
-from codegen.program.homing import home_position, homes
+from codegen.program.homing import HomingSettings, home_position, homes
 from codegen.kinematics.base import Kinematics
 from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.toolpath.items import Arc, Curve, Home, Line, Lines, Toolpath, expanded
@@ -36,10 +36,12 @@ class Program:
     into `settings` as (item index, Output) while it flattens, and a wait rests the plan). `handed_on`: the
     share of the program (0..1) whose segments codegen/motion/pieces.py has handed on, for a progress bar."""
 
-    def __init__(self, job, kin: Kinematics, strict: bool = False):
-        self.job, self.kin = job, kin
-        self.always_homes = homes(job, False)
-        self.home = home_position(job, kin) if self.always_homes else None
+    def __init__(self, job, kin: Kinematics, homing: HomingSettings, strict: bool = False):
+        """`job` goes on to the G-code reader and the shapes (codegen/gcode, codegen/shapes); homing and the
+        machine's kinematics come in `homing` and `kin`."""
+        self.job, self.kin, self.homing = job, kin, homing
+        self.always_homes = homes(homing, False)
+        self.home = home_position(homing, kin) if self.always_homes else None
         if self.always_homes:
             start = self.home.copy()
             if job.program.start_source is not None:
@@ -120,7 +122,7 @@ class Program:
             feed = math.inf if self.job.program.travel_feed is None else self.job.program.travel_feed / 60.0
             items = [Line(home, target.copy(), feed, False, self.job.program.start_source, "travel"), *items]
             start = home
-        if self.job.machine.kinematics == "delta" and items:
+        if self.homing.kinematics == "delta" and items:
             if isinstance(items[0], Lines):
                 items[:1] = items[0].split_first()
             items[:1] = descend_first(items[0], home)
@@ -159,9 +161,10 @@ class _SettleHomes:
         return out
 
 
-def whole_toolpath(job, kin: Kinematics, strict: bool = False) -> tuple[Toolpath, list[Diagnostic], bool]:
+def whole_toolpath(job, kin: Kinematics, homing: HomingSettings,
+                   strict: bool = False) -> tuple[Toolpath, list[Diagnostic], bool]:
     """Every item at once: the toolpath, the front end's warnings, and whether it starts by homing (G28)."""
-    program = Program(job, kin, strict)
+    program = Program(job, kin, homing, strict)
     items = expanded([item for batch in program.batches() for item in batch])
     start = program.start if program.start is not None else np.zeros(4)
     return Toolpath(start, items), program.warnings, program.homes_first

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen import __version__
-from codegen.program.normalized import job_fingerprint
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.host import HostBuild
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
 from codegen.tables.format import stream_bytes
@@ -83,7 +83,7 @@ def build_report(host: HostBuild, image, fingerprint: str, sources: dict[str, st
         "board": host.target.board,
         "mcu": host.target.mcu,
         "fingerprint": fingerprint,
-        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/program/normalized.py)
+        "job_fingerprint": job_fingerprint(host.job),  # what `flash` compares with the job (codegen/pipeline/normalized.py)
         "image": {
             "hex": image.hex_path.name,
             "elf": image.elf_path.name if image.elf_path else None,

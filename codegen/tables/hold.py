@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.errors import BuildError
+from codegen.kinematics.base import StepperLimits
 from codegen.tables.schedule import FRAC_BITS, RT_PAUSE, Schedule, in_force
 
 F_ONE = 128  # the feed factor 1 (100 %)
@@ -90,24 +91,32 @@ class HoldPlan:
         return F_ONE * FRAC16 / self.ramp_k / tick_hz
 
 
-def hold_plan(job, tick_hz: int, board_name: str, board: dict, streamed: bool = False) -> HoldPlan:
+@dataclass(frozen=True)
+class HoldSettings:
+    """`machine.feed_hold` and what its ramp needs of the machine."""
+
+    override: int  # % the job starts with
+    max_override: int | None  # % the override keys go up to; None: the player's most
+    steppers: tuple[StepperLimits, ...]  # every stepper's limits
+    ramp_share: bool  # the plan keeps RAMP_SHARE of every motor's acceleration (plans_ramp_share): no gate
+
+
+def hold_plan(hold: HoldSettings, tick_hz: int, board_name: str, board: dict, streamed: bool = False) -> HoldPlan:
     """`machine.feed_hold` on `board`: the ramp from the machine's limits, the keys from `hold_keys:` (none for the
     8051's streaming firmware, `streamed`: the link's request frames are its only way in)."""
     keys = board.get("hold_keys") or {}
     if not keys and not (streamed and board.get("target") == "mcs51"):
         raise BuildError(f"machine.feed_hold: board {board_name} has no hold_keys (targets/{board_name}.yaml)")
-    hold = job.machine.feed_hold
     player, top = PLAYER_MAX_OVERRIDE[board.get("target", "avr")]
     for name, percent in (("max_override", hold.max_override), ("override", hold.override)):
         if percent is not None and percent > top:
             raise BuildError(f"machine.feed_hold.{name}: the {player}'s player goes up to {top} % (has {percent} %)")
-    steppers = job.machine.steppers.values()
-    per_second = min(s.max_accel / s.max_velocity for s in steppers)  # of f, for the fastest motor at its limit
+    per_second = min(s.max_accel / s.max_velocity for s in hold.steppers)  # of f, for the fastest motor at its limit
     ramp_k = int(RAMP_SHARE * per_second * F_ONE * FRAC16 / tick_hz)
     if not 1 <= ramp_k < FRAC16:
         raise BuildError(f"machine.feed_hold: the feed ramp ({RAMP_SHARE * per_second:.4g} /s) does not fit the "
                          f"player's 16-bit step per tick ({ramp_k})")
-    gate_above = F_MAX if plans_ramp_share(job) else F_FREE
+    gate_above = F_MAX if hold.ramp_share else F_FREE
     max_step = (hold.max_override or top) // 10
     return HoldPlan(ramp_k, gate_above, {str(k): _key_place(v) for k, v in keys.items()},
                     tuple(int(d) for d in dilation_table(override_target(max_step))), max_step)
@@ -118,10 +127,10 @@ def _key_place(value) -> str | tuple[int, ...]:
     return tuple(int(v) for v in value) if isinstance(value, (list, tuple)) else str(value)
 
 
-def plans_ramp_share(job) -> bool:
+def plans_ramp_share(feed_hold: bool, kinematics: str, target: str) -> bool:
     """The plan keeps RAMP_SHARE of every motor's acceleration for the ramp: a delta's with feed_hold, and every
     8051 image's (its player's ramp has no gate)."""
-    return job.machine.feed_hold is not None and (job.machine.kinematics == "delta" or job.target == "mcs51")
+    return feed_hold and (kinematics == "delta" or target == "mcs51")
 
 
 def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:

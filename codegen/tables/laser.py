@@ -58,20 +58,26 @@ class LaserPwm:
         return self.f_cpu / (2.0 * self.prescaler * self.top)
 
 
-def laser_pwm(job, board: dict, f_cpu: int) -> LaserPwm | None:
-    """The job's laser PWM on its board (None without machine.laser); BuildError where the board has none."""
-    laser = job.machine.laser
+@dataclass(frozen=True)
+class LaserSettings:
+    """`machine.laser`, and whether M4's power follows the feed factor."""
+
+    pwm_hz: float  # machine.laser.pwm_hz
+    follows_feed: bool  # the machine has feed_hold
+
+
+def laser_pwm(laser: LaserSettings | None, board_name: str, board: dict, f_cpu: int) -> LaserPwm | None:
+    """The laser's PWM on board `board_name` (None without machine.laser); BuildError where the board has none."""
     if laser is None:
         return None
     pin = board.get("laser_pwm")
     if pin is None or board.get("target") != "avr":
-        raise BuildError(f"machine.laser: board {job.board} has no laser PWM output (`laser_pwm` in its file); "
+        raise BuildError(f"machine.laser: board {board_name} has no laser PWM output (`laser_pwm` in its file); "
                          f"only the tool pin's on and off")
-    follows_feed = job.machine.feed_hold is not None
     for prescaler in PWM_PRESCALERS:
         top = round(f_cpu / (2.0 * prescaler * laser.pwm_hz))
-        if top <= (COUNTS if follows_feed else 0xFFFF):
-            return LaserPwm(str(pin), float(laser.pwm_hz), prescaler, top, f_cpu, follows_feed)
+        if top <= (COUNTS if laser.follows_feed else 0xFFFF):
+            return LaserPwm(str(pin), float(laser.pwm_hz), prescaler, top, f_cpu, laser.follows_feed)
     raise BuildError(f"machine.laser.pwm_hz {laser.pwm_hz:g} is below what Timer5 makes")
 
 

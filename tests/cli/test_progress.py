@@ -22,6 +22,7 @@ from codegen.gcode import GcodeStream
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
 from codegen.motion.pieces import pieces
+from codegen.pipeline.settings import front_end_settings, homing_settings
 from codegen.program.program import Program
 from codegen.progress import DELAY_ENV
 from tests.helpers import ROOT
@@ -131,8 +132,9 @@ def test_the_plan_counts_the_share_of_the_gcode_read_and_cut():
     read = [stream.read_share for _ in stream.batches(size=512)]
     assert len(read) > 3 and read == sorted(read) and 0 < read[0] < 0.5 and read[-1] == 1.0
     kin = make_kinematics(job.machine)
-    program = Program(job, kin)
-    handed = [program.handed_on for _ in pieces(job, kin, program)]  # the parts of one batch share its share
+    program = Program(job, kin, homing_settings(job))
+    front = front_end_settings(job)
+    handed = [program.handed_on for _ in pieces(front, kin, program)]  # the parts of one batch share its share
     assert len(set(handed)) > 5 and handed == sorted(handed) and handed[0] < 0.5 and handed[-1] > 0.99
     assert program.handed_on == 1.0  # once the last part is planned
 

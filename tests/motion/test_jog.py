@@ -11,6 +11,7 @@ import pytest
 from codegen.errors import BuildError, JobError
 from codegen.firmware.avr.board import parse_pin
 from codegen.motion.jog import ACCEL_HEADROOM, RATE_HEADROOM, STILL, board_keys, direction_code, jog_plan
+from codegen.pipeline.settings import jog_settings
 from codegen.job import load_job
 from tests.helpers import ROOT
 
@@ -68,7 +69,7 @@ def test_jog_needs_cartesian_or_corexy(tmp_path):
 
 def test_the_ramp_is_constant_acceleration_within_the_limits(tmp_path):
     j = load_job(job(tmp_path, "{speeds: [60, 600, 3000], accel: 500}"))
-    plan = jog_plan(j, ("x", "y"), 2_000_000)
+    plan = jog_plan(jog_settings(j), ("x", "y"), 2_000_000)
     spm, tick = 80.0, 2_000_000
     assert plan.speeds == (60, 600, 3000) and plan.max_rate == 50 * spm and plan.max_accel == 500 * spm
     # Cruise: the level's rate in whole ticks, never faster than the headroom below max_velocity.
@@ -86,10 +87,10 @@ def test_the_ramp_is_constant_acceleration_within_the_limits(tmp_path):
 
 
 def test_directions_move_the_right_motors(tmp_path):
-    cart = jog_plan(load_job(job(tmp_path, "{}")), ("x", "y"), 1_000_000)
+    cart = jog_plan(jog_settings(load_job(job(tmp_path, "{}"))), ("x", "y"), 1_000_000)
     assert cart.signs[direction_code(1, 0)] == (1, 0) and cart.signs[direction_code(-1, 1)] == (-1, 1)
     assert cart.signs[STILL] == (0, 0)
-    xy = jog_plan(load_job(job(tmp_path, "{}", kinematics="corexy")), ("a", "b"), 1_000_000)
+    xy = jog_plan(jog_settings(load_job(job(tmp_path, "{}", kinematics="corexy"))), ("a", "b"), 1_000_000)
     assert xy.signs[direction_code(1, 0)] == (1, 1)  # x: both belts
     assert xy.signs[direction_code(0, 1)] == (1, -1)  # y: opposite ways
     assert xy.signs[direction_code(1, 1)] == (1, 0) and xy.signs[direction_code(1, -1)] == (0, 1)  # one belt
@@ -98,7 +99,7 @@ def test_directions_move_the_right_motors(tmp_path):
 def test_too_slow_a_speed_for_16_bit_intervals_is_refused(tmp_path):
     j = load_job(job(tmp_path, "{speeds: [1, 600]}"))
     with pytest.raises(BuildError, match=r"1 mm/min is too slow for the jog timer: 1500000 ticks"):
-        jog_plan(j, ("x", "y"), 2_000_000)
+        jog_plan(jog_settings(j), ("x", "y"), 2_000_000)
 
 
 def test_board_keys_name_every_problem():

@@ -10,7 +10,7 @@ from codegen.job import load_job
 from codegen.motion.lookahead import Lookahead
 from codegen.kinematics import make_kinematics
 from codegen.motion.pieces import pieces
-from codegen.pipeline.host import planner_limits
+from codegen.pipeline.settings import front_end_settings, homing_settings, planner_limits
 from codegen.motion.planner import plan
 from codegen.program.program import Program
 from codegen.toolpath.segments import concat
@@ -23,7 +23,7 @@ def planner_input(path):
     """The planner's input for the whole program: segments, kinematics, steps, limits."""
     job = load_job(path)
     kin = make_kinematics(job.machine)
-    chunks = list(pieces(job, kin, Program(job, kin)))
+    chunks = list(pieces(front_end_settings(job), kin, Program(job, kin, homing_settings(job))))
     segments, steps = concat(*(c[0] for c in chunks)), np.concatenate([c[1] for c in chunks])
     return segments, kin, steps, planner_limits(job, kin, target_info(job.board))
 

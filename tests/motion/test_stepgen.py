@@ -78,13 +78,14 @@ def test_refine_keeps_every_block_of_a_slicer_file_within_the_staircase_limit():
     from codegen.job import load_job
     from codegen.kinematics import make_kinematics
     from codegen.motion.pieces import drop_empty
+    from codegen.pipeline.settings import homing_settings
     from codegen.program.program import whole_toolpath
     from codegen.toolpath.segments import flatten
 
     root = ROOT
     job = load_job(root / "examples" / "printers" / "benchy-mini.yaml")
     kin = make_kinematics(job.machine)
-    refined = refine(drop_empty(flatten(whole_toolpath(job, kin)[0], job.machine.tolerance)), kin)
+    refined = refine(drop_empty(flatten(whole_toolpath(job, kin, homing_settings(job))[0], job.machine.tolerance)), kin)
     limit = STAIRCASE_LIMIT * 0.01  # 100 steps/mm
     doubtful = np.flatnonzero(staircase_bound(refined, kin) > limit)  # the others are provably within
     assert staircase_error(refined, kin, doubtful).max() <= limit

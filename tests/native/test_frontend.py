@@ -17,6 +17,7 @@ from codegen.gcode.fast import NativeLines
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
 from codegen.motion.pieces import pieces
+from codegen.pipeline.settings import front_end_settings, homing_settings
 from codegen.program.program import Program
 from codegen.toolpath.segments import flatten
 from codegen.motion.staircase import staircase_error, staircase_error_numpy
@@ -204,7 +205,7 @@ def test_a_move_out_of_range_is_an_error_at_its_line(tmp_path):
     job = load_job(path)
     kin = make_kinematics(job.machine)
     with pytest.raises(JobError) as error:
-        list(pieces(job, kin, Program(job, kin)))
+        list(pieces(front_end_settings(job), kin, Program(job, kin, homing_settings(job))))
     (d,) = error.value.diagnostics
     assert (d.where.line, d.where.col) == (10, 7)
     assert d.message == "motor x would go to 120.000 mm, outside its range [0, 100]"

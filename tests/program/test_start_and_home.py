@@ -45,7 +45,7 @@ class Built:
     def __init__(self, path):
         job = load_job(path)
         self.host = host_build(job)
-        self.toolpath = whole_toolpath(job, self.host.kin)[0]
+        self.toolpath = whole_toolpath(job, self.host.kin, self.host.settings.homing)[0]
         self.findings, self.kin, self.start_steps = self.host.findings, self.host.kin, self.host.start_steps
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from codegen import __version__
 from codegen.job.schema import HEATERS, Job
 from codegen.paths import targets_dir
-from codegen.program.homing import homes
+from codegen.pipeline.settings import homing_settings
 from codegen.targets import target_info
 
 
@@ -38,7 +38,7 @@ def normalized_job(job: Job) -> dict:
 def _program(job: Job) -> dict:
     program = job.program
     out = program.model_dump(mode="json", by_alias=True, exclude={"shapes", "gcode"})
-    if "start" not in program.model_fields_set and homes(job, False):
+    if "start" not in program.model_fields_set and homing_settings(job).always:
         del out["start"]  # where a machine homes, a `start` given adds a travel move from home (codegen/program/program.py)
     if program.shapes is not None:
         out["shapes"] = [_shape(shape) for shape in program.shapes]
@@ -66,8 +66,8 @@ def gcode_file(job: Job) -> Path | None:
 def job_fingerprint(job: Job, stream_baud: int | None = None) -> str:
     """What an image was built from: printer-codegen's version, the normalized job, the board's and MCU's files
     and the G-code file's bytes. With `stream_baud` (the streaming firmware's link, 0: the target's), that of a
-    streaming firmware, which plays any program of the machine: only `program.home` of the program counts
-    (codegen/streaming.stream_homes), and the baud rate does."""
+    streaming firmware, which plays any program of the machine: only `program.home` of the program counts,
+    and the baud rate does."""
     document = normalized_job(job)
     gcode = gcode_file(job)
     if stream_baud is not None:
