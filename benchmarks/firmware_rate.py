@@ -37,16 +37,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.config import FirmwareConfig, MotorPins, load_target  # noqa: E402
-from codegen.program.homing import HomingAxis  # noqa: E402
-from codegen.firmware.avr.image import build_image, render_sources  # noqa: E402
-from codegen.paths import targets_dir  # noqa: E402
-from codegen.tables.schedule import Schedule  # noqa: E402
-from codegen.sim.avr import SimTrace, simulate  # noqa: E402
-from codegen.tables.twin import predict  # noqa: E402
-from codegen.tables.format import stream_bytes
 from shortest import shortest  # noqa: E402 - beside this script
+
+from codegen.errors import BuildError  # noqa: E402
+from codegen.firmware.avr.image import build_image, render_sources  # noqa: E402
+from codegen.firmware.config import FirmwareConfig, MotorPins, load_target  # noqa: E402
+from codegen.paths import targets_dir  # noqa: E402
+from codegen.program.homing import HomingAxis  # noqa: E402
+from codegen.sim.avr import SimTrace, simulate  # noqa: E402
+from codegen.tables.format import stream_bytes  # noqa: E402
+from codegen.tables.schedule import Schedule  # noqa: E402
+from codegen.tables.twin import predict  # noqa: E402
 
 MCU = "atmega2560"
 F_CPU = 16_000_000

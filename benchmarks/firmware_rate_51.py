@@ -32,15 +32,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from shortest import shortest  # noqa: E402 - beside this script
+
 from codegen.errors import BuildError  # noqa: E402
 from codegen.firmware.config import FirmwareConfig, MotorPins, load_target  # noqa: E402
 from codegen.firmware.mcs51.image import build_image, render_sources  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
+from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
+from codegen.tables.format import stream_bytes  # noqa: E402
 from codegen.tables.schedule import Schedule  # noqa: E402
 from codegen.tables.twin import predict  # noqa: E402
-from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
-from codegen.tables.format import stream_bytes
-from shortest import shortest  # noqa: E402 - beside this script
 
 TICK_HZ = 1_000_000
 CLOCKS = 12  # CPU clocks per machine cycle (timer tick)

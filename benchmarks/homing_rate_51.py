@@ -20,14 +20,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from shortest import shortest  # noqa: E402 - beside this script
+
 from codegen.errors import BuildError  # noqa: E402
 from codegen.firmware.config import FirmwareConfig, MotorPins, load_target  # noqa: E402
-from codegen.program.homing import HomingAxis  # noqa: E402
 from codegen.firmware.mcs51.image import build_image, render_sources  # noqa: E402
-from codegen.tables.schedule import Schedule  # noqa: E402
+from codegen.program.homing import HomingAxis  # noqa: E402
 from codegen.sim.mcs51 import SimTrace, simulate  # noqa: E402
-from codegen.tables.format import stream_bytes
-from shortest import shortest  # noqa: E402 - beside this script
+from codegen.tables.format import stream_bytes  # noqa: E402
+from codegen.tables.schedule import Schedule  # noqa: E402
 
 CLOCKS = 12  # CPU clocks per machine cycle
 TOLERANCE = CLOCKS  # the poll loop of 2 machine cycles: a step 0 or 1 cycle after its tick
@@ -52,7 +53,7 @@ def one_step_schedule(n_motors: int) -> Schedule:
 def homing_trace(board: str, n_motors: int, interval: int, workdir: Path) -> SimTrace:
     """Home n motors towards their min keys (switches 40, 50, ... steps away), then play the one-step table."""
     motors = tuple(MotorPins(name, socket) for name, socket, _ in SOCKETS[:n_motors])
-    axes = tuple(HomingAxis(m, SOCKETS[m][2], -1, 500, interval, interval, BACKOFF, 0) for m in range(n_motors))
+    axes = tuple(HomingAxis((m,), (-1,), SOCKETS[m][2], -1, 500, interval, interval, BACKOFF) for m in range(n_motors))
     cfg = FirmwareConfig("homing_rate_51", "benchmarks/homing_rate_51.py", "mcs51", board, motors, homing=axes)
     sched = one_step_schedule(n_motors)
     mcu = load_target(load_target(board)["mcu"])

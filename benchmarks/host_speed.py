@@ -16,17 +16,17 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from codegen.tables.checks import MotorTrain, check
-from codegen.tables.compress import compress
 from codegen.kinematics import make_kinematics
 from codegen.motion.planner import PlannerLimits, plan
 from codegen.motion.staircase import refine, split_long
 from codegen.motion.stepgen import generate, segment_steps
-from codegen.targets import target_info
-from codegen.tables.twin import predict
-from codegen.toolpath.segments import REF_LINE, Segments
-from codegen.toolpath.items import FINE_STEPS
+from codegen.tables.checks import MotorTrain, check
+from codegen.tables.compress import compress
 from codegen.tables.format import stream_bytes
+from codegen.tables.twin import predict
+from codegen.targets import target_info
+from codegen.toolpath.items import FINE_STEPS
+from codegen.toolpath.segments import REF_LINE, Segments
 
 
 def random_segments(n: int, delta: bool, seed: int = 1) -> Segments:

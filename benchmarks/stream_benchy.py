@@ -30,8 +30,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from codegen.cli.main import main as cli_main  # noqa: E402
-from codegen.tables.compress import TimingWindow  # noqa: E402
 from codegen.pipeline.streaming import SIM_MODULES  # noqa: E402
+from codegen.tables.compress import TimingWindow  # noqa: E402
 
 JOB = Path(__file__).resolve().parent.parent / "examples" / "printers" / "benchy-mini.yaml"
 

@@ -29,18 +29,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from firmware_rate import (F_CPU, MARGIN_CYCLES, MCU, MOTOR_COUNTS, PAD_MARGIN, config, homing_config,  # noqa: E402
+                           latencies, prescaler, schedule, suffix)
+from shortest import shortest  # noqa: E402 - beside this script
+
 import codegen.tables.format as tables  # noqa: E402
 from codegen.errors import BuildError  # noqa: E402
-from codegen.firmware.config import load_target  # noqa: E402
 from codegen.firmware.avr.stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
+from codegen.firmware.config import load_target  # noqa: E402
 from codegen.link import protocol  # noqa: E402
 from codegen.link.host import HostLink  # noqa: E402
 from codegen.link.ring import link_budget  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
 from codegen.sim.avr_link import StreamSim  # noqa: E402
-from firmware_rate import (F_CPU, MARGIN_CYCLES, MCU, MOTOR_COUNTS, PAD_MARGIN, config, homing_config,  # noqa: E402
-                           latencies, prescaler, schedule, suffix)
-from shortest import shortest  # noqa: E402 - beside this script
 
 LATE_LIMIT = 120  # cycles from a pulse's tick: the idle latency and one link interrupt, with room
 TOLERANCE = 2  # cycles: homing steps around their interval, beyond the link's delay

@@ -38,6 +38,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from firmware_rate_51 import CLOCKS, TICK_HZ, TOLERANCE, _note, config, latencies, schedule  # noqa: E402
+from shortest import shortest  # noqa: E402 - beside this script
+
 import codegen.tables.format as tables  # noqa: E402
 from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, read_map  # noqa: E402
 from codegen.firmware.mcs51.stream import build_stream_image, render_stream_sources, ring_layout  # noqa: E402
@@ -46,8 +49,6 @@ from codegen.link.host import HostLink, LinkStats  # noqa: E402
 from codegen.link.ring import link_budget  # noqa: E402
 from codegen.paths import targets_dir  # noqa: E402
 from codegen.sim.mcs51_link import simulate_stream  # noqa: E402
-from firmware_rate_51 import CLOCKS, TICK_HZ, TOLERANCE, _note, config, latencies, schedule  # noqa: E402
-from shortest import shortest  # noqa: E402 - beside this script
 
 LINK_JITTER = 4  # machine cycles: the instruction running when the timer overflows, one more after a RETI
 DEFAULT_BOARD = "stc89c52rc"

@@ -9,11 +9,11 @@ from pathlib import Path
 import yaml
 
 from codegen.firmware.config import MotorPins, board_socket
-from codegen.program.homing import AXES
-from codegen.pipeline.normalized import LiteralText, Section, normalized_job
 from codegen.job import load_job
 from codegen.job.schema import Job
 from codegen.kinematics import make_kinematics
+from codegen.pipeline.normalized import LiteralText, Section, normalized_job
+from codegen.program.homing import AXES
 from codegen.targets import target_info
 
 # The board file's keys shown under board_info.pins after the motors' sockets and switches, in this order.

@@ -13,9 +13,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from codegen.pipeline.normalized import job_fingerprint
 from codegen.errors import BuildError
 from codegen.job import load_job
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.streaming import stream_setup
 from codegen.targets import target_info
 

@@ -12,18 +12,21 @@ import sys
 from pathlib import Path
 
 from codegen import __version__, progress
-from codegen.cli import config as cli_config, flash as cli_flash, stream as cli_stream, tune as cli_tune
+from codegen.cli import config as cli_config
+from codegen.cli import flash as cli_flash
+from codegen.cli import stream as cli_stream
+from codegen.cli import tune as cli_tune
 from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware.config import Image
 from codegen.job import load_job
 from codegen.pipeline.host import HostBuild, host_build
-from codegen.verify.compare import compare, simulated_switches
 from codegen.report.summaries import build_report, human_plan, motion, plan_summary, write_json, write_trace
-from codegen.verify.results import verify_json
-from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
-from codegen.verify.hold import hold_lines, hold_verify, pauses
 from codegen.report.waveform import write_vcd
 from codegen.tables.format import stream_bytes
+from codegen.verify.compare import compare, simulated_switches
+from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
+from codegen.verify.hold import hold_lines, hold_verify, pauses
+from codegen.verify.results import verify_json
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}

@@ -9,13 +9,13 @@ import time
 from pathlib import Path
 
 from codegen import __version__, progress
-from codegen.pipeline.normalized import job_fingerprint
 from codegen.errors import BuildError, render_all
 from codegen.job import load_job
 from codegen.link.host import HostLink
 from codegen.pipeline.host import HostBuild, host_build
-from codegen.report.summaries import human_plan, plan_summary, write_json
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_chunks, stream_setup
+from codegen.report.summaries import human_plan, plan_summary, write_json
 from codegen.verify.heaters import job_faults
 from codegen.verify.hold import hold_verify, pauses
 from codegen.verify.stream import simulate_stream

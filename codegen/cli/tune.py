@@ -15,9 +15,9 @@ from codegen.errors import BuildError
 from codegen.firmware.avr.tune import build_tune_image, tune_setup
 from codegen.heaters.control import PID_PERIOD_S, fixed_gains, max_duty
 from codegen.heaters.plant import heating_figures, simulate
-from codegen.program.heater_settings import heater_settings
 from codegen.job import load_job
 from codegen.link.tune import TuneHost, heaters_snippet
+from codegen.program.heater_settings import heater_settings
 
 DEFAULT_TARGET_C = {"hotend": 210.0, "bed": 60.0}
 MIN_ABOVE_C = 20.0  # a target this far above the heater's minimum at least: the relay must heat to cross it

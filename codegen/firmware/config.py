@@ -11,11 +11,11 @@ from pathlib import Path
 import yaml
 
 from codegen.errors import BuildError
-from codegen.tables.hold import HoldPlan
 from codegen.motion.jog import JogPlan
 from codegen.paths import targets_dir
-from codegen.tables.laser import LaserPwm
 from codegen.program.homing import HomingAxis
+from codegen.tables.hold import HoldPlan
+from codegen.tables.laser import LaserPwm
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ import math
 
 from codegen.errors import Diagnostic, SourceRef
 from codegen.gcode import mcodes
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES,
-                                 SUPPORTED, code_name, group_of, harmless_reason)
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
+                                 code_name, group_of, harmless_reason)
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState
 from codegen.gcode.moves import LINE, Moves
 from codegen.gcode.reader import Block, Origin, columns

@@ -17,10 +17,9 @@ import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from codegen.errors import Diagnostic, JobError, SourceRef, closest, suggest
-from codegen.job.schema import (
-    DEFAULT_MAX_TEMP_C, HEATERS, MOTORS, REQUIRED_MOTORS, SHAPES, BangBang, Control, CustomSensor, Delta, Heater,
-    Homing, Jog, Job, Link, Machine, PidGains, PlantOverrides, Program, Stepper,
-)
+from codegen.job.schema import (DEFAULT_MAX_TEMP_C, HEATERS, MOTORS, REQUIRED_MOTORS, SHAPES, BangBang, Control,
+                                CustomSensor, Delta, Heater, Homing, Job, Jog, Link, Machine, PidGains, PlantOverrides,
+                                Program, Stepper)
 
 YPath = tuple  # of str (mapping keys) and int (list indexes)
 

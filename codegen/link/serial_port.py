@@ -14,9 +14,9 @@ import time
 from contextlib import contextmanager
 
 from codegen.errors import BuildError
-from codegen.tables.hold import F_ONE
 from codegen.link.host import HostLink
 from codegen.link.protocol import FEED_DOWN, FEED_UP, HOLD, RESUME, Status
+from codegen.tables.hold import F_ONE
 
 ABORT_WAIT_S = 3.0  # after Ctrl-C: how long the firmware has to answer ABORTED
 READ_SLICE_S = 0.002  # the longest a read waits before the session looks at its timers again

@@ -33,7 +33,6 @@ from codegen.motion.blocks import Events
 from codegen.motion.planner import Plan, quantisation_factor
 from codegen.toolpath.segments import Segments
 
-
 # Of every motor's rate: the compressor's windows (5 % of a gap either way) may shorten 8 steps by 2 x 5 % of one
 # gap, 1.25 %, and 0.985 x 1.0125 < 1.
 RATE_SHARE = 0.985

@@ -15,14 +15,14 @@ import numpy as np
 
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
-from codegen.overlap import overlapped
 from codegen.motion.planner import segment_lengths
-from codegen.program.program import Program
-from codegen.toolpath.segments import Flattener, Segments
-from codegen.stopwatch import Stopwatch
 from codegen.motion.staircase import refine, split_long
 from codegen.motion.stepgen import segment_steps
+from codegen.overlap import overlapped
+from codegen.program.program import Program
+from codegen.stopwatch import Stopwatch
 from codegen.toolpath.items import Lines
+from codegen.toolpath.segments import Flattener, Segments
 
 REACH_SAMPLES = 16  # points along each piece where the kinematics is not linear
 MAX_REACH_ERRORS = 20

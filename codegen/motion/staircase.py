@@ -14,9 +14,9 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import MAX_MODULUS, bresenham, bresenham_init
+from codegen.motion.stepgen import segment_steps
 from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
-from codegen.motion.stepgen import segment_steps
 
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4

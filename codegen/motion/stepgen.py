@@ -13,11 +13,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from codegen.motion.curve_timing import CurveBlocks, curve_blocks, retime
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import Events, bresenham_init
-from codegen.native import contiguous, library, pointer
+from codegen.motion.curve_timing import CurveBlocks, curve_blocks, retime
 from codegen.motion.planner import Plan
+from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
 
 

@@ -13,36 +13,35 @@ from typing import BinaryIO, Callable
 import numpy as np
 
 from codegen import progress
-from codegen.tables.checks import Findings, MotorTrain
-from codegen.tables.compress import Compressed
 from codegen.errors import BuildError, Diagnostic
-from codegen.firmware.config import FirmwareConfig, HeaterFirmware, MotorPins
-from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.heaters import job_heaters, stream_heaters
-from codegen.program.heaters import HeaterProgram, heater_diagnostics
-from codegen.tables.hold import HoldPlan, hold_plan
-from codegen.program.homing import homes, homing_axes
-from codegen.motion.jog import jog_plan
-from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_segments
+from codegen.firmware.config import FirmwareConfig, HeaterFirmware, MotorPins
 from codegen.kinematics import make_kinematics
 from codegen.kinematics.base import Kinematics
-from codegen.tables.laser import LaserPwm, laser_pwm
 from codegen.link.ring import LinkBudget, LinkPlan, link_plan
+from codegen.motion.blocks import Events
+from codegen.motion.jog import jog_plan
 from codegen.motion.lookahead import Lookahead, Window
 from codegen.motion.pieces import front_end
 from codegen.motion.planner import Plan, PlannerLimits, plan
+from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_segments
 from codegen.pipeline.settings import JobSettings, job_settings, planner_limits
+from codegen.pipeline.windows import Played, Stages, Totals
+from codegen.program.heater_settings import heater_settings
+from codegen.program.heaters import HeaterProgram, heater_diagnostics
+from codegen.program.homing import HomingAxis, homes, homing_axes
 from codegen.program.program import Program
+from codegen.stopwatch import Stopwatch
+from codegen.tables.checks import Findings, MotorTrain
+from codegen.tables.compress import Compressed
+from codegen.tables.format import RUNTIME_BYTES
+from codegen.tables.hold import HoldPlan, hold_plan
+from codegen.tables.laser import LaserPwm, laser_pwm
 from codegen.tables.runtime import RuntimeRecords, played_outputs, runtime_records, with_runtime
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
-from codegen.tables.format import RUNTIME_BYTES
-from codegen.program.heater_settings import heater_settings
-from codegen.toolpath.segments import Flattener, Segments
-from codegen.motion.blocks import Events
-from codegen.stopwatch import Stopwatch
-from codegen.targets import TargetInfo, target_info
 from codegen.tables.twin import Pulses
-from codegen.pipeline.windows import Played, Stages, Totals
+from codegen.targets import TargetInfo, target_info
+from codegen.toolpath.segments import Flattener, Segments
 
 
 @dataclass

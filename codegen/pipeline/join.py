@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from codegen.tables.compress import Compressed
-from codegen.motion.planner import Plan
-from codegen.tables.schedule import Schedule
-from codegen.toolpath.segments import Segments, concat
 from codegen.motion.blocks import Events
-from codegen.tables.twin import Pulses
+from codegen.motion.planner import Plan
 from codegen.pipeline.windows import Played
+from codegen.tables.compress import Compressed
+from codegen.tables.schedule import Schedule
+from codegen.tables.twin import Pulses
+from codegen.toolpath.segments import Segments, concat
 
 
 def _offsets(sizes: list[int]) -> list[int]:

@@ -15,16 +15,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.firmware.avr.heaters import stream_heaters
-from codegen.tables.hold import HoldPlan, HoldSettings, hold_plan
-from codegen.program.homing import homing_axes
-from codegen.motion.jog import jog_plan
+from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.kinematics import make_kinematics
-from codegen.tables.laser import laser_pwm
 from codegen.link import protocol
 from codegen.link.ring import LinkBudget, link_budget
+from codegen.motion.jog import jog_plan
 from codegen.pipeline.settings import job_settings
+from codegen.program.homing import homing_axes
+from codegen.tables.hold import HoldPlan, HoldSettings, hold_plan
+from codegen.tables.laser import laser_pwm
 from codegen.targets import TargetInfo, target_info
 
 STREAM_MODULES = {"avr": "codegen.firmware.avr.stream", "mcs51": "codegen.firmware.mcs51.stream"}

@@ -22,25 +22,25 @@ from typing import BinaryIO, Callable
 
 import numpy as np
 
-from codegen.tables.checks import Checker, MotorTrain, corner_jumps
-from codegen.tables.compress import Compressed, compress
 from codegen.errors import BuildError
-from codegen.tables.headroom import with_ceilings
-from codegen.tables.hold import HoldPlan
 from codegen.kinematics.base import Kinematics
-from codegen.tables.laser import LaserPwm, event_counts, power_error_of, with_power
 from codegen.link.ring import LinkBudget, Ring, Shortfall
-from codegen.motion.lookahead import Lookahead, Window, merge
-from codegen.tables.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
-from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
-                             segment_lengths)
-from codegen.toolpath.segments import Segments, concat
 from codegen.motion.blocks import Events
+from codegen.motion.lookahead import Lookahead, Window, merge
+from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
+                                    segment_lengths)
 from codegen.motion.stepgen import generate
 from codegen.stopwatch import Stopwatch
+from codegen.tables.checks import Checker, MotorTrain, corner_jumps
+from codegen.tables.compress import Compressed, compress
 from codegen.tables.format import encode, end_marker, record_events, stream_bytes
-from codegen.targets import TargetInfo
+from codegen.tables.headroom import with_ceilings
+from codegen.tables.hold import HoldPlan
+from codegen.tables.laser import LaserPwm, event_counts, power_error_of, with_power
+from codegen.tables.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
 from codegen.tables.twin import Pulses, predict
+from codegen.targets import TargetInfo
+from codegen.toolpath.segments import Segments, concat
 
 RATE_ROUNDS = 8  # plans of a window at most: a stretch over a motor's rate or acceleration slows it
 LINK_ROUNDS = 16  # and where the ring runs short: slowing one stretch may move a shortfall on to the next

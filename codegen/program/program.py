@@ -20,9 +20,9 @@ import numpy as np
 
 from codegen.errors import Diagnostic
 from codegen.gcode import GcodeStream
+from codegen.kinematics.base import Kinematics
 from codegen.program.heaters import HeaterProgram
 from codegen.program.homing import HomingSettings, home_position, homes
-from codegen.kinematics.base import Kinematics
 from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.toolpath.items import Arc, Curve, Home, Line, Lines, Toolpath, expanded
 

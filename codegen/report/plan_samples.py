@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from codegen.motion.planner import Plan
+from codegen.pipeline.windows import Played
 from codegen.report.plots import WINDOW_S, motion_edges, motion_of
 from codegen.toolpath.segments import Segments, concat
-from codegen.pipeline.windows import Played
 
 FINE_S = WINDOW_S / 2  # the grid the motors' positions are kept on: finer than any plot's
 

@@ -17,8 +17,8 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import ListedColormap, Normalize
 from matplotlib.figure import Figure
 
-from codegen.tables.laser import planned_speed
 from codegen.motion.planner import ACCEL_WINDOW_S
+from codegen.tables.laser import planned_speed
 from codegen.tables.schedule import HEATER_COMMANDS
 from codegen.verify.heaters import wait_ticks
 

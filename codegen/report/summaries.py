@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from codegen import __version__
-from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.host import HostBuild
-from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
+from codegen.pipeline.normalized import job_fingerprint
 from codegen.tables.format import stream_bytes
+from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
 from codegen.verify.results import positions, rounded
 
 

@@ -21,11 +21,11 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.avr.board import Pin, board_pins
-from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.avr.laser import laser_ocr_address
 from codegen.firmware.avr.player import START_TICKS
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.sim.avr_keys import jog_positions, key_args
 from codegen.sim.keys import session
 

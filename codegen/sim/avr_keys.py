@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.avr.board import parse_pin
 from codegen.firmware.avr.jog import taken_pins
 from codegen.firmware.avr.stream import elf_symbols
+from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.motion.jog import board_keys
 from codegen.sim.keys import KeyPress
 

@@ -29,19 +29,18 @@ from pathlib import Path
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.avr.board import board_pins
-from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.avr.stream import elf_symbols, ring_layout
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
-from codegen.sim.keys import KeyPress
 from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
                              switch_args, switch_thresholds, watched_pins)
 from codegen.sim.avr_keys import jog_positions, key_args
-from codegen.sim.avr_plant import (Fault, HeaterPlant, HeaterRun, _plant_file, _stage_address, read_trace,
-                                   stopped_safely)
+from codegen.sim.avr_plant import Fault, HeaterPlant, HeaterRun, _plant_file, _stage_address, read_trace, stopped_safely
+from codegen.sim.keys import KeyPress
 
 COMMAND = struct.Struct("<QQBI")  # wake, budget, reset the figures, bytes for the line
 ANSWER = struct.Struct("<QBBqIIHIIQIIQII")  # see simavr_link.c

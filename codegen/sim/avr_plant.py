@@ -18,16 +18,16 @@ import numpy as np
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.avr.board import board_pins, parse_pin
 from codegen.firmware.avr.heaters import HEATERS_FAULT_BIT, PWM_CHANNELS, adc_channel
 from codegen.firmware.avr.player import START_TICKS
+from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.heaters.control import PID_PERIOD_S
 from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
-from codegen.sim.avr import EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges, \
-    simulated_s, switch_args, timer_ticks0, watched_pins
+from codegen.sim.avr import (EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
+                             simulated_s, switch_args, timer_ticks0, watched_pins)
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}

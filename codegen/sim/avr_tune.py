@@ -18,10 +18,10 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.firmware.avr.board import parse_pin
 from codegen.firmware.avr.tune import TuneImage
+from codegen.link.tune import TuneHost
 from codegen.sim.avr import harness_binary
 from codegen.sim.avr_link import BOOT_CYCLES, StreamSim
 from codegen.sim.avr_plant import Fault, HeaterPlant, _plant_file
-from codegen.link.tune import TuneHost
 
 SIM_LIMIT_S = 1800.0  # Marlin's M303 gives up after 20 minutes (MAX_CYCLE_TIME_PID_AUTOTUNE); a little more here
 OFF_S = 5.0  # simulated time for OFF and its answer after the limit

@@ -35,16 +35,15 @@ from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.mcs51.board import SFR, board_pins, memories
-from codegen.firmware.mcs51.image import HALF_STEPS
-from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, VECTOR_TIMER0, read_map
 from codegen.firmware.mcs51.homing import decode_status, endstops
+from codegen.firmware.mcs51.image import HALF_STEPS
 from codegen.firmware.mcs51.lcd import board_lcd
+from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, VECTOR_TIMER0, read_map
+from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault, switch_thresholds
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
-from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model,
-                                    jog_positions, key_model)
-from codegen.sim.avr import (HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault,
-                             switch_thresholds)
+from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model, jog_positions,
+                                    key_model)
 
 TAG_TIMER, TAG_HALT, TAG_BUDGET, TAG_FAULT = 16, 17, 18, 19  # record tags beyond the port tags 0..3
 MAX_CONDITION = (1 << 32) - 1  # sim_ticks is 32-bit: longer budgets rely on the wall-clock timeout

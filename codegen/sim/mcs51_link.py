@@ -44,9 +44,9 @@ from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.homing import homing_ticks_bound
 from codegen.firmware.mcs51.board import SFR, board_pins, memories
-from codegen.firmware.mcs51.sdcc import SYMBOLS_FILE
 from codegen.firmware.mcs51.homing import decode_status
 from codegen.firmware.mcs51.lcd import board_lcd
+from codegen.firmware.mcs51.sdcc import SYMBOLS_FILE
 from codegen.firmware.mcs51.stream import PAGE_BYTES, T2_CLOCKS_PER_BAUD, ring_layout
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import HOMING_FAILED, SimTrace, _homing_fault, switch_thresholds

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.tables.motor_checks import AccelCheck, RateCheck
-from codegen.native import contiguous, library, pointer
 from codegen.motion.planner import Plan
+from codegen.native import contiguous, library, pointer
+from codegen.tables.motor_checks import AccelCheck, RateCheck
 from codegen.toolpath.segments import REF_ARC, Segments
 
 CHUNK = 1 << 20

@@ -21,12 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.native import contiguous, library, pointer
+from codegen.motion.blocks import Events
 from codegen.motion.planner import quantisation_factor
+from codegen.native import contiguous, library, pointer
 from codegen.tables.runfit import fit_runs, fit_runs_native
 from codegen.tables.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
-from codegen.motion.blocks import Events
-
 
 # Of a motor's rate that catching up may use (the planner keeps 2 %): the windows (5 % of a gap either way) may
 # shorten 8 steps by 2 x 5 % of one gap, 1.25 %, and 0.985 x 1.0125 < 1.

@@ -23,8 +23,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from codegen.tables.hold import F_ONE, LONG, RAMP_SHARE, HoldPlan, event_deltas, override_target
 from codegen.motion.planner import ACCEL_WINDOW_S, RATE_WINDOW
+from codegen.tables.hold import F_ONE, LONG, RAMP_SHARE, HoldPlan, event_deltas, override_target
 from codegen.tables.schedule import FRAC_ONE, Schedule, split_runs
 from codegen.tables.twin import Pulses
 

@@ -25,11 +25,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.tables.hold import F_ONE
+from codegen.motion.blocks import Events
 from codegen.motion.planner import Plan
+from codegen.tables.hold import F_ONE
 from codegen.tables.schedule import Schedule, in_force, split_runs
 from codegen.toolpath.segments import Segments
-from codegen.motion.blocks import Events
 
 POWER_STEP = 0.01  # of full scale: M4's power steps
 PWM_PRESCALERS = (1, 8, 64, 256, 1024)  # Timer5's

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.native import contiguous, library, pointer
 from codegen.motion.blocks import bresenham
+from codegen.native import contiguous, library, pointer
 from codegen.tables.schedule import FRAC_BITS, Schedule
 
 

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from codegen.tables.checks import Findings, check
 from codegen.firmware.homing import homing_steps
 from codegen.pipeline.host import HostBuild, trains_from
+from codegen.tables.checks import Findings, check
 from codegen.tables.twin import Pulses
 from codegen.verify.laser import LaserVerdict, laser_verdict
 

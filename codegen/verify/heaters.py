@@ -30,17 +30,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from codegen.errors import Diagnostic, JobError, SourceRef, suggest
-from codegen.firmware.config import HeaterFirmware
 from codegen.firmware.avr.heaters import SETTLE_PERIODS, SETTLE_WINDOW_DC
+from codegen.firmware.config import HeaterFirmware
 from codegen.firmware.homing import homing_ticks_bound
-from codegen.program.heater_settings import heater_settings
-from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
 from codegen.pipeline.host import HostBuild
-from codegen.verify.results import verify_json
+from codegen.program.heater_settings import heater_settings
 from codegen.sim.avr import SimTrace, switch_thresholds
 from codegen.sim.avr_plant import FAULTS, Fault, HeaterPlant, HeaterRun, heater_summary, simulate_heaters
-from codegen.verify.compare import MAX_TIMING_ERROR_US, compare, planned_stepping_s, simulated_switches
 from codegen.tables.format import stream_bytes
+from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
+from codegen.verify.compare import MAX_TIMING_ERROR_US, compare, planned_stepping_s, simulated_switches
+from codegen.verify.results import verify_json
 
 HEAT_LIMIT_S = 600.0  # simulated: the start sequence's waits are over by then, or the run fails
 HELD_AFTER_FACTOR, HELD_AFTER_S = 1.2, 1.0  # a holding image's run ends the table's planned duration x 1.2 + 1 s

@@ -19,10 +19,10 @@ import dataclasses
 import numpy as np
 
 from codegen.errors import BuildError
-from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
-from codegen.verify.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
 from codegen.pipeline.host import HostBuild
+from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
 from codegen.verify.compare import compare
+from codegen.verify.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
 
 OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from the job's start
 REST_S = 0.02  # from the park the twin predicts to the resume key

@@ -13,7 +13,6 @@ from codegen import progress
 from codegen.errors import BuildError
 from codegen.link import protocol
 from codegen.pipeline.host import HostBuild
-from codegen.verify.results import verify_json
 from codegen.pipeline.streaming import SIM_MODULES
 from codegen.sim.avr import simulate
 from codegen.sim.avr_plant import simulate_heaters
@@ -22,6 +21,7 @@ from codegen.sim.mcs51_keys import seen_at
 from codegen.verify.compare import simulated_switches
 from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, hold_problems,
                                     job_plants, on_twin_clock, wait_ticks)
+from codegen.verify.results import verify_json
 from codegen.verify.stream import ShownSession, new_link, session_budget_s, stream_result
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import importlib
 
-from codegen import progress
 import codegen.tables.format as tables
+from codegen import progress
 from codegen.link.host import HostLink
 from codegen.pipeline.host import HostBuild
 from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, stream_chunks

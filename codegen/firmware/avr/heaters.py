@@ -19,13 +19,13 @@ from __future__ import annotations
 import math
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, HeaterFirmware, load_target
 from codegen.firmware.avr.board import parse_pin
+from codegen.firmware.config import FirmwareConfig, HeaterFirmware, load_target
 from codegen.heaters.control import D_FILTER_SHIFT, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid
 from codegen.heaters.protection import REASONS
+from codegen.program.heater_settings import HeaterSettings, heater_settings
 from codegen.program.heaters import HeaterProgram
 from codegen.tables.schedule import HEATER_COMMANDS, RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT, WAIT_MASKS
-from codegen.program.heater_settings import HeaterSettings, heater_settings
 
 PERIOD_PRESCALE = 256  # Timer3's prescaler: 16 us ticks, 6250 per period
 SETTLE_WINDOW_DC = 20  # M109 / M190: within +-2 degC of the target ...

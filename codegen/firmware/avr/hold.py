@@ -13,8 +13,8 @@ from __future__ import annotations
 import re
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, board_pin_uses, load_target
 from codegen.firmware.avr.player import NEED_BIT0
+from codegen.firmware.config import FirmwareConfig, board_pin_uses, load_target
 from codegen.tables.hold import CLAMP, F_ONE, RESUME_TICKS, override_target
 from codegen.tables.schedule import RT_PAUSE
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 import math
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.avr.board import BoardPins
+from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.homing import (PHASE_PAUSE_US, axis_context, axis_problems, homed_axes, rounds_context,
                                      stepping_motors)
 

@@ -15,18 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen import progress
 import codegen.tables.format as tables
+from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, Image, load_target
 from codegen.firmware.avr.board import board_pins
 from codegen.firmware.avr.heaters import heaters_context
-from codegen.firmware.avr.homing import homing_context
 from codegen.firmware.avr.hold import hold_context
+from codegen.firmware.avr.homing import homing_context
 from codegen.firmware.avr.jog import jog_context
 from codegen.firmware.avr.laser import laser_context
 from codegen.firmware.avr.player import isr_context, table_chunks
 from codegen.firmware.avr.toolchain import ASFLAGS, CFLAGS, check_integer_only, run_avr
+from codegen.firmware.config import FirmwareConfig, Image, load_target
 from codegen.firmware.render import render
 from codegen.tables.schedule import RT_PAUSE, TOOL_BIT, Schedule
 

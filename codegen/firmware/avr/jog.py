@@ -14,8 +14,8 @@ import math
 import re
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, board_pin_uses, load_target
 from codegen.firmware.avr.board import parse_pin
+from codegen.firmware.config import FirmwareConfig, board_pin_uses, load_target
 from codegen.motion.jog import DIRECTIONS, KEYS, STILL, board_keys, check_jog_rate
 
 SCAN_US = 2000  # between key scans

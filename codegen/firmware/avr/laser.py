@@ -7,8 +7,8 @@ laser.h (templates/avr/laser.h.j2) sets the timer up and turns the laser off at 
 from __future__ import annotations
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig
 from codegen.firmware.avr.player import PRESCALERS
+from codegen.firmware.config import FirmwareConfig
 
 # The pins Timer5 drives (the only 16-bit timer nothing else uses: Timer1 is the player's, Timer3 the heaters'
 # period, Timer4 the bed's PWM) and their channels; OC5A (PL3) is RAMPS's Z STEP.

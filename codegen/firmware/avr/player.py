@@ -16,8 +16,8 @@ from __future__ import annotations
 import bisect
 
 from codegen.errors import BuildError
-from codegen.tables.schedule import RUNTIME_NAMES
 from codegen.tables.format import CompactTable
+from codegen.tables.schedule import RUNTIME_NAMES
 
 CHUNK_BYTES = 32767  # avr-gcc objects stop at 32767 bytes
 LINE_BYTES = 16  # table bytes per line of table.c

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, Image, load_target
-from codegen.firmware.avr.image import build_image, player_context
-from codegen.firmware.avr.toolchain import run_avr
 from codegen.firmware.avr.hold import HOLD_STREAM_VARIABLES, HOLD_VARIABLES
+from codegen.firmware.avr.image import build_image, player_context
 from codegen.firmware.avr.laser import LASER_HOLD_VARIABLES, LASER_VARIABLES
-from codegen.link import protocol
+from codegen.firmware.avr.toolchain import run_avr
+from codegen.firmware.config import FirmwareConfig, Image, load_target
 from codegen.firmware.render import render
+from codegen.link import protocol
 
 MCU = "atmega2560"
 MAX_BAUD_ERROR = 0.02

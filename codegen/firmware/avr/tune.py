@@ -15,16 +15,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.avr.board import parse_pin
-from codegen.firmware.avr.toolchain import CFLAGS, check_integer_only, run_avr
 from codegen.firmware.avr.heaters import heater_firmware, heaters_context
-from codegen.heaters.control import PID_PERIOD_S
-from codegen.program.heater_settings import HeaterSettings, heater_settings
-from codegen.heaters.tuning import RELAY_MIN_DWELL_S
+from codegen.firmware.avr.toolchain import CFLAGS, check_integer_only, run_avr
+from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.render import render
-from codegen.targets import board_heater_pins
+from codegen.heaters.control import PID_PERIOD_S
+from codegen.heaters.tuning import RELAY_MIN_DWELL_S
 from codegen.link.tune import FRAME_TYPES, HEATER_NAMES
+from codegen.program.heater_settings import HeaterSettings, heater_settings
+from codegen.targets import board_heater_pins
 
 TUNE_BAUD = 250_000  # exact at 16 MHz with U2X (UBRR 7), the streaming firmware's default too
 TEMP_EVERY_PERIODS = 10  # a TEMP frame every second

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
+from codegen.tables.format import RUNTIME_BYTES, RUNTIME_FLAGS
 from codegen.tables.hold import CLAMP, F_ONE, LONG, RESUME_TICKS, override_target
 from codegen.tables.schedule import FRAC_BITS
-from codegen.tables.format import RUNTIME_BYTES, RUNTIME_FLAGS
 
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits in hold.c
 DEBOUNCE_MS = 20  # as the AVR's (codegen/firmware/avr/hold.py): presses closer than this count once
