@@ -98,3 +98,45 @@ def block_spans(schedule):
         spans.append((ticks[first], ticks[first + events - 1]))
         first += events
     return spans
+
+
+# The small star (tests/cli/test_config.py, test_flash.py): examples/star.yaml as it was when these tests were
+# written (the example may grow keys some target refuses)
+STAR = """name: star
+machine:
+  kinematics: corexy
+  steppers:
+    a: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
+    b: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
+  junction_deviation: 0.02
+program:
+  start: [100, 100]
+  feed: 18000           # 300 mm/s
+  shapes:
+    - polyline:
+        points: [[100.0, 180.0], [147.023, 35.279], [23.915, 124.721], [176.085, 124.721], [52.977, 35.279],
+                 [100.0, 180.0]]
+"""
+
+
+# A cartesian plotter with heaters (`heaters:` formatted in) running {name}.gcode (tests/tables/test_runtime_records.py,
+# tests/cli/test_tune.py)
+HEATERS_JOB = """name: {name}
+target: {target}
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+{heaters}program:
+  gcode: {name}.gcode
+"""
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """`printer-codegen ARGV...` in this process: (exit code, stdout, stderr)."""
+    from codegen.cli.main import main
+
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err

@@ -11,18 +11,12 @@ import pytest
 
 from codegen.cli.main import main
 from codegen.targets import target_info
-from tests.helpers import ROOT
+from tests.helpers import ROOT, run_cli as run
 
 EXAMPLES = sorted((ROOT / "examples").glob("*.yaml")) + sorted((ROOT / "examples" / "gcode").glob("*.yaml"))
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

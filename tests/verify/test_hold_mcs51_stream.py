@@ -23,8 +23,7 @@ from codegen.sim.mcs51_link import simulate_stream
 from codegen.pipeline.streaming import stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
-from tests.verify.test_hold_mcs51 import job_file
-from tests.verify.test_hold_stream import Watched
+from tests.verify.helpers import Watched, job_file
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
@@ -40,7 +39,7 @@ def streamed(path: Path, out: Path):
 
 
 def _board(folder: Path, board: str, program: str | None = None) -> Path:
-    """tests/verify/test_hold_mcs51.py's plotter (2.15 s at its motors' full speed) for `board`, or another program."""
+    """tests/verify/helpers.py's plotter (test_hold_mcs51.py's) (2.15 s at its motors' full speed) for `board`, or another program."""
     path = job_file(folder)
     text = path.read_text().replace("board: seed-51", f"board: {board}")
     path.write_text(text if program is None else text.split("program:")[0] + program)
