@@ -46,6 +46,7 @@ def planned(toolpath, mach=None, jd=0.01, tolerance=0.002, max_event_rate=np.inf
 
 
 ROOT = Path(__file__).resolve().parent.parent  # the repository
+EXAMPLES = ROOT / "examples"
 DATA = ROOT / "tests" / "data"
 GCODE_DATA = DATA / "gcode"
 _PRINTER = """name: {name}
@@ -140,3 +141,16 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
     code = main([str(a) for a in argv])
     out = capsys.readouterr()
     return code, out.out, out.err
+
+
+def streamed(job_path: Path, out: Path):
+    """A job for the streaming firmware as `printer-codegen stream` plans it, the firmware built into `out`:
+    (host, image, setup)."""
+    from codegen.cli.stream import _firmware, streamed_host
+    from codegen.job import load_job
+    from codegen.pipeline.streaming import stream_setup
+
+    job = load_job(job_path)
+    setup = stream_setup(job, None)
+    image, _ = _firmware(job, setup, str(out))
+    return streamed_host(job, setup, False, keep=True), image, setup

@@ -13,29 +13,20 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli.stream import _firmware, streamed_host
 from codegen.verify.stream import new_link
 from codegen.tables.hold import F_ONE
 from codegen.verify.hold_runs import StreamRun
-from codegen.job import load_job
 from codegen.link import protocol
 from codegen.sim.mcs51_link import simulate_stream
-from codegen.pipeline.streaming import stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
+from tests.helpers import streamed
 from tests.verify.helpers import Watched, job_file
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
 
 PAUSES = "program:\n  gcode: |\n    G1 X15 F2400\n    M0\n    G1 Y10\n    M1\n    G1 X0 Y0\n"
-
-
-def streamed(path: Path, out: Path):
-    job = load_job(path)
-    setup = stream_setup(job, None)
-    image, _ = _firmware(job, setup, str(out))
-    return streamed_host(job, setup, False, keep=True), image, setup
 
 
 def _board(folder: Path, board: str, program: str | None = None) -> Path:
