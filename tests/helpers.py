@@ -46,6 +46,7 @@ def planned(toolpath, mach=None, jd=0.01, tolerance=0.002, max_event_rate=np.inf
 
 
 ROOT = Path(__file__).resolve().parent.parent  # the repository
+EXAMPLES = ROOT / "examples"
 DATA = ROOT / "tests" / "data"
 GCODE_DATA = DATA / "gcode"
 _PRINTER = """name: {name}
@@ -98,3 +99,58 @@ def block_spans(schedule):
         spans.append((ticks[first], ticks[first + events - 1]))
         first += events
     return spans
+
+
+# The small star (tests/cli/test_config.py, test_flash.py): examples/star.yaml as it was when these tests were
+# written (the example may grow keys some target refuses)
+STAR = """name: star
+machine:
+  kinematics: corexy
+  steppers:
+    a: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
+    b: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
+  junction_deviation: 0.02
+program:
+  start: [100, 100]
+  feed: 18000           # 300 mm/s
+  shapes:
+    - polyline:
+        points: [[100.0, 180.0], [147.023, 35.279], [23.915, 124.721], [176.085, 124.721], [52.977, 35.279],
+                 [100.0, 180.0]]
+"""
+
+
+# A cartesian plotter with heaters (`heaters:` formatted in) running {name}.gcode (tests/tables/test_runtime_records.py,
+# tests/cli/test_tune.py)
+HEATERS_JOB = """name: {name}
+target: {target}
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
+{heaters}program:
+  gcode: {name}.gcode
+"""
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """`printer-codegen ARGV...` in this process: (exit code, stdout, stderr)."""
+    from codegen.cli.main import main
+
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def streamed(job_path: Path, out: Path):
+    """A job for the streaming firmware as `printer-codegen stream` plans it, the firmware built into `out`:
+    (host, image, setup)."""
+    from codegen.cli.stream import _firmware, streamed_host
+    from codegen.job import load_job
+    from codegen.pipeline.streaming import stream_setup
+
+    job = load_job(job_path)
+    setup = stream_setup(job, None)
+    image, _ = _firmware(job, setup, str(out))
+    return streamed_host(job, setup, False, keep=True), image, setup

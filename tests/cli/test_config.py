@@ -10,26 +10,10 @@ from codegen.cli.main import main
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.report.summaries import plan_summary
-from tests.helpers import ROOT
+from tests.helpers import ROOT, STAR
 
 STAR_POINTS = [[100.0, 180.0], [147.023, 35.279], [23.915, 124.721], [176.085, 124.721], [52.977, 35.279],
                [100.0, 180.0]]
-# examples/star.yaml as it was when these tests were written (the example may grow keys some target refuses)
-STAR = """name: star
-machine:
-  kinematics: corexy
-  steppers:
-    a: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
-    b: {steps_per_mm: 80, max_velocity: 400, max_accel: 8000}
-  junction_deviation: 0.02
-program:
-  start: [100, 100]
-  feed: 18000           # 300 mm/s
-  shapes:
-    - polyline:
-        points: [[100.0, 180.0], [147.023, 35.279], [23.915, 124.721], [176.085, 124.721], [52.977, 35.279],
-                 [100.0, 180.0]]
-"""
 
 
 def config(capsys, job: Path, *args: str) -> tuple[str, dict]:

@@ -11,18 +11,12 @@ import pytest
 
 from codegen.cli.main import main
 from codegen.targets import target_info
-from tests.helpers import ROOT
+from tests.helpers import ROOT, run_cli as run
 
 EXAMPLES = sorted((ROOT / "examples").glob("*.yaml")) + sorted((ROOT / "examples" / "gcode").glob("*.yaml"))
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")
@@ -137,15 +131,13 @@ program:
     assert not (tmp_path / "out" / "firmware.hex").exists()
 
 
-def test_tool_pin_follows_draw_and_travel(tmp_path, capsys):
-    from codegen.job import load_job
-    from codegen.pipeline.host import host_build
+def test_tool_pin_follows_draw_and_travel(verified, planned_example):
     from codegen.sim.avr import simulate
 
-    job = load_job(ROOT / "examples" / "plotter-set.yaml")
-    assert run(capsys, "build", job.path, "--out", tmp_path)[0] == 0
-    host = host_build(job)
-    trace = simulate(tmp_path / "firmware.hex", host.firmware_config(), 10 * 16_000_000 * 60)
+    code, _, out = verified(ROOT / "examples" / "plotter-set.yaml")  # its image, built as `build` builds it
+    assert code == 0
+    host = planned_example("plotter-set.yaml")
+    trace = simulate(out / "firmware.hex", host.firmware_config(), 10 * 16_000_000 * 60)
     levels = [level for _, level in trace.tool_edges]
     tool = host.schedule.block_tool.astype(int).tolist()
     changes = [b for a, b in zip([0] + tool, tool + [0]) if a != b]
@@ -227,18 +219,16 @@ def test_a_point_outside_a_motor_range_is_an_error_at_its_shape(tmp_path, capsys
     assert not (tmp_path / "out").exists()
 
 
-def test_delta_homing_with_a_switch_that_never_closes_fails_verification(tmp_path, capsys):
-    from codegen.job import load_job
-    from codegen.pipeline.host import host_build
+def test_delta_homing_with_a_switch_that_never_closes_fails_verification(verified, planned_example):
     from codegen.sim.avr import simulate
     from codegen.verify.compare import compare, simulated_switches
 
-    job = load_job(ROOT / "examples" / "kossel-mini.yaml")
-    assert run(capsys, "build", job.path, "--out", tmp_path)[0] == 0
-    host = host_build(job)
+    code, _, out = verified(ROOT / "examples" / "kossel-mini.yaml")  # its image, built as `build` builds it
+    assert code == 0
+    host = planned_example("kossel-mini.yaml")
     switches = simulated_switches(host)
     switches[2] = None  # tower c's switch is broken
-    trace = simulate(tmp_path / "firmware.hex", host.firmware_config(), 16_000_000 * 60, switches=switches)
+    trace = simulate(out / "firmware.hex", host.firmware_config(), 16_000_000 * 60, switches=switches)
     verdict = compare(host, trace, switches)
     assert trace.homing_failed and not verdict.ok
     assert any(p.startswith("homing failed:") for p in verdict.problems)

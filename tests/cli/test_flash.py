@@ -8,9 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli.main import main
 from codegen.cli.flash import flash_command
-from tests.cli.test_config import STAR
+from tests.helpers import STAR, run_cli as run
 
 AVRDUDE = "avrdude -p atmega2560 -c wiring -P /dev/ttyACM0 -b 115200 -D -U flash:w:build/star/firmware.hex:i"
 STALE = ("error: build/star/firmware.hex is stale: it was built from another version of star.yaml (the job, its "
@@ -24,12 +23,6 @@ def star(tmp_path, monkeypatch) -> Path:
     monkeypatch.chdir(tmp_path)
     Path("star.yaml").write_text(STAR)
     return Path("star.yaml")
-
-
-def run(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def build(capsys, *argv: str) -> None:

@@ -28,8 +28,7 @@ from codegen.sim.avr_tune import TuneSim, simulate_tune
 from codegen.sim.pty_bridge import PtyBridge
 from codegen.link import protocol
 from codegen.link.tune import READY, STARTED, TuneHost
-from tests.tables.test_runtime_records import JOB as JOB_WITH_HEATERS
-from tests.helpers import ROOT
+from tests.helpers import HEATERS_JOB, ROOT
 
 JOB = ROOT / "examples" / "printers" / "benchy-mini.yaml"  # RAMPS 1.4, no `heaters:`: the board's defaults
 
@@ -74,7 +73,7 @@ def test_sim_tune_gains_match_the_python_relay_and_hold_the_hot_end(tmp_path, ca
     # 25 degC) within 3 degC of overshoot, then held within 1 degC from 30 s after it first came within 1 degC
     # (through the bed's wait and the moves); the bed to 60 degC.
     job = tmp_path / "tuned.yaml"
-    job.write_text(JOB_WITH_HEATERS.format(name="tuned", target="avr", heaters=result["snippet"]))
+    job.write_text(HEATERS_JOB.format(name="tuned", target="avr", heaters=result["snippet"]))
     (tmp_path / "tuned.gcode").write_text(TUNED_GCODE)
     assert main(["build", str(job), "--out", str(tmp_path / "tuned")]) == 0
     host = host_build(load_job(job))

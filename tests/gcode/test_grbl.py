@@ -6,7 +6,7 @@ import math
 import pytest
 
 from codegen.toolpath.items import Line, Output
-from tests.gcode.test_interpreter import MILL, errors, items, run
+from tests.gcode.helpers import MILL, errors, items, run
 
 
 def ends(gcode: str, **kw):

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
-from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
@@ -12,38 +10,10 @@ import pytest
 from codegen.errors import JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
 from codegen.toolpath.items import Arc, Dwell, Limits, Line, Output
+from tests.gcode.helpers import MILL, PLOTTER, errors, items, make_job, run
 
-PRINTER = ("x", "y", "z", "e")
-MILL = ("x", "y", "z")
-PLOTTER = ("x", "y")
 INF = math.inf
 PI = math.pi
-
-
-def make_job(gcode: str, motors=PRINTER, start=(0, 0), feed=1200, travel_feed=None, kinematics="cartesian",
-             path=Path("/nowhere/job.yaml"), **program):
-    machine = NS(motor_names=motors, kinematics=kinematics)
-    if kinematics == "delta":
-        machine.delta = NS(height=250.0)
-    return NS(machine=machine, path=path,
-              program=NS(start=start, feed=feed, travel_feed=travel_feed, gcode=gcode,
-                         gcode_source=SourceRef("job.yaml", 8, 5), **program))
-
-
-def run(gcode: str, strict=False, **kw):
-    return toolpath_from_gcode(make_job(gcode, **kw), strict)
-
-
-def items(gcode: str, **kw):
-    toolpath, warnings = run(gcode, **kw)
-    assert warnings == []
-    return toolpath.items
-
-
-def errors(gcode: str, strict=False, **kw) -> list[tuple[int, int, str]]:
-    with pytest.raises(JobError) as caught:
-        run(gcode, strict, **kw)
-    return [(d.where.line, d.where.col, d.message) for d in caught.value.diagnostics]
 
 
 def moves(gcode: str, **kw):

@@ -39,8 +39,8 @@ def test_a_straight_move_whose_carriage_peaks_above_its_tower_is_an_error(tmp_pa
     assert "the machine cannot reach" in error.value.diagnostics[0].message
 
 
-def test_delta_homes_first_and_ends_exactly(tmp_path):
-    host = host_build(load_job(ROOT / "examples" / "delta-seed.yaml"))
+def test_delta_homes_first_and_ends_exactly(planned_example):
+    host = planned_example("delta-seed.yaml")
     assert host.findings.ok, host.findings.problems
     assert [h.switch for h in host.homing] == ["x_max", "y_max", "z_max"]
     assert all(h.direction == 1 for h in host.homing)

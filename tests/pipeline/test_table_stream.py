@@ -13,15 +13,30 @@ from codegen.tables.format import encode
 from tests.helpers import ROOT, gcode_job_file
 
 
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    """A job planned once for this file, by (job, target): an example, or a G-code file on the RAMPS printer of
+    tests/helpers.py (the Cura puzzle takes seconds, and two tests here plan it): (job file, host)."""
+    made = {}
+
+    def get(job: str, target: str):
+        if (job, target) not in made:
+            path = (ROOT / job if job.startswith("examples") else
+                    gcode_job_file(tmp_path_factory.mktemp("tables"), job, target))
+            made[job, target] = path, host_build(load_job(path, target))
+        return made[job, target]
+
+    yield get
+    made.clear()
+
 
 @pytest.mark.parametrize("job, target", [
     ("examples/plotter-set-51.yaml", "mcs51"), ("examples/kossel-mini.yaml", "avr"),
     ("slicer/puzzle-cura.gcode", "avr"), ("laser/hiking.gcode", "mcs51")])
-def test_the_stream_written_window_by_window_is_the_whole_programs(tmp_path, job, target):
-    path = ROOT / job if job.startswith("examples") else gcode_job_file(tmp_path, job, target)
+def test_the_stream_written_window_by_window_is_the_whole_programs(planned, tmp_path, job, target):
+    path, whole = planned(job, target)
     out = tmp_path / "tables.bin"
     assert cli.main(["plan", str(path), "--target", target, "--tables", str(out)]) == 0
-    whole = host_build(load_job(path, target))
     assert out.read_bytes() == encode(whole.compressed.schedule).data
     if not job.startswith("examples"):
         assert whole.totals.table_bytes == out.stat().st_size  # `plan` counts what it writes
@@ -43,12 +58,12 @@ def test_a_plan_that_fails_its_checks_leaves_no_table_file(tmp_path, monkeypatch
     assert "exceeds its rate" in capsys.readouterr().out
 
 
-def test_windows_make_the_tables_one_window_would_to_rounding(tmp_path, monkeypatch):
+def test_windows_make_the_tables_one_window_would_to_rounding(planned, monkeypatch):
     """Against one window over the whole program: the same blocks to the bit; event times to rounding (the plan
     sums durations from each window's start, not from the program's: 0.006 ticks on this file); at most one run
     more per window (a run cannot go on into the next window)."""
-    job = load_job(gcode_job_file(tmp_path, "slicer/puzzle-cura.gcode"))
-    windowed = host_build(job)
+    path, windowed = planned("slicer/puzzle-cura.gcode", "avr")
+    job = load_job(path)
     monkeypatch.setattr(lookahead, "settled", lambda prof: np.zeros(len(prof) + 1, dtype=bool))
     monkeypatch.setattr(lookahead, "MAX_HELD", 1 << 40)
     whole = host_build(job)

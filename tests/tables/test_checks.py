@@ -4,15 +4,11 @@
 import numpy as np
 
 from codegen.tables.checks import MotorTrain, check
-from codegen.job import load_job
-from codegen.pipeline.host import host_build, trains_from
-from tests.helpers import ROOT
-
-HOST = host_build(load_job(ROOT / "examples" / "star.yaml"))
+from codegen.pipeline.host import trains_from
 
 
-def judge(trains=None, positions=None):
-    h = HOST
+def judge(h, trains=None, positions=None):
+    """The checks on examples/star.yaml's plan (conftest.py's star_host), its twin's pulses or the given ones."""
     if trains is None:
         trains = trains_from(h.pulses.tick / h.target.tick_hz, h.pulses.motor, h.pulses.dir, len(h.kin.motors))
     if positions is None:
@@ -21,38 +17,38 @@ def judge(trains=None, positions=None):
                  h.start_steps, h.job.machine.tolerance)
 
 
-def test_the_twin_of_the_star_passes():
-    assert judge().ok
+def test_the_twin_of_the_star_passes(star_host):
+    assert judge(star_host).ok
 
 
-def test_a_lost_step_is_a_wrong_end_position():
-    h = HOST
+def test_a_lost_step_is_a_wrong_end_position(star_host):
+    h = star_host
     trains = trains_from(h.pulses.tick / h.target.tick_hz, h.pulses.motor, h.pulses.dir, 2)
     last = int(trains[0].dir[-1])
     trains[0] = MotorTrain(trains[0].time[:-1], trains[0].dir[:-1])
-    found = judge(trains=trains)
+    found = judge(h, trains=trains)
     assert found.problems[0] == f"motor a ends at step {h.expected_final[0] - last}, the job ends at step " \
                                 f"{h.expected_final[0]}"
 
 
-def test_a_tool_two_steps_off_the_path_is_reported():
-    shifted = HOST.pulses.event_position.copy()
+def test_a_tool_two_steps_off_the_path_is_reported(star_host):
+    shifted = star_host.pulses.event_position.copy()
     shifted[len(shifted) // 2:, 0] += 2  # belt a slips two steps half-way
-    found = judge(positions=shifted)
+    found = judge(star_host, positions=shifted)
     assert any(p.startswith("the tool strays") for p in found.problems)
     assert found.max_path_error_mm > found.path_limit_mm
 
 
-def test_steps_too_close_together_exceed_the_rate():
-    h = HOST
+def test_steps_too_close_together_exceed_the_rate(star_host):
+    h = star_host
     trains = trains_from(h.pulses.tick / h.target.tick_hz * 0.9, h.pulses.motor, h.pulses.dir, 2)  # 11 % faster
-    found = judge(trains=trains)
+    found = judge(h, trains=trains)
     assert any("exceeds its rate over 8 steps" in p for p in found.problems)
 
 
-def test_a_velocity_jump_off_the_corners_exceeds_the_acceleration():
-    h = HOST
+def test_a_velocity_jump_off_the_corners_exceeds_the_acceleration(star_host):
+    h = star_host
     time = h.pulses.tick / h.target.tick_hz
     time = np.where(time > 1.0, 1.0 + (time - 1.0) * 0.8, time)  # suddenly 25 % faster after one second
-    found = judge(trains=trains_from(time, h.pulses.motor, h.pulses.dir, 2))
+    found = judge(h, trains=trains_from(time, h.pulses.motor, h.pulses.dir, 2))
     assert any("exceeds its acceleration" in p for p in found.problems)

@@ -33,12 +33,9 @@ needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="avr-g
 
 
 @pytest.fixture(scope="module")
-def star(tmp_path_factory):
-    """examples/star.yaml (it has feed_hold), built once."""
-    out = tmp_path_factory.mktemp("star")
-    job = load_job(ROOT / "examples" / "star.yaml")
-    host, image, _ = _build(job, str(out), reuse=False, strict=False)
-    return host, image
+def star(star_flash):
+    """examples/star.yaml (it has feed_hold), built once (conftest.py)."""
+    return star_flash
 
 
 def test_the_dilation_table_is_the_factor_s_reciprocal():
@@ -143,8 +140,8 @@ def _with_hold(text: str, override: int = 100) -> str:
     return yaml.safe_dump(job, sort_keys=False)
 
 
-def test_a_hold_key_on_a_pin_the_board_uses_is_an_error():
-    host = host_build(load_job(ROOT / "examples" / "star.yaml"))
+def test_a_hold_key_on_a_pin_the_board_uses_is_an_error(star_host):
+    host = star_host
     config = dataclasses.replace(host.firmware_config(), hold=dataclasses.replace(
         host.hold_plan, keys={**host.hold_plan.keys, "feed+": "PF0"}))
     with pytest.raises(BuildError, match=r"hold_keys feed\+ is PF0, which is its steppers.X.step too"):

@@ -121,7 +121,7 @@ def test_status_while_streaming_reports_the_pwm(tmp_path):
     from codegen.link.host import HostLink
     from codegen.sim.avr_link import simulate_stream
     from codegen.pipeline.streaming import stream_chunks, stream_setup
-    from tests.firmware.avr.test_stream import Scripted
+    from tests.firmware.avr.helpers import Scripted
 
     job = load_job(POWER_JOB)
     setup = stream_setup(job)

@@ -21,19 +21,9 @@ from codegen.tables.schedule import RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_
 from codegen.tables.format import RUNTIME_BYTES, RUNTIME_FLAGS, encode, record_events, stream_bytes
 from codegen.targets import target_info
 from codegen.tables.twin import predict
-from tests.helpers import make_schedule
+from tests.helpers import HEATERS_JOB, make_schedule
 from tests.reference_player import play, play_stream
 
-JOB = """name: {name}
-target: {target}
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-    y: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}
-{heaters}program:
-  gcode: {name}.gcode
-"""
 # A hot end that sits at 60 degC (the plant's ambient) at power-up: an M109 S62 holds the player for about 3 s.
 WARM_HOTEND = "  heaters:\n    hotend: {plant: {ambient_c: 60}}\n"
 MOVES = ["G1 X10 Y0 F6000", "G1 X20 Y5", "G1 X30 Y10", "G1 X40 Y0"]
@@ -45,7 +35,7 @@ needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.whic
 def job_file(folder: Path, name: str, lines: list[str], target: str = "avr", heaters: str = "") -> Path:
     (folder / f"{name}.gcode").write_text("G21\nG90\n" + "\n".join(lines) + "\n")
     path = folder / f"{name}.yaml"
-    path.write_text(JOB.format(name=name, target=target, heaters=heaters))
+    path.write_text(HEATERS_JOB.format(name=name, target=target, heaters=heaters))
     return path
 
 

@@ -21,36 +21,12 @@ from codegen.job import load_job
 from codegen.sim.mcs51 import simulate
 from codegen.sim.mcs51_keys import seen_at
 from codegen.verify.hold import hold_verify
+from tests.verify.helpers import HOLD, job_file
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
 
 F_CPU = 12_000_000
-JOB = """name: hold51
-target: mcs51
-board: seed-51
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: 40, max_velocity: {v}, max_accel: {a}, range: [0, 200]}}
-    y: {{steps_per_mm: 40, max_velocity: {v}, max_accel: {a}, range: [0, 200]}}
-{hold}
-program:
-  feed: {feed}
-  shapes:
-    - line: {{from: [0, 0], to: [20, 0]}}
-    - line: {{from: [20, 0], to: [20, 15]}}
-    - arc: {{center: [10, 15], radius: 10, start: 0, sweep: 180}}
-    - line: {{from: [0, 15], to: [0, 0]}}
-"""
-HOLD = "  feed_hold: {}"
-
-
-def job_file(folder: Path, hold: str = HOLD, velocity: int = 40, accel: int = 1000) -> Path:
-    """A plotter at its motors' full speed (1,600 steps/s by default), 2.15 s of lines and a half circle."""
-    path = folder / "hold51.yaml"
-    path.write_text(JOB.format(hold=hold, v=velocity, a=accel, feed=velocity * 60))
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -13,18 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli.stream import _firmware, streamed_host
 from codegen.verify.stream import new_link
 from codegen.tables.hold import F_ONE
 from codegen.verify.hold_runs import StreamRun
-from codegen.job import load_job
 from codegen.link import protocol
 from codegen.sim.mcs51_link import simulate_stream
-from codegen.pipeline.streaming import stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
-from tests.verify.test_hold_mcs51 import job_file
-from tests.verify.test_hold_stream import Watched
+from tests.helpers import streamed
+from tests.verify.helpers import Watched, job_file
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
@@ -32,15 +29,8 @@ pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s5
 PAUSES = "program:\n  gcode: |\n    G1 X15 F2400\n    M0\n    G1 Y10\n    M1\n    G1 X0 Y0\n"
 
 
-def streamed(path: Path, out: Path):
-    job = load_job(path)
-    setup = stream_setup(job, None)
-    image, _ = _firmware(job, setup, str(out))
-    return streamed_host(job, setup, False, keep=True), image, setup
-
-
 def _board(folder: Path, board: str, program: str | None = None) -> Path:
-    """tests/verify/test_hold_mcs51.py's plotter (2.15 s at its motors' full speed) for `board`, or another program."""
+    """tests/verify/helpers.py's plotter (test_hold_mcs51.py's) (2.15 s at its motors' full speed) for `board`, or another program."""
     path = job_file(folder)
     text = path.read_text().replace("board: seed-51", f"board: {board}")
     path.write_text(text if program is None else text.split("program:")[0] + program)

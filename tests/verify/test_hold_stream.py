@@ -7,44 +7,29 @@ from __future__ import annotations
 import json
 import random
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from codegen.verify import hold_runs
 from codegen.cli.main import _build, main
-from codegen.cli.stream import _firmware, streamed_host
 from codegen.verify.stream import new_link
 from codegen.errors import JobError
 from codegen.tables.hold import F_ONE
-from codegen.verify.hold_runs import Scripted
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.link.serial_port import send_hold_keys, status_line, terminal_keys
 from codegen.pipeline.host import host_build
 from codegen.sim.avr_link import simulate_stream
-from codegen.pipeline.streaming import stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
-from tests.helpers import ROOT
+from tests.helpers import ROOT, streamed
+from tests.verify.helpers import Watched
 
 PEN_CHANGE = ROOT / "examples" / "gcode" / "pen-change.yaml"
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
-
-
-def streamed(job_path: Path, out: Path):
-    job = load_job(job_path)
-    setup = stream_setup(job, None)
-    image, _ = _firmware(job, setup, str(out))
-    return streamed_host(job, setup, False, keep=True), image, setup
-
-
-@pytest.fixture(scope="module")
-def star_stream(tmp_path_factory):
-    return streamed(ROOT / "examples" / "star.yaml", tmp_path_factory.mktemp("star-stream"))
 
 
 def _exact(result: dict) -> None:
@@ -122,38 +107,14 @@ def test_m0_without_a_resume_key_is_an_error_at_its_line(tmp_path):
     assert main(["plan", str(job)]) == 2
 
 
-def test_marlin_timed_m0_is_a_dwell(tmp_path):
+def test_marlin_timed_m0_is_a_dwell(planned_example, tmp_path):
     job = tmp_path / "job.yaml"
     job.write_text(PEN_CHANGE.read_text().replace("    M0                 ; change the pen, then resume",
                                                   "    M1 S2              ; Marlin: wait 2 s"))
-    plain = host_build(load_job(PEN_CHANGE))
+    plain = planned_example("gcode/pen-change.yaml")
     timed = host_build(load_job(job))
     assert timed.runtime is not None and len(timed.runtime) == 0  # no pause record
     assert 1.99 < timed.plan.total - plain.plan.total < 2.01
-
-
-class Watched(Scripted):
-    """The scripted host that also asks for a STATUS at given cycles and keeps every answer."""
-
-    def __init__(self, link, script, f_cpu, asks):
-        super().__init__(link, script, f_cpu)
-        self.asks, self.answers = list(asks), []
-
-    def wake_at(self):
-        times = [t for t in (super().wake_at(), self.asks[0] / self.f_cpu if self.asks else None) if t is not None]
-        return min(times) if times else None
-
-    def transmit(self, now):
-        if self.asks and now * self.f_cpu >= self.asks[0] - 1 and self.link.ident is not None:
-            self.asks.pop(0)
-            self.link.request_status()
-        return super().transmit(now)
-
-    def receive(self, data, now):
-        before = self.link.status
-        super().receive(data, now)
-        if self.link.status is not before:
-            self.answers.append((now, self.link.status))
 
 
 def test_status_reports_the_feed_factor_through_a_hold(star_stream):

@@ -14,6 +14,7 @@ from codegen.pipeline.host import host_build
 from codegen.verify.results import verify_json
 from codegen.sim.avr import simulate
 from codegen.verify.compare import compare, simulated_switches
+from tests.helpers import run_cli as run
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
@@ -29,12 +30,6 @@ program:
   shapes:
     - line: {to: [30, 15]}
 """
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen.cli.main import main
 from codegen.tables.compress import TimingWindow
-from tests.helpers import ROOT
+from tests.helpers import ROOT, run_cli as run
 
 BENCHY = ROOT / "examples" / "printers" / "benchy-mini.yaml"
 BENCHY_GCODE = ROOT / "tests" / "data" / "gcode" / "slicer" / "benchy-prusaslicer.gcode"
@@ -23,12 +22,6 @@ needs_avr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("
                                reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
 needs_mcs51 = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                  reason="needs sdcc and s51 (scripts/setup.sh installs them)")
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def verify_stream(capsys, job: Path, out: Path) -> dict:

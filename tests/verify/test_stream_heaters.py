@@ -27,7 +27,7 @@ from codegen.sim.avr_plant import Fault
 from codegen.pipeline.streaming import stream_chunks, stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.heaters import job_plants
-from tests.firmware.avr.test_stream import Scripted
+from tests.firmware.avr.helpers import Scripted
 
 F_CPU = 16_000_000
 PRINTER = """name: {name}

@@ -6,7 +6,6 @@ tests/reference_player.py's plain readings of the semantics (from the schedule a
 from __future__ import annotations
 
 import subprocess
-from functools import partial
 
 import numpy as np
 import pytest
@@ -17,13 +16,11 @@ from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.firmware.avr.image import build_image, render_sources
 from codegen.sim.avr import simulate
 from codegen.tables.format import stream_bytes
-from tests.helpers import block_spans, make_schedule as hand_schedule
+from tests.firmware.avr.helpers import BLOCKS, CYCLES, F_CPU, RUNS, cut, make_schedule
+from tests.helpers import block_spans
 from tests.reference_player import play, play_stream
 
-F_CPU, TICK_HZ = 16_000_000, 2_000_000
-CYCLES = F_CPU // TICK_HZ  # CPU cycles per timer tick
 LATENCY_TOLERANCE = 4  # cycles around the constant compare-match-to-edge latency
-make_schedule = partial(hand_schedule, tick_hz=TICK_HZ)
 
 
 def config(motors, sockets, board="ramps-1.4", inverted=(), pulse_us=2.0):
@@ -85,23 +82,6 @@ def test_blocks_runs_dwell_long_waits_and_tool(tmp_path):
         assert CYCLES * spans[b - 1][1] + latency < cycle - trace.timer_start_cycle < CYCLES * spans[b][0] + latency
     assert trace.tool_edges[-1][0] > trace.step_cycle[-1]
     assert image.flash_parts["table"] == stream_bytes(sched) and sum(image.flash_parts.values()) == image.flash_bytes
-
-
-RUNS = [(3000 * 256, -5000, 30), (1200 * 256 + 100, 3, 300), (70_000 * 256, 0, 2), (800 * 256, 0, 55)]
-BLOCKS = [  # (dirs, steps, modulus, init, tool, events) of four motors: a test takes the first n of each motor
-    ((1, -1, 1, 1), (10, 4, 0, 10), 10, (5, 2, 5, 3), True, 10),  # short form, x the master (e a master too)
-    ((-1, 1, 1, -1), (12, 3, 12, 0), 12, (0, 1, 0, 0), True, 12),
-    ((1, -1, 1, 1), (0, 9, 4, 9), 9, (0, 1, 8, 2), True, 9),  # y the master (with one motor: a dwell)
-    ((1, 1, -1, 1), (8, 5, 0, 3), 8, (0, 4, 7, 1), False, 8),
-    ((-1, 1, 1, 1), (0, 0, 0, 6), 6, (0, 0, 0, 0), False, 6),  # e the master (with fewer motors: a dwell)
-    ((1, 1, 1, -1), (300, 299, 1, 150), 300, (150, 0, 299, 7), False, 300),  # long: modulus > 255
-    ((1, 1, 1, 1), (0, 0, 0, 0), 1, (0, 0, 0, 0), True, 2),  # a dwell of two events
-    ((-1, -1, -1, -1), (40, 40, 39, 1), 40, (0, 39, 20, 39), False, 40),
-]
-
-
-def cut(blocks, n):
-    return [(d[:n], s[:n], mod, i[:n], tool, ev) for d, s, mod, i, tool, ev in blocks]
 
 
 @pytest.mark.parametrize("motors, sockets, board", [

@@ -18,7 +18,7 @@ from codegen.firmware.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.sim.avr import PHASE_HOME, PHASE_RUN, simulate
 from codegen.tables.format import stream_bytes
 from tests.reference_player import play
-from tests.firmware.avr.test_firmware import make_schedule
+from tests.firmware.avr.helpers import make_schedule
 
 F_CPU = 16_000_000
 CYCLES = 8  # CPU cycles per Timer1 tick (tick_hz 2 MHz): homing intervals are in ticks, as the player's times

@@ -19,26 +19,13 @@ from codegen.pipeline.host import host_build
 from codegen.sim.avr import simulate
 from codegen.sim.keys import KeyPress
 from codegen.tables.format import stream_bytes
+from tests.firmware.avr.helpers import JOB
 from tests.jog_checks import SCRIPT, check_session, jog_pulses, moves
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs avr-gcc and simavr (scripts/setup.sh installs them)")
 
 F_CPU = 16_000_000
-JOB = """name: jogavr
-target: avr
-board: ramps-1.4
-machine:
-  kinematics: cartesian
-  steppers:
-    x: {{steps_per_mm: {spm}, max_velocity: 100, max_accel: 1500, range: [0, 200]}}
-    y: {{steps_per_mm: {spm}, max_velocity: 100, max_accel: 1500, range: [0, 200]}}
-  jog: {{speeds: [{speeds}]}}
-program:
-  feed: 1200
-  shapes:
-    - line: {{from: [0, 0], to: [2, 1]}}
-"""
 
 
 def built(folder: Path, speeds: str = "150, 600, 6000", spm: int = 80):

@@ -7,8 +7,6 @@ positions the firmware reports with the pulses, and each fault of the line endin
 from __future__ import annotations
 
 import subprocess
-from dataclasses import dataclass, field
-from functools import partial
 
 import numpy as np
 import pytest
@@ -22,19 +20,9 @@ from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.sim.avr_link import StreamSim, simulate_stream
-from codegen.targets import target_info
 from codegen.tables.twin import predict
-from tests.helpers import make_schedule as hand_schedule
-from tests.firmware.avr.test_firmware import BLOCKS, RUNS, cut
-
-F_CPU, TICK_HZ, BAUD = 16_000_000, 2_000_000, 250_000
-CYCLES = F_CPU // TICK_HZ  # CPU cycles per timer tick
-BYTE_S = 10 / BAUD
-BUDGET = 400_000_000  # cycles: 25 s simulated
-make_schedule = partial(hand_schedule, tick_hz=TICK_HZ)
-STREAM = target_info("ramps-1.4", stream=True)
-MIN_LATE = 8  # cycles from the compare match to the STEP edge, at least
-MAX_LATE = STREAM.mcu_data["isr_latency_cycles"]  # at most: the link's interrupts may come first
+from tests.firmware.avr.helpers import (BLOCKS, BUDGET, BYTE_S, CYCLES, F_CPU, MAX_LATE, RUNS, TICK_HZ, Scripted,
+                                        check_pulses, cut, make_schedule)
 
 
 def config(motors, sockets, board="ramps-1.4", inverted=(), homing=(), baud=0):
@@ -88,64 +76,9 @@ def host_for(schedule, image, prefill=2000, identity=None, chunk=300):
                     min(prefill, len(data)))
 
 
-def check_pulses(schedule, trace, prefix=False):
-    """The simulated pulses against the twin's: motor, direction, order, and each within the latency of its tick;
-    with `prefix`, the first of them (the player stopped early)."""
-    twin = predict(schedule)
-    for m in range(len(schedule.motors)):
-        mine = trace.run_only().step_motor == m
-        cycles = trace.run_only().step_cycle[mine]
-        ticks, dirs = twin.of_motor(m)
-        n = len(cycles) if prefix else len(ticks)
-        assert len(cycles) == n <= len(ticks), f"motor {schedule.motors[m]}: pulse count"
-        assert np.array_equal(trace.run_only().step_dir[mine], dirs[:n]), f"motor {schedule.motors[m]}: dirs"
-        late = cycles - trace.timer_start_cycle - CYCLES * ticks[:n]
-        assert len(late) == 0 or MIN_LATE <= late.min() <= late.max() <= MAX_LATE, f"motor {schedule.motors[m]}"
-    pulse, setup = F_CPU * 2 // 1_000_000, F_CPU // 1_000_000  # the config's 2 us STEP pulse, 1 us DIR setup
-    assert all(h is None or h >= pulse for h in trace.pulse_high_min_cycles)
-    assert all(s is None or s >= setup for s in trace.dir_setup_min_cycles)
-    return twin
-
-
 def net_steps(trace, motors):
     run = trace.run_only()
     return tuple(int(run.step_dir[run.step_motor == m].sum()) for m in range(motors))
-
-
-@dataclass
-class Scripted:
-    """A host that does `actions` (time in s, HostLink method name) at their times, and notes when each kind of
-    frame from the firmware came last, and when its frames reach the firmware (the line: 10 bit times a byte)."""
-
-    link: HostLink
-    actions: list[tuple[float, str]] = field(default_factory=list)
-    arrived: dict[int, float] = field(default_factory=dict)
-    sent: dict[int, float] = field(default_factory=dict)  # frame kind: when its last copy's last byte arrives
-    parser: protocol.Parser = field(default_factory=lambda: protocol.Parser(protocol.MAX_ANSWER))
-    line: protocol.Parser = field(default_factory=protocol.Parser)
-    line_free: float = 0.0
-
-    @property
-    def done(self) -> bool:
-        return self.link.done
-
-    def wake_at(self):
-        times = [t for t in (self.link.wake_at(), *(t for t, _ in self.actions[:1])) if t is not None]
-        return min(times, default=None)
-
-    def transmit(self, now):
-        while self.actions and now >= self.actions[0][0]:
-            getattr(self.link, self.actions.pop(0)[1])()
-        data = self.link.transmit(now)
-        self.line_free = max(self.line_free, now)
-        for f in self.line.feed(data):
-            self.line_free += (protocol.OVERHEAD_BYTES + len(f.payload)) * BYTE_S
-            self.sent[f.kind] = self.line_free
-        return data
-
-    def receive(self, data, now):
-        self.arrived.update((f.kind, now) for f in self.parser.feed(data))
-        self.link.receive(data, now)
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))

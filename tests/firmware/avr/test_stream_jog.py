@@ -24,8 +24,7 @@ from codegen.sim.avr_link import StreamSim
 from codegen.sim.keys import KeyPress
 from codegen.pipeline.streaming import build_stream_firmware, stream_chunks, stream_setup
 from tests.jog_checks import SCRIPT, check_limits, check_move, check_session, jog_pulses, moves
-from tests.firmware.avr.test_jog import JOB
-from tests.firmware.avr.test_stream import CYCLES, F_CPU, MAX_LATE, Scripted, check_pulses
+from tests.firmware.avr.helpers import CYCLES, F_CPU, JOB, MAX_LATE, Scripted, check_pulses
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs avr-gcc and simavr (scripts/setup.sh installs them)")
@@ -155,7 +154,7 @@ def test_identity_names_the_jog_keys_and_the_8051_refuses_them(jogged, tmp_path)
     assert image.ring_bytes == bare.ring_bytes - 4 * len(config.jog.motors)
 
     from codegen.firmware.mcs51.stream import render_stream_sources as mcs51_sources
-    from tests.firmware.mcs51.test_jog import job_file
+    from tests.firmware.mcs51.helpers import job_file
 
     seed = stream_setup(load_job(job_file(tmp_path)))
     with pytest.raises(BuildError, match="8051 streaming firmware has no jog mode"):

@@ -10,7 +10,7 @@ from codegen.errors import BuildError
 from codegen.firmware.mcs51.image import HALF_STEPS, render_sources
 from codegen.sim.mcs51 import coil_steps
 from tests.reference_player import play
-from tests.firmware.mcs51.test_firmware import build_and_run, check_plays, config, make_schedule
+from tests.firmware.mcs51.helpers import build_and_run, check_plays, config, make_schedule
 
 COIL_SCHEDULE = [
     # X the master (a step at every event) +, Y a Bresenham slave -
@@ -124,7 +124,7 @@ program:
 def test_a_cartesian_job_verifies_on_the_coil_board(tmp_path, capsys):
     import json
 
-    from tests.cli.test_end_to_end import run
+    from tests.helpers import run_cli as run
 
     job = tmp_path / "coil.yaml"
     job.write_text(COIL_JOB, encoding="utf-8")

@@ -5,62 +5,21 @@ and every simulated pulse is compared with tests/reference_player.py's plain rea
 from __future__ import annotations
 
 import json
-from functools import partial
 
 import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
+from codegen.firmware.config import FirmwareConfig
 from codegen.program.homing import HomingAxis
 import codegen.tables.format as tables
 from codegen.firmware.mcs51.image import build_image, render_sources
 from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE
 from codegen.sim.mcs51 import simulate
 from codegen.tables.format import stream_bytes
-from tests.helpers import block_spans, make_schedule as hand_schedule
+from tests.firmware.mcs51.helpers import CLOCKS, TOLERANCE, build_and_run, check_plays, config, make_schedule
+from tests.helpers import block_spans
 from tests.reference_player import play
-
-CLOCKS = 12  # CPU clocks per timer tick (machine cycle)
-TOLERANCE = 2  # clocks around the constant overflow-to-edge latency
-# On a board with a display main runs between interrupts: an interrupt waits up to one machine cycle more for the
-# end of main's instruction (the display driver has no 4-cycle MUL or DIV).
-BUSY_TOLERANCE = TOLERANCE + CLOCKS
-make_schedule = partial(hand_schedule, tick_hz=1_000_000)
-
-
-def config(motors, sockets, board="at89c52", inverted=(), pulse_us=2.0):
-    pins = tuple(MotorPins(n, s, invert_dir=n in inverted) for n, s in zip(motors, sockets))
-    return FirmwareConfig("test", "tests/firmware/mcs51/test_firmware.py", "mcs51", board, pins, step_pulse_us=pulse_us)
-
-
-def build_and_run(schedule, cfg, out_dir, budget=400_000_000):
-    image = build_image(render_sources(schedule, cfg), out_dir, stream_bytes(schedule))
-    return image, simulate(image.hex_path, cfg, budget)
-
-
-def check_plays(schedule, cfg, trace):
-    """Same pulses (motor, dir, order) as the reference, each at 12 x its tick + one constant latency."""
-    pulses = play(schedule)
-    assert trace.state == "done"
-    ticks = np.array([t for t, _, _ in pulses], dtype=np.int64)
-    motors = np.array([m for _, m, _ in pulses], dtype=np.int64)
-    late = np.zeros(len(pulses), dtype=np.int64)
-    for m in range(len(schedule.motors)):
-        ref_dirs = [d for _, mm, d in pulses if mm == m]
-        mine = trace.step_motor == m
-        assert mine.sum() == len(ref_dirs), f"motor {schedule.motors[m]}: pulse count"
-        assert np.array_equal(trace.step_dir[mine], ref_dirs), f"motor {schedule.motors[m]}: dirs"
-        late[motors == m] = trace.step_cycle[mine] - trace.timer_start_cycle - CLOCKS * ticks[motors == m]
-    latency = int(np.median(late)) if len(late) else 0
-    tolerance = BUSY_TOLERANCE if cfg.board == "seed-51" else TOLERANCE
-    assert np.abs(late - latency).max(initial=0) <= tolerance, "a pulse off its scheduled tick"
-    assert len(late) == 0 or 0 < latency < 20 * CLOCKS
-    pulse = int(np.ceil(cfg.step_pulse_us * 12))
-    assert all(h is None or h >= pulse for h in trace.pulse_high_min_cycles)
-    setup = int(np.ceil(cfg.dir_setup_us * 12))
-    assert all(s is None or s >= setup for s in trace.dir_setup_min_cycles)
-    return latency
 
 
 def test_blocks_runs_dwell_long_waits_and_tool(tmp_path):

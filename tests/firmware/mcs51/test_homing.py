@@ -21,7 +21,7 @@ from codegen.firmware.mcs51.image import build_image, render_sources
 from codegen.firmware.mcs51.sdcc import MAP_FILE
 from codegen.sim.mcs51 import PHASE_HOME, PHASE_RUN, simulate
 from codegen.tables.format import stream_bytes
-from tests.firmware.mcs51.test_firmware import check_plays, make_schedule
+from tests.firmware.mcs51.helpers import check_plays, make_schedule
 from tests.helpers import ROOT
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,

@@ -18,34 +18,13 @@ from codegen.pipeline.host import host_build
 from codegen.sim.keys import KeyPress
 from codegen.sim.mcs51 import simulate
 from codegen.tables.format import stream_bytes
+from tests.firmware.mcs51.helpers import job_file
 from tests.jog_checks import FINAL_LEVEL, SCRIPT, check_session
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
 
 F_CPU = 12_000_000
-JOB = """name: jog51
-target: mcs51
-board: {board}
-machine:
-  kinematics: {kinematics}
-  steppers:
-    {a}: {{steps_per_mm: {spm}, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
-    {b}: {{steps_per_mm: {spm}, max_velocity: 40, max_accel: 1000, range: [0, 200]}}
-  jog: {{speeds: [150, 600, 2400]}}
-program:
-  feed: 1200
-  shapes:
-    - line: {{from: [0, 0], to: [2, 1]}}
-"""
-
-
-def job_file(folder: Path, board: str = "seed-51", kinematics: str = "cartesian", spm: int = 40) -> Path:
-    """A plotter whose fastest jog level is its motors' max_velocity (1,568 steps/s at 40 steps/mm)."""
-    a, b = ("x", "y") if kinematics == "cartesian" else ("a", "b")
-    path = folder / f"jog51-{spm}.yaml"
-    path.write_text(JOB.format(board=board, kinematics=kinematics, a=a, b=b, spm=spm))
-    return path
 
 
 def built(path: Path, out: Path):

@@ -8,53 +8,32 @@ from __future__ import annotations
 
 import re
 import shutil
-from functools import partial
 
 import numpy as np
 import pytest
 
-import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.program.homing import HomingAxis
 from codegen.firmware.homing import homing_steps
 from codegen.firmware.mcs51.sdcc import MAP_FILE
 from codegen.firmware.mcs51.lcd import board_lcd
-from codegen.firmware.mcs51.stream import build_stream_image, render_stream_sources, ring_layout
+from codegen.firmware.mcs51.stream import render_stream_sources, ring_layout
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.sim.mcs51_link import simulate_stream
 from codegen.tables.twin import predict
-from tests.helpers import make_schedule as hand_schedule
+from tests.firmware.mcs51.stream_helpers import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses,
+                                                 config, make_schedule, net_steps, short_schedule, stream_of)
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")
-
-F_CPU, TICK_HZ, BAUD = 12_000_000, 1_000_000, 9600
-CLOCKS = F_CPU // TICK_HZ  # CPU clocks per timer tick (machine cycle)
-# Around the constant latency: the step interrupt waits for the instruction of main or of the link's interrupt
-# that is running (2 machine cycles at most: neither has MUL or DIV), one more after a RETI, and the sampling.
-TOLERANCE = 2 + 4 * CLOCKS
-BUDGET = 10 * F_CPU  # clocks: 10 s simulated
-MOTORS, SOCKETS = ("a", "b", "c"), ("X", "Y", "Z")
-make_schedule = partial(hand_schedule, tick_hz=TICK_HZ)
-
-
-def config(board="seed-51", homing=(), baud=0, motors=MOTORS):
-    pins = tuple(MotorPins(n, s, invert_dir=n == "b") for n, s in zip(motors, SOCKETS))
-    return FirmwareConfig("stream", "tests/firmware/mcs51/test_stream.py", "mcs51", board, pins, homing=homing, baud=baud)
 
 
 def homing_config():
     axes = tuple(HomingAxis((m,), (1,), key, 1, 2000, 1000, 3000, 50) for m, key in enumerate(("x_max", "y_max",
                                                                                                 "z_max")))
     return config(homing=axes)
-
-
-def build(cfg, out_dir):
-    image = build_stream_image(render_stream_sources(cfg), out_dir)
-    return image, cfg
 
 
 @pytest.fixture(scope="module")
@@ -82,49 +61,11 @@ def long_schedule(events=200, seed=7):
                                    False, runs)])
 
 
-def short_schedule():
-    """Short and long blocks and runs, runs going on across blocks, a dwell with waits past 0xFFFF ticks, the tool
-    on and off (test_mcs51_firmware's first program)."""
-    return make_schedule(MOTORS, [
-        ((1, 1, -1), (200, 150, 50), 200, (100, 100, 100), True,
-         [(2000 * 256, -1000, 120), (1530 * 256 + 77, 0, 80)]),
-        ((1, 1, 1), (0, 0, 0), 1, (0, 0, 0), False, [(70_000 * 256 + 123, 0, 1), (300_000 * 256, -2_000_000, 3)]),
-        ((-1, 1, 1), (37, 100, 0), 100, (5, 99, 0), True, [(1500 * 256 + 77, 300, 100)]),
-        ((1, -1, 1), (3, 7, 11), 11, (0, 6, 10), False, [(900 * 256, 0, 11)]),
-    ], final_tool=True)
-
-
-def stream_of(schedule):
-    return tables.encode(schedule).data + protocol.tail_padding(len(schedule.motors))
-
-
 def host_for(schedule, cfg, prefill=200, identity=None):
     data = stream_of(schedule)
     ident = protocol.firmware_identity(cfg, F_CPU, TICK_HZ) if identity is None else identity
     return HostLink([data], len(cfg.motors), ident, 10 / BAUD, min(prefill, len(data)),
                     payload=ring_layout(cfg).ring_bytes // 8)
-
-
-def check_pulses(schedule, trace, whole=True):
-    """The trace's pulses are the twin's (all of them, or the first ones of each motor), each at 12 x its tick
-    after tick 0 plus one constant latency; the number of pulses per motor."""
-    twin = predict(schedule)
-    late, made = [], []
-    for m in range(len(schedule.motors)):
-        ticks, dirs = twin.of_motor(m)
-        mine = trace.step_motor == m
-        made.append(int(mine.sum()))
-        assert made[-1] == len(ticks) if whole else made[-1] <= len(ticks), f"motor {m}: pulse count"
-        assert np.array_equal(trace.step_dir[mine], dirs[:made[-1]]), f"motor {m}: directions"
-        late.append(trace.step_cycle[mine] - trace.timer_start_cycle - CLOCKS * ticks[:made[-1]])
-    late = np.concatenate(late)
-    if len(late):
-        assert 0 < np.median(late) < 20 * CLOCKS and np.ptp(late) <= TOLERANCE, "a pulse off its tick"
-    return made
-
-
-def net_steps(trace):
-    return tuple(int(trace.step_dir[trace.step_motor == m].sum()) for m in range(len(MOTORS)))
 
 
 class Tap:

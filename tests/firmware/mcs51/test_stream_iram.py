@@ -27,7 +27,7 @@ from codegen.link.host import HostLink
 from codegen.link.ring import link_budget
 from codegen.sim.mcs51_link import simulate_stream
 from codegen.tables.twin import predict
-from tests.firmware.mcs51.test_stream import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses, config,
+from tests.firmware.mcs51.stream_helpers import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses, config,
                                               make_schedule, net_steps, short_schedule, stream_of)
 from tests.helpers import ROOT
 
