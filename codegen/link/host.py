@@ -195,6 +195,8 @@ class HostLink:
 
     def receive(self, data: bytes, now: float) -> None:
         for f in self._parser.feed(data):
+            if self.done:  # the first ending frame ends the session (an ABORT's ABORTED may follow a FINISHED)
+                break
             self._answer(f, now)
         self.stats.bad_frames = self._parser.bad
 

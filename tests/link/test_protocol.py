@@ -150,10 +150,6 @@ def test_status_is_answered_and_abort_stops_with_positions():
     assert 0 < model.played < len(data)
 
 
-
-@pytest.mark.xfail(strict=True, reason="HostLink ends the session at the last ending frame of a read, not the first: "
-                                        "tests/cli/test_stream_pty.py::test_ctrl_c_as_the_job_ends_reports_the_"
-                                        "finished_job fails so when the machine is loaded")
 def test_the_first_ending_frame_ends_the_session():
     """Ctrl-C as the job ends: the host sends ABORT before it has read FINISHED, and the firmware, idle again,
     answers it with ABORTED. Both frames come in one read when the host is slow to read: the job finished, and
@@ -165,6 +161,7 @@ def test_the_first_ending_frame_ends_the_session():
     end = struct.pack("<2i", 7200, 4400)
     host.receive(p.frame(p.FINISHED, 1, end) + p.frame(p.ABORTED, 2, end), 0.02)
     assert (host.outcome, host.position) == ("finished", (7200, 4400))
+
 
 def test_ident_payload_round_trip():
     ident = p.Ident(1, 0xDEADBEEF, 4096, 4)
