@@ -1,3 +1,4 @@
 from codegen.cli.main import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # not when verify's comparing process (spawned) imports it again
+    raise SystemExit(main())

@@ -10,11 +10,11 @@ import numpy as np
 from codegen.errors import SourceRef
 from codegen.kinematics import make_kinematics
 from codegen.motion.planner import PlannerLimits, plan
-from codegen.tables.schedule import Schedule
 from codegen.motion.staircase import split_long
 from codegen.motion.stepgen import segment_steps
-from codegen.toolpath.segments import flatten
+from codegen.tables.schedule import Schedule
 from codegen.toolpath.items import Line, Toolpath
+from codegen.toolpath.segments import flatten
 from tests.reference_player import event_ticks
 
 SRC = SourceRef("test.yaml", 1, 1)

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codegen.tables.motor_checks import AccelCheck, RateCheck
 from codegen.sim.keys import KeyPress
+from codegen.tables.motor_checks import AccelCheck, RateCheck
 
 # A session that goes through every direction and speed change (seconds from reset; the 8051's display needs
 # its first 30 ms). Levels: 0 at power-up, + at 0.20 and 0.48, - while x- moves at 0.60: x- slows down.

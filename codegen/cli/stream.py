@@ -18,7 +18,7 @@ from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, strea
 from codegen.report.summaries import human_plan, plan_summary, write_json
 from codegen.verify.heaters import job_faults
 from codegen.verify.hold import hold_verify, pauses
-from codegen.verify.stream import simulate_stream
+from codegen.verify.stream import simulate_stream, simulate_stream_bounded
 
 
 def _out_dir(job, out: str | None) -> Path:
@@ -86,14 +86,16 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
     setup = stream_setup(job, args.baud)
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
-    host = streamed_host(job, setup, args.strict, keep=True)
-    if not host.findings.ok:
-        raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
-                         + "\n  ".join(host.findings.problems))
-    if args.hold is not None or args.override is not None or pauses(host):
-        result, trace = hold_verify(host, image, args.hold, args.override, setup)
+    if bounded(args, setup.target.target, job):
+        with tempfile.TemporaryFile() as table:
+            host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
+            result, trace = simulate_stream_bounded(host, setup, image, faults, table, args.strict)
     else:
-        result, trace = simulate_stream(host, setup, image, faults)
+        host = _checked(streamed_host(job, setup, args.strict, keep=True))
+        if args.hold is not None or args.override is not None or pauses(host):
+            result, trace = hold_verify(host, image, args.hold, args.override, setup)
+        else:
+            result, trace = simulate_stream(host, setup, image, faults)
     lk = result["link"]
     headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: streamed to {out_dir / 'firmware.hex'} at "
                 f"{lk['baud']} baud, {result['duration_s']:.4f} s simulated, {result['planned_duration_s']:.4f} s "
@@ -102,6 +104,20 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
                 f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
                 f"{lk['underruns']} underruns"]
     return host, result, trace, headline
+
+
+def bounded(args, target: str, job) -> bool:
+    """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold, and
+    without the outputs that draw or list every pulse (--trace, --vcd, --report: those keep the whole run)."""
+    return (target == "avr" and job.machine.feed_hold is None and args.hold is None and args.override is None
+            and not (args.trace or args.vcd or args.report))
+
+
+def _checked(host: HostBuild) -> HostBuild:
+    if not host.findings.ok:
+        raise BuildError(f"{host.job.name}: the tables do not do what the job says:\n  "
+                         + "\n  ".join(host.findings.problems))
+    return host
 
 
 def cmd_stream(args) -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from codegen.errors import BuildError
 from codegen.firmware.avr.heaters import stream_heaters
@@ -108,4 +109,12 @@ def stream_chunks(data: bytes, motors: int, size: int = 4096):
     """The table stream as the host sends it: the records, the end marker, the tail padding."""
     for i in range(0, len(data), size):
         yield data[i:i + size]
+    yield protocol.tail_padding(motors)
+
+
+def file_chunks(file: BinaryIO, motors: int, size: int = 1 << 16):
+    """stream_chunks of a table stream in a file (host_build's `tables`), read from its start as it goes."""
+    file.seek(0)
+    while chunk := file.read(size):
+        yield chunk
     yield protocol.tail_padding(motors)

@@ -38,6 +38,7 @@ from codegen.tables.headroom import with_ceilings
 from codegen.tables.hold import HoldPlan
 from codegen.tables.laser import LaserPwm, event_counts, power_error_of, with_power
 from codegen.tables.runtime import RuntimeRecords, block_extra_ticks, runtime_cycles, window_runtime
+from codegen.tables.schedule import Schedule
 from codegen.tables.twin import Pulses, predict
 from codegen.targets import TargetInfo
 from codegen.toolpath.segments import Segments, concat
@@ -61,6 +62,7 @@ class Played:
     prior_item: int = -1  # the item of the last block before the window (its runtime records come after it)
     power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
+    table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
 
 
 @dataclass
@@ -188,11 +190,16 @@ class Stages:
             self.open = None
         for p in out:
             self.totals.add(p)
+            if self.observe is None and self.tables is None:
+                continue
+            p.table_schedule = self._with_runtime(p, last and p is out[-1])
             if self.observe is not None:
                 self.observe(p)
                 p.pulses = p.pulses if self.keep else None
+                p.events = p.events if self.keep else None
             if self.tables is not None:
-                self.tables.write(encode(self._with_runtime(p, last and p is out[-1])).data[:-len(end_marker(False))])
+                self.tables.write(encode(p.table_schedule).data[:-len(end_marker(False))])
+            p.table_schedule = None
         return out
 
     def _with_runtime(self, played: Played, last: bool):
@@ -238,7 +245,7 @@ class Stages:
                 ceiling_bytes = stream_bytes(compressed.schedule) - was
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
-                        events if self.keep else None, pulses if self.keep or self.observe else None,
+                        events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
                         before.block_item, power_error, ceiling_bytes)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
@@ -248,7 +255,7 @@ class Stages:
         trains = [MotorTrain(tick / target.tick_hz, direction)
                   for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
         with watch("checks"):
-            corners_t, jumps = self._corners(window, before.before)
+            corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
             checker = copy.deepcopy(before.checker)
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
@@ -289,20 +296,6 @@ class Stages:
             stretch = slice(record_segment[short.first], record_segment[short.last] + 1)
             accel[stretch] = np.minimum(accel[stretch], share ** 2)  # from rest, a distance takes 1 / sqrt(accel)
         return speed, accel
-
-    def _corners(self, window: Window, last: Segments | None) -> tuple[np.ndarray, np.ndarray]:
-        """The window's corners (`corner_jumps`), the one where it meets the window before (whose last segment
-        is `last`) included."""
-        plan, segments = window.plan, window.segments
-        if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
-            return corner_jumps(plan, segments, self.kin)
-        _, before = segment_lengths(last)
-        joined = concat(last, segments)
-        both = replace(plan, direction=np.concatenate([before, plan.direction]),
-                       v_entry=np.concatenate([[0.0], plan.v_entry]),
-                       t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
-                       corner=np.concatenate([[True], plan.corner]))
-        return corner_jumps(both, joined, self.kin)
 
     @staticmethod
     def _slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list):
@@ -352,3 +345,17 @@ def _end_fx(played: Played) -> int:
     sched = played.compressed.schedule
     n, interval, add = sched.run_count, sched.run_interval, sched.run_add
     return played.origin_fx + int(np.sum(interval * n + add * (n * (n - 1) // 2)))
+
+
+def corners_after(plan, segments: Segments, last: Segments | None, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+    """The corners (`corner_jumps`) of a stretch of the plan, the one where it meets the stretch before (whose last
+    segment is `last`) included."""
+    if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
+        return corner_jumps(plan, segments, kin)
+    _, before = segment_lengths(last)
+    joined = concat(last, segments)
+    both = replace(plan, direction=np.concatenate([before, plan.direction]),
+                   v_entry=np.concatenate([[0.0], plan.v_entry]),
+                   t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
+                   corner=np.concatenate([[True], plan.corner]))
+    return corner_jumps(both, joined, kin)

@@ -18,7 +18,7 @@ from codegen import __version__
 from codegen.report import plots
 from codegen.report.plan_samples import PlanSamples
 from codegen.verify.compare import MAX_TIMING_ERROR_US
-from codegen.verify.heaters import on_twin_clock, wait_ticks
+from codegen.verify.heaters import host_timeline, on_twin_clock
 
 STYLE = """
 body { font-family: sans-serif; margin: 1.5em auto; max-width: 1100px; color: #222; }
@@ -200,7 +200,8 @@ def _timing_section(host, result: dict, trace) -> Section:
         return Section("timing", title, missing="a held or overridden run is compared with the dilated twin (its "
                                                 "figures are in the table above)")
     if result.get("holds"):  # the heaters' holds: each part of the trace onto the twin's clock
-        trace = on_twin_clock(trace, wait_ticks(host.schedule, host.pulses.event_tick),
+        timeline = host_timeline(host)
+        trace = on_twin_clock(trace, timeline.tick[timeline.waits()],
                               trace.f_cpu // host.target.tick_hz)
     errors = plots.timing_errors(host, trace)
     if not errors:

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from codegen.motion.planner import ACCEL_WINDOW_S
 from codegen.tables.laser import planned_speed
 from codegen.tables.schedule import HEATER_COMMANDS
-from codegen.verify.heaters import wait_ticks
+from codegen.verify.heaters import host_timeline
 
 MAX_POINTS = 20_000  # per curve
 DPI = 90
@@ -295,7 +295,8 @@ def heater_targets(host, trace, heater: str) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(0), np.zeros(0)
     first = np.concatenate([[0], np.cumsum(schedule.events_per_block())])[schedule.runtime_block[mine]]
     tick = np.where(first > 0, host.pulses.event_tick[np.maximum(first - 1, 0)], 0)
-    waits = wait_ticks(schedule, host.pulses.event_tick)[:len(trace.resumes)]
+    timeline = host_timeline(host)
+    waits = timeline.tick[timeline.waits()][:len(trace.resumes)]
     part = np.searchsorted(waits, tick, side="left")  # the player's run (between resumes) that reads the record
     base_cycle = np.array([trace.timer_start_cycle, *trace.resumes], dtype=np.int64)[part]
     base_tick = np.concatenate([[0], waits]).astype(np.int64)[part]

@@ -15,7 +15,7 @@ import subprocess
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from codegen.firmware.avr.laser import laser_ocr_address
 from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.homing import homing_ticks_bound
+from codegen.sim.avr_edges import EDGE_RECORD, EdgeDecoder, PinWave, read_edges
 from codegen.sim.avr_keys import jog_positions, key_args
 from codegen.sim.keys import session
 
@@ -36,20 +37,10 @@ HARNESS_SOURCES = (HARNESS_SOURCE, HARNESS_SOURCE.with_name("simavr_link.c"),  #
                    PLANT_SOURCE, PLANT_SOURCE.with_suffix(".h"))
 HARNESS_BUILD = ("gcc", "-O2", "-I/usr/include/simavr", f"-I{HARNESS_SOURCE.parent}")
 HARNESS_LIBS = ("-lsimavr", "-lelf", "-lm")
-EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
-DUTY_LOW_PIN, DUTY_HIGH_PIN = 0xFE, 0xFF  # a duty write's records (simavr_harness.c duty=)
 EXIT_STATES = {0: "done", 1: "crashed", 2: "budget", 4: "held"}  # held: a plant run's `held=` (avr_plant.py)
 PHASE_HOME, PHASE_RUN = "home", "run"  # SimTrace.step_phase values
 HOMING_FAILED = 0x02  # GPIOR0 bit set by homing.c's error state (GPIOR1: the motor bits, GPIOR2: the phase)
 HOMING_PHASES = {1: "fast approach", 2: "back off", 3: "slow approach"}
-
-
-class PinWave(NamedTuple):
-    """One recorded pin's levels: at reset, then each change."""
-
-    initial: int
-    cycle: np.ndarray  # (E,) int64
-    level: np.ndarray  # (E,) 0 / 1
 
 
 @dataclass
@@ -114,12 +105,6 @@ def harness_binary() -> Path:
                          f"{done.stderr.strip()}")
     os.replace(tmp, binary)
     return binary
-
-
-def _rises_falls(rec: np.ndarray, pin: int) -> tuple[np.ndarray, np.ndarray]:
-    mine = rec[rec["pin"] == pin]
-    cycles = mine["cycle"].astype(np.int64)
-    return cycles[mine["level"] == 1], cycles[mine["level"] == 0]
 
 
 def switch_thresholds(config: FirmwareConfig, switches: dict[int, int | None]) -> dict[int, int | None]:
@@ -223,10 +208,6 @@ def timer_ticks0(fields: dict, f_cpu: int, tick_hz: int) -> list[int]:
     return [] if starts == "-" else [int(c) + START_TICKS * (f_cpu // tick_hz) for c in starts.split(",")]
 
 
-def read_edges(path: Path) -> np.ndarray:
-    return np.fromfile(path, dtype=EDGE_RECORD)
-
-
 def simulated_s(path: Path, f_cpu: int) -> float | None:
     """Simulated seconds at the last whole record of the edges file the harness is writing (None before one)."""
     try:
@@ -245,41 +226,20 @@ def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: in
     """The trace of the harness's pin records (watched pins: STEP and DIR of each motor, then the tool) from cycle
     `since` on (levels before it count: DIR at a pulse, the tool's edges); pulses from tick 0 on are the run's."""
     pins = board_pins(config)
-    mcu = load_target(pins.mcu)
-    f_cpu = int(mcu["f_cpu"])
-    step_cycle, step_motor, step_dir, high_min, setup_min = [], [], [], [], []
-    for m, wiring in enumerate(pins.motors):
-        rise, fall = _rises_falls(rec, 2 * m)
-        rise, fall = rise[rise >= since], fall[fall >= since]
-        dir_mine = rec[rec["pin"] == 2 * m + 1]
-        dir_cycles, dir_levels = dir_mine["cycle"].astype(np.int64), dir_mine["level"].astype(np.int64)
-        # DIR level at each rising edge: the last DIR change before it (pins start low after reset).
-        level = np.concatenate([[0], dir_levels])[np.searchsorted(dir_cycles, rise, side="right")]
-        step_cycle.append(rise)
-        step_motor.append(np.full(len(rise), m, dtype=np.int64))
-        step_dir.append(np.where(level ^ int(wiring.invert_dir), 1, -1).astype(np.int64))
-        n = min(len(rise), len(fall))
-        high_min.append(int((fall[:n] - rise[:n]).min()) if n else None)
-        # DIR setup: from each DIR change to the next STEP rise of the same motor.
-        dir_cycles = dir_cycles[dir_cycles >= since]
-        nxt = np.searchsorted(rise, dir_cycles, side="right")
-        followed = nxt < len(rise)
-        setup_min.append(int((rise[nxt[followed]] - dir_cycles[followed]).min()) if followed.any() else None)
-    cyc, mot, dirs = (np.concatenate(a) if a else np.zeros(0, np.int64) for a in (step_cycle, step_motor, step_dir))
-    order = np.lexsort((mot, cyc))
-    tool = rec[(rec["pin"] == 2 * len(pins.motors)) & (rec["cycle"] >= since)]
-    tool_on = tool["level"].astype(int) ^ (0 if pins.tool_active_high else 1)
-    run = cyc[order] >= tick0 if tick0 is not None else np.zeros(len(order), dtype=bool)
-    low, high = rec[rec["pin"] == DUTY_LOW_PIN], rec[rec["pin"] == DUTY_HIGH_PIN]  # a write's two, in order
-    duty = np.stack([low["cycle"].astype(np.int64),
-                     low["level"].astype(np.int64) | high["level"].astype(np.int64) << 8], axis=1)
-    return SimTrace(state=state, cycles=cycles, f_cpu=f_cpu, timer_start_cycle=tick0,
-                    step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
-                    pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
-                    tool_edges=[(int(c), int(v)) for c, v in zip(tool["cycle"], tool_on)],
+    names = [name for name, _ in watched(config)]
+    decoder = EdgeDecoder([w.invert_dir for w in pins.motors], names[2 * len(pins.motors):], since)
+    steps = decoder.feed(rec)
+    tool = decoder.waves()["tool"]
+    after = tool.cycle >= since
+    tool_on = tool.level[after].astype(int) ^ (0 if pins.tool_active_high else 1)
+    run = steps.cycle >= tick0 if tick0 is not None else np.zeros(len(steps.cycle), dtype=bool)
+    return SimTrace(state=state, cycles=cycles, f_cpu=int(load_target(pins.mcu)["f_cpu"]), timer_start_cycle=tick0,
+                    step_cycle=steps.cycle, step_motor=steps.motor, step_dir=steps.dir,
+                    pulse_high_min_cycles=decoder.width_min, dir_setup_min_cycles=decoder.setup_min,
+                    tool_edges=[(int(c), int(v)) for c, v in zip(tool.cycle[after], tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
-                    homing_failed=fault is not None, homing_fault=fault, laser_duty=duty,
-                    pins=pin_waves(rec, [name for name, _ in watched(config)]))
+                    homing_failed=fault is not None, homing_fault=fault, laser_duty=decoder.duty(),
+                    pins=pin_waves(rec, names))
 
 
 def pin_waves(rec: np.ndarray, names: list[str]) -> dict[str, PinWave]:

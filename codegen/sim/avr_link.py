@@ -3,9 +3,9 @@ HostLink's interface (codegen/link/host.py; codegen/link/faults.py's Faulty) tal
 simavr, in lockstep on simulated time.
 
 The harness's link mode (simavr_link.c) puts the bytes host.transmit(now) gives on the RX line back to back at
-10 bit times each and runs until a frame from the firmware has fully arrived, the line has gone idle, or
-host.wake_at(); then host.receive(bytes, now) and host.transmit(now) again, with now = cycle / F_CPU. One round
-trip per frame, not per byte. The pins are logged as in codegen/sim/avr.py, so the session's SimTrace goes to
+10 bit times each and runs until a frame from the firmware has fully arrived or host.wake_at(); then
+host.receive(bytes, now) and host.transmit(now) again, with now = cycle / F_CPU. One round trip per frame, not per
+byte (a host that wants to act once its bytes have gone out asks to wake then: HostLink.line_free_at). The pins are logged as in codegen/sim/avr.py, so the session's SimTrace goes to
 codegen.verify.compare.compare unchanged: timer_start_cycle is the player's tick 0 after START, pulses before it (homing)
 are the phase "home", and `resumes` tick 0 of each restart of its timer after a hold (a WAIT record).
 
@@ -36,8 +36,9 @@ from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.homing import homing_ticks_bound
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
-from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
-                             switch_args, switch_thresholds, watched_pins)
+from codegen.sim.avr import (HOMING_FAILED, SimTrace, _homing_fault, decode_edges, harness_binary, switch_args,
+                             switch_thresholds, watched_pins)
+from codegen.sim.avr_edges import EDGE_RECORD, read_edges
 from codegen.sim.avr_keys import jog_positions, key_args
 from codegen.sim.avr_plant import Fault, HeaterPlant, HeaterRun, _plant_file, _stage_address, read_trace, stopped_safely
 from codegen.sim.keys import KeyPress
@@ -98,7 +99,7 @@ class StreamSim:
             raise BuildError(f"{elf} is not a streaming image (no {FREE_SYMBOL} or {CHECK_PREFIX}*)")
         self.ring_bytes = symbols["ring_end"] - symbols["ring_start"]
         self._tmp = tempfile.TemporaryDirectory(prefix="printer-codegen-link-")
-        self._edges = Path(self._tmp.name) / "edges.bin"
+        self.edges = Path(self._tmp.name) / "edges.bin"
         self._stderr = open(Path(self._tmp.name) / "stderr.txt", "w+b")
         self._plant_log = Path(self._tmp.name) / "plant.txt"
         plant = []
@@ -109,7 +110,7 @@ class StreamSim:
         self._keyed: tuple = ([], [], 0)
         if keys:
             self._keyed = key_args(config, keys, elf, self.f_cpu)
-        cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self._edges), str(BOOT_CYCLES),
+        cmd = [str(harness_binary()), pins.mcu, str(self.f_cpu), str(hex_path), str(self.edges), str(BOOT_CYCLES),
                *switch_args(config, self.switches), f"link={self.layout.byte_cycles}",
                f"free={symbols[FREE_SYMBOL]}", *checks, *plant, *self._keyed[0], *watched_pins(config)]
         self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr)
@@ -167,9 +168,11 @@ class StreamSim:
                       (rx_max, tx_max), (rx_total, tx_total), (rx_count, tx_count), out["byte"].tobytes(),
                       out["cycle"].astype(np.int64))
 
-    def session(self, host, cycle_budget: int) -> tuple[SimTrace, LinkFigures]:
+    def session(self, host, cycle_budget: int, decode: bool = True) -> tuple[SimTrace, LinkFigures]:
         """Run `host` to its end (host.done) within `cycle_budget` cycles (homing's bound on top, for an image that
-        homes); BuildError on a crash or the budget."""
+        homes); BuildError on a crash or the budget. Without `decode` the trace has no pulses and no pins (the
+        caller reads the records itself as they come: codegen/verify/bounded.py), only the session's state, clock
+        and ring fills."""
         wall = time.perf_counter()
         start = self.last.cycle
         if self.config.homing:
@@ -209,8 +212,9 @@ class StreamSim:
                 raise BuildError(f"the streaming session did not end within {cycle_budget} cycles "
                                  f"({cycle_budget / self.f_cpu:.3f} s simulated)")
         ticks0 = [s + START_TICKS * (self.f_cpu // self.tick_hz) for s in starts]
-        trace = decode_edges(read_edges(self._edges), self.config, "done", answer.cycle, ticks0[0] if ticks0 else None,
-                             fault, since=start)
+        records = read_edges(self.edges) if decode else np.zeros(0, EDGE_RECORD)
+        trace = decode_edges(records, self.config, "done", answer.cycle, ticks0[0] if ticks0 else None, fault,
+                             since=start)
         trace = replace(trace, resumes=tuple(ticks0[1:]), ring_fill=np.array(fills, dtype=np.int64).reshape(-1, 2))
         stats = link.stats
         counted = answer if counted is None or link.outcome != "finished" else counted
@@ -242,16 +246,21 @@ def simulate_stream_heaters(hex_path: Path, config: FirmwareConfig, host, cycle_
     figures."""
     with StreamSim(hex_path, config, switches, plants, faults) as sim:
         trace, figures = sim.session(host, cycle_budget)
-        per, end = sim.plant_trace()
-        seconds = sim.last.cycle / sim.f_cpu
-    link = getattr(host, "link", host)
+        return heater_run(sim, getattr(host, "link", host), trace), figures
+
+
+def heater_run(sim: StreamSim, link, trace: SimTrace) -> HeaterRun:
+    """The session that just ended on `sim` (its host's HostLink `link`, its `trace`) as a HeaterRun, the plants'
+    trace read: the simulation ends here."""
+    per, end = sim.plant_trace()
+    config = sim.config
     fault = link.fault
     pins_low, stopped = stopped_safely(end, config)
-    run = HeaterRun(state="done", seconds=seconds, heaters={h.name: per[k] for k, h in enumerate(config.heaters)},
-                    trip=fault.reason if fault else None, trip_heater=link.heater_name(fault.heater) if fault else None,
-                    trip_s=link.fault_at if fault else None, heater_pins_low=pins_low, steppers_stopped=stopped,
-                    stage_max_cycles=end["I"][0], stages=end["I"][1], steps=trace, fan=end["F"])
-    return run, figures
+    return HeaterRun(state="done", seconds=sim.last.cycle / sim.f_cpu,
+                     heaters={h.name: per[k] for k, h in enumerate(config.heaters)},
+                     trip=fault.reason if fault else None, trip_heater=link.heater_name(fault.heater) if fault else None,
+                     trip_s=link.fault_at if fault else None, heater_pins_low=pins_low, steppers_stopped=stopped,
+                     stage_max_cycles=end["I"][0], stages=end["I"][1], steps=trace, fan=end["F"])
 
 
 def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,

@@ -26,8 +26,9 @@ from codegen.heaters.control import PID_PERIOD_S
 from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
-from codegen.sim.avr import (EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, read_edges,
-                             simulated_s, switch_args, timer_ticks0, watched_pins)
+from codegen.sim.avr import (EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, simulated_s,
+                             switch_args, timer_ticks0, watched_pins)
+from codegen.sim.avr_edges import read_edges
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}

@@ -39,7 +39,8 @@ from codegen.firmware.mcs51.homing import decode_status, endstops
 from codegen.firmware.mcs51.image import HALF_STEPS
 from codegen.firmware.mcs51.lcd import board_lcd
 from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE, VECTOR_TIMER0, read_map
-from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, PinWave, SimTrace, _homing_fault, switch_thresholds
+from codegen.sim.avr import HOMING_FAILED, PHASE_HOME, PHASE_RUN, SimTrace, _homing_fault, switch_thresholds
+from codegen.sim.avr_edges import PinWave
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.keys import KeyPress, script_end_s, session
 from codegen.sim.mcs51_keys import (POSITION_BYTES, TAG_HOLD_POLL, TAG_JOG_POS, TAG_SCAN, hold_key_model, jog_positions,

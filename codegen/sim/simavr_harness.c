@@ -21,7 +21,9 @@
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
  *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8;
  * and with duty=, two per write of the compare register: pin DUTY_LOW_PIN with the value's low byte, then
- * DUTY_HIGH_PIN with its high byte, both at the write's cycle.
+ * DUTY_HIGH_PIN with its high byte, both at the write's cycle; and one per start of the player's timer (each
+ * write listed in starts= below): pin START_PIN, level 0, at the write's cycle (so the records alone tell a run's
+ * clock, read while the harness writes them: codegen/sim/avr_edges.py).
  * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
  * status=<GPIOR0> status1=<GPIOR1> status2=<GPIOR2> starts=<cycle,...|->"; timer_start is the player's tick 0: the
  * first write that starts Timer1 while one of its interrupts is enabled (homing runs Timer1 with its interrupts
@@ -56,6 +58,7 @@
 #define PLAYER_DONE_MASK 0x01 /* GPIOR0: the flash player has played its end marker */
 #define MAX_EXTINT 8 /* INT0..INT7 on the ATmega2560 */
 #define MAX_STARTS 256 /* timer starts listed (a hold's resume each) */
+#define START_PIN 0xFD /* EDGES.bin's pin index of a start of the player's timer */
 #define DUTY_LOW_PIN 0xFE /* EDGES.bin's pin index of a duty write's low byte (duty=) */
 #define DUTY_HIGH_PIN 0xFF
 
@@ -172,6 +175,7 @@ static void tccr1b_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value
     if (timer_start < 0 || every_start)
         timer_start = (long long)avr->cycle;
     timer_starts++;
+    write_record(START_PIN, 0);
     if (n_starts < MAX_STARTS)
         starts[n_starts++] = (long long)avr->cycle;
 }

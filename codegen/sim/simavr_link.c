@@ -14,7 +14,7 @@
  *
  * Stdin, little-endian: a command is wake u64 (a cycle; UINT64_MAX: none), budget u64 (a cycle), flags u8 (1:
  * reset the figures), n u32, then n bytes for the line. The harness runs until a frame from the firmware has
- * fully arrived, the line has gone idle, the wake cycle, the budget, a start of the player's timer (so that the
+ * fully arrived, the wake cycle, the budget, a start of the player's timer (so that the
  * host sees every resume after a hold in timer_start), or the firmware stops; then it answers on
  * stdout: cycle u64, state u8 (0 running, 1 done, 2 crashed), why u8 (STOP_*), timer_start i64, lost u32,
  * max_free u32 (UINT32_MAX: no record read), sp_min u16, rx_bytes u32, then per interrupt (USART0 RX, UDRE):
@@ -29,7 +29,7 @@
 #define UBRR0L_ADDR 0xC4
 #define LINK_VECTORS 2
 static const uint8_t link_vector[LINK_VECTORS] = {25, 26}; /* USART0_RX, USART0_UDRE on the ATmega2560 */
-enum { STOP_FRAME, STOP_IDLE, STOP_WAKE, STOP_BUDGET, STOP_END, STOP_BOOT, STOP_TIMER };
+enum { STOP_FRAME, STOP_WAKE, STOP_BUDGET, STOP_END, STOP_BOOT, STOP_TIMER };
 
 typedef struct {
     uint64_t cycle; /* when it has arrived at the host */
@@ -42,7 +42,7 @@ static struct {
     avr_irq_t *input;
     uint8_t *line; /* bytes for the RX line: line[sent..queued) still to go */
     size_t sent, queued, line_cap;
-    int line_busy, idle_event;
+    int line_busy;
     avr_cycle_count_t line_free; /* when the last byte completed */
     out_byte_t *out; /* bytes from the firmware: out[0..delivered) have arrived */
     size_t out_n, delivered, out_cap;
@@ -118,7 +118,6 @@ static avr_cycle_count_t line_byte(struct avr_t *core, avr_cycle_count_t when, v
     link.sent = link.queued = 0;
     link.line_busy = 0;
     link.line_free = when;
-    link.idle_event = 1;
     return 0;
 }
 
@@ -200,10 +199,6 @@ static int link_run(uint64_t budget, int *state)
         if (link.frame_done) {
             link.frame_done = 0;
             return STOP_FRAME;
-        }
-        if (link.idle_event) {
-            link.idle_event = 0;
-            return STOP_IDLE;
         }
         if (avr->cycle >= link.wake)
             return STOP_WAKE;

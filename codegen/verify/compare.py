@@ -8,15 +8,19 @@ at the level of each pulse's block, and off at the end.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from codegen.firmware.homing import homing_steps
 from codegen.pipeline.host import HostBuild, trains_from
-from codegen.tables.checks import Findings, check
+from codegen.pipeline.windows import corners_after
+from codegen.sim.avr_edges import Steps
+from codegen.tables.checks import Checker, Findings
 from codegen.tables.twin import Pulses
-from codegen.verify.laser import LaserVerdict, laser_verdict
+from codegen.toolpath.segments import concat
+from codegen.verify.chapters import Chapter, whole_chapter
+from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -84,94 +88,244 @@ class Verdict:
         return not self.problems and self.findings.ok
 
 
+class Comparison:
+    """The simulated run against the twin a chapter at a time (codegen/verify/chapters.py): `add` each chapter with
+    the simulated pulses that pair with its own (per motor, the next as many), then `finish`. What it keeps of the
+    chapters before is a few figures per motor and the checks' carried state, whatever the run's length.
+
+    A streaming firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the
+    machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
+    plan's times onto its clock (seconds to seconds); `dilation` (codegen/tables/hold.py) has its feed factors."""
+
+    def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None):
+        """`levels`: the run's clock and slow outputs so far (timer_start_cycle, f_cpu, tool_edges, laser_duty: a
+        SimTrace, or what the caller keeps up to date as it reads the run)."""
+        self.host, self.levels, self.f_cpu = host, levels, levels.f_cpu
+        self.streamed, self.warp, self.dilation = streamed, warp, dilation
+        motors = len(host.kin.motors)
+        self.checker = Checker(host.kin, host.start_steps, host.settings.stages.tolerance_mm)
+        self.made = np.zeros(motors, dtype=np.int64)
+        self.predicted = np.zeros(motors, dtype=np.int64)
+        self.timing = np.zeros(motors)
+        self.prefix_timing: list[float | None] = [None] * motors  # over each chapter's pairs, counts agreeing or not
+        self.wrong_dir: list[tuple[int, int] | None] = [None] * motors  # first wrong step, how many
+        self.position = np.zeros(motors, dtype=np.int64)  # the simulated steps' sum so far
+        self.twin_final = np.zeros(motors, dtype=np.int64)
+        self.paired = True  # every chapter so far had, per motor, as many simulated pulses as the twin's
+        self.span_s: list[float] = []  # the first and the last simulated run pulse (on the twin's clock)
+        self.span_cycles: list[int] = []  # and as simulated
+        self.planned: list[float] = []  # the first and the last stepping event's planned time
+        self.events = 0  # simulated events so far
+        self.problems: list[str] = []
+        self.laser_parts: list[LaserVerdict] = []
+        self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
+                           // host.target.tick_hz // 2)
+
+    def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
+        """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
+        levels are read there); `clock`: the same pulses' cycles on the twin's clock (a held run's moved by its
+        holds, codegen/verify/heaters.py)."""
+        host, twin, names = self.host, chapter.pulses, self.host.kin.motors
+        sim_s = (clock - self.tick0) / self.f_cpu
+        twin_s = twin.tick / host.target.tick_hz
+        matched = self.paired
+        limit = MAX_TIMING_ERROR_US + host.target.isr_latency_us
+        for m, name in enumerate(names):
+            mine, theirs = sim.motor == m, twin.motor == m
+            got, want = int(mine.sum()), int(theirs.sum())
+            if self._prefix(m, sim_s[mine], sim.dir[mine], twin_s[theirs], twin.dir[theirs]):
+                matched = False
+            if matched and got == want:
+                err = np.abs(sim_s[mine] - twin_s[theirs]) * 1e6
+                if len(err) and err.max() > self.timing[m]:
+                    self.timing[m] = float(err.max())
+                    if self.timing[m] > limit:
+                        self.problems.append(f"motor {name}: step {int(self.made[m] + np.argmax(err))} comes "
+                                             f"{self.timing[m]:.2f} us away from its predicted time (limit "
+                                             f"{limit:.2f} us: {MAX_TIMING_ERROR_US} us beyond the player's "
+                                             f"latency)")
+            self.made[m] += got
+            self.predicted[m] += want
+        self.paired = self.paired and all(int((sim.motor == m).sum()) == int((twin.motor == m).sum())
+                                          for m in range(len(names)))
+        matched = matched and self.paired
+        if len(twin.event_position):
+            self.twin_final = twin.event_position[-1]
+        if len(twin.event):  # pulses come in event order: the first and the last event that steps
+            times = chapter.events.time[twin.event[[0, -1]]]
+            self.planned = [self.planned[0] if self.planned else float(times[0]), float(times[1])]
+        if len(sim_s):
+            self.span_s = [self.span_s[0] if self.span_s else float(sim_s[0]), float(sim_s[-1])]
+            self.span_cycles = [self.span_cycles[0] if self.span_cycles else int(sim.cycle[0]), int(sim.cycle[-1])]
+        self._motion(chapter, sim, sim_s, matched)
+
+    def _prefix(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
+                twin_dir: np.ndarray) -> bool:
+        """Motor m's simulated pulses against the twin's first as many (all of a paired chapter's; what a run the
+        heaters' protection stopped made before the trip: trip_figures); whether a direction differs."""
+        n = min(len(sim_s), len(twin_s))
+        if not n or not self.paired:
+            return False
+        worst = float(np.abs(sim_s[:n] - twin_s[:n]).max() * 1e6)
+        self.prefix_timing[m] = max(self.prefix_timing[m] or 0.0, worst)
+        wrong = np.flatnonzero(sim_dir[:n] != twin_dir[:n])
+        if len(wrong):
+            first, count = self.wrong_dir[m] or (int(self.made[m] + wrong[0]), 0)
+            self.wrong_dir[m] = (first, count + len(wrong))
+        return bool(len(wrong))
+
+    def extra(self, sim: Steps) -> None:
+        """Simulated pulses after the twin's last chapter: counted (the twin predicted none)."""
+        self.made += np.bincount(sim.motor, minlength=len(self.made))
+        self.paired = self.paired and not len(sim.motor)
+
+    def trip_figures(self) -> tuple[dict, list[str]]:
+        """Per motor, the pulses a run made before a trip against the twin's first as many: the same directions,
+        each within the timing limit of its predicted time (codegen/verify/heaters.py trip_result)."""
+        limit = MAX_TIMING_ERROR_US + self.host.target.isr_latency_us
+        motors, problems = {}, []
+        for m, name in enumerate(self.host.kin.motors):
+            made, planned = int(self.made[m]), int(self.predicted[m])
+            worst = self.prefix_timing[m]
+            motors[name] = {"steps": made, "planned_steps": planned,
+                            "max_timing_error_us": None if worst is None or made > planned else round(worst, 3)}
+            if made > planned:
+                problems.append(f"motor {name}: {made} steps before the trip, the twin predicted {planned} in all")
+                continue
+            if self.wrong_dir[m] is not None:
+                first, count = self.wrong_dir[m]
+                problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
+            if worst is not None and worst > limit:
+                problems.append(f"motor {name}: a step before the trip comes {worst:.2f} us away from its predicted "
+                                f"time (limit {limit:.2f} us)")
+        return motors, problems
+
+    def _motion(self, chapter: Chapter, sim: Steps, sim_s: np.ndarray, matched: bool) -> None:
+        """Events, positions and the path, the motors' rates and accelerations, the tool and the laser."""
+        host, names = self.host, self.host.kin.motors
+        new_event = np.concatenate([[True], np.diff(sim.cycle) > self.gap_cycles])[:len(sim.cycle)]
+        group = np.cumsum(new_event) - 1
+        positions = np.zeros((int(group[-1]) + 1 if len(group) else 0, len(names)), dtype=np.int64)
+        np.add.at(positions, (group, sim.motor), sim.dir)  # each event's steps, then their running sum in place
+        np.cumsum(positions, axis=0, out=positions)
+        positions += self.position
+        if len(positions):
+            self.position = positions[-1].copy()
+        twin_event = None
+        if matched:  # each simulated event belongs to the segment of the twin event its first pulse matched
+            rank = np.empty(len(sim.cycle), dtype=np.int64)
+            for m in range(len(names)):
+                rank[sim.motor == m] = np.flatnonzero(chapter.pulses.motor == m)
+            twin_event = chapter.pulses.event[rank[new_event]]
+            segment = chapter.event_segments()[twin_event]
+        parts = [p for p in (chapter.before, chapter.segments, chapter.after) if p is not None]
+        shift = 0 if chapter.before is None else 1
+        corners_t, jumps = corners_after(chapter.plan, chapter.segments, chapter.before, host.kin)
+        if self.warp is not None:
+            corners_t = self.warp(corners_t)
+        trains = trains_from(sim_s, sim.motor, sim.dir, len(names))
+        self.checker.add(trains, positions if matched else positions[:0], segment + shift if matched else
+                         np.zeros(0, np.int64), concat(*parts), corners_t, jumps, chapter.last)
+        event_cycle = sim.cycle[new_event]
+        view = chapter_view(host, chapter)
+        self.tool_events(view, event_cycle, twin_event)
+        laser = laser_verdict(view, self.levels, event_cycle, twin_event, self.dilation, chapter.laser_before)
+        if laser is not None:
+            self.laser_parts.append(laser)
+        self.events += len(event_cycle)
+
+    def tool_events(self, view: HostBuild, event_cycle: np.ndarray, twin_event: np.ndarray | None) -> None:
+        """The tool pin's level at every simulated event (its first pulse) against its block's tool flag."""
+        if twin_event is None or not len(event_cycle):
+            return
+        edges = np.array(self.levels.tool_edges, dtype=np.int64).reshape(-1, 2)
+        levels = np.concatenate([[0], edges[:, 1]])
+        at = levels[np.searchsorted(edges[:, 0], event_cycle, side="right")]
+        want = view.schedule.block_tool[view.pulses.event_block[twin_event]].astype(np.int64)
+        wrong = np.flatnonzero(at != want)
+        if len(wrong) and not any(p.startswith("the tool pin is") for p in self.problems):
+            self.problems.append(f"the tool pin is {'on' if at[wrong[0]] else 'off'} at simulated event "
+                                 f"{self.events + wrong[0]} ({len(wrong)} events of "
+                                 f"{len(event_cycle)} there differ from the tables)")
+
+    def finish(self, trace, switches: dict[int, int]) -> Verdict:
+        """The verdict once every chapter has been added; `trace`: the run's SimTrace without its pulses (state,
+        cycles, homing, pulse widths, display, slow pins)."""
+        host, names, f_cpu = self.host, self.host.kin.motors, self.f_cpu
+        homing, homing_problems = homing_report(host, trace, switches)
+        problems: list[str] = []
+        if trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
+            problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
+        not_compared, timing = [], {}
+        for m, name in enumerate(names):
+            got, want = int(self.made[m]), int(self.predicted[m])
+            if got != want:
+                problems.append(f"motor {name}: the simulator made {got} steps, the twin predicted {want}")
+                not_compared.append(f"timing of motor {name}: its steps cannot be paired ({got} simulated, "
+                                    f"{want} predicted)")
+                continue
+            timing[name] = float(self.timing[m])
+            if self.wrong_dir[m] is not None:
+                first, count = self.wrong_dir[m]
+                problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
+        problems += self.problems
+        if not self.paired:
+            not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
+                                "placed on the path's segments")
+        findings = self.checker.findings(host.expected_final)
+        duration = self.span_s[1] - self.span_s[0] if self.span_s else 0.0
+        planned = self.planned_s()
+        if planned > 0 and abs(duration - planned) > DURATION_AGREEMENT * planned:
+            problems.append(f"simulated duration {duration:.4f} s differs from the planned {planned:.4f} s by more "
+                            f"than {100 * DURATION_AGREEMENT:.0f} %")
+        cfg = host.firmware_config()
+        width = {n: c / f_cpu * 1e6 for n, c in zip(names, trace.pulse_high_min_cycles) if c is not None}
+        setup = {n: (None if c is None else c / f_cpu * 1e6) for n, c in zip(names, trace.dir_setup_min_cycles)}
+        for name, us in width.items():
+            if us < cfg.step_pulse_us:
+                problems.append(f"motor {name}: a STEP pulse is {us:.2f} us high (needs {cfg.step_pulse_us} us)")
+        for name, us in setup.items():
+            if us is not None and us < cfg.dir_setup_us:
+                problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
+        edges = np.array(trace.tool_edges, dtype=np.int64).reshape(-1, 2)
+        if len(edges) and edges[-1, 1]:
+            problems.append("the tool pin is still on when the program ends")
+        problems.extend(display_problems(host, trace, self.twin_final, self.streamed))
+        laser = merge_laser(self.laser_parts, trace.laser_duty) if host.laser is not None else None
+        problems.extend(laser.problems if laser else [])
+        display = None if trace.display is None else list(trace.display.lines)
+        return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
+                       homing_problems + problems, homing, display, not_compared, laser)
+
+    @property
+    def tick0(self) -> int:
+        return self.levels.timer_start_cycle or 0
+
+    def planned_s(self) -> float:
+        """The plan's time from its first step to its last (on a held run's clock with `warp`)."""
+        if not self.planned:
+            return 0.0
+        first, last = self.planned
+        return float(self.warp(last) - self.warp(first)) if self.warp else last - first
+
+
+def chapter_view(host: HostBuild, chapter: Chapter) -> HostBuild:
+    """The host build with the chapter's program in place of the whole's (what the laser's and the tool's checks
+    read)."""
+    return replace(host, segments=chapter.segments, plan=chapter.plan, events=chapter.events,
+                   compressed=chapter.compressed, pulses=chapter.pulses)
+
+
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
             dilated: Pulses | None = None, warp=None, dilation=None) -> Verdict:
-    """The simulated run (the table's steps, after any homing) against the twin; homing on its own. A streaming
-    firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the machine.
-    A held or overridden run (codegen/verify/hold.py) is compared with the `dilated` twin; `warp` maps the
-    plan's times onto its clock (seconds to seconds); `dilation` (codegen/tables/hold.py) has its feed factors."""
-    homing, homing_problems = homing_report(host, full_trace, switches)
+    """A whole simulated run (the table's steps, after any homing) against a kept host build's twin (`dilated`: a
+    held run's), as one chapter; homing on its own."""
     trace = full_trace.run_only()
-    names = host.kin.motors
-    f_cpu, tick_hz = trace.f_cpu, host.target.tick_hz
-    twin = dilated or host.pulses
-    problems: list[str] = []
-    if trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
-        problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
+    comparison = Comparison(host, trace, streamed, warp, dilation)
     order = np.argsort(trace.step_cycle, kind="stable")
-    cycle, motor, direction = trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order]
-
-    twin_s = twin.tick / tick_hz
-    start = trace.timer_start_cycle or 0
-    sim_s = (cycle - start) / f_cpu  # on the twin's clock
-    timing: dict[str, float] = {}
-    not_compared: list[str] = []
-    matched = True
-    for m, name in enumerate(names):
-        mine, theirs = motor == m, twin.motor == m
-        got, want = int(mine.sum()), int(theirs.sum())
-        if got != want:
-            problems.append(f"motor {name}: the simulator made {got} steps, the twin predicted {want}")
-            not_compared.append(f"timing of motor {name}: its steps cannot be paired ({got} simulated, "
-                                f"{want} predicted)")
-            matched = False
-            continue
-        wrong_dir = np.flatnonzero(direction[mine] != twin.dir[theirs])
-        if len(wrong_dir):
-            problems.append(f"motor {name}: step {wrong_dir[0]} goes the wrong way ({len(wrong_dir)} steps differ)")
-            matched = False
-        err = np.abs(sim_s[mine] - twin_s[theirs]) * 1e6
-        timing[name] = float(err.max()) if len(err) else 0.0
-        limit = MAX_TIMING_ERROR_US + host.target.isr_latency_us
-        if timing[name] > limit:
-            problems.append(f"motor {name}: a step comes {timing[name]:.2f} us away from its predicted time "
-                            f"(limit {limit:.2f} us: {MAX_TIMING_ERROR_US} us beyond the player's latency)")
-
-    # Group simultaneous pulses (one interrupt) into events; a new event starts after a gap.
-    gap = np.diff(cycle)
-    new_event = np.concatenate([[True], gap > host.target.run_gap_ticks(len(names), host.job.machine.step_pulse_us) * f_cpu // tick_hz // 2])
-    new_event = new_event[:len(cycle)]
-    group = np.cumsum(new_event) - 1
-    positions = np.zeros((int(group[-1]) + 1 if len(group) else 0, len(names)), dtype=np.int64)
-    np.add.at(positions, (group, motor), direction)  # each event's steps, then their running sum in place
-    np.cumsum(positions, axis=0, out=positions)
-    if matched:
-        # Each simulated event belongs to the segment of the twin event its first pulse matched.
-        rank = np.empty(len(cycle), dtype=np.int64)
-        for m in range(len(names)):
-            rank[motor == m] = np.flatnonzero(twin.motor == m)
-        twin_event = twin.event[rank[new_event]]
-        segment = host.event_segments()[twin_event]
-    else:
-        segment = np.zeros(len(positions), dtype=np.int64)
-        not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
-                            "placed on the path's segments")
-    trains = trains_from(sim_s, motor, direction, len(names))
-    findings = check(trains, positions if matched else positions[:0], segment, host.segments, host.plan,
-                     host.kin, host.expected_final, host.start_steps, host.job.machine.tolerance, warp)
-
-    duration = float(sim_s[-1] - sim_s[0]) if len(sim_s) else 0.0
-    planned = planned_stepping_s(host, warp)
-    if planned > 0 and abs(duration - planned) > DURATION_AGREEMENT * planned:
-        problems.append(f"simulated duration {duration:.4f} s differs from the planned {planned:.4f} s by more "
-                        f"than {100 * DURATION_AGREEMENT:.0f} %")
-
-    cfg = host.firmware_config()
-    width = {n: c / f_cpu * 1e6 for n, c in zip(names, trace.pulse_high_min_cycles) if c is not None}
-    setup = {n: (None if c is None else c / f_cpu * 1e6) for n, c in zip(names, trace.dir_setup_min_cycles)}
-    for name, us in width.items():
-        if us < cfg.step_pulse_us:
-            problems.append(f"motor {name}: a STEP pulse is {us:.2f} us high (needs {cfg.step_pulse_us} us)")
-    for name, us in setup.items():
-        if us is not None and us < cfg.dir_setup_us:
-            problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
-    problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
-    problems.extend(display_problems(host, trace, streamed))
-    laser = laser_verdict(host, trace, cycle[new_event], twin_event if matched else None, dilation)
-    problems.extend(laser.problems if laser else [])
-    display = None if trace.display is None else list(trace.display.lines)
-    return Verdict(findings, duration, planned, start / f_cpu * 1e6, timing, width, setup,
-                   homing_problems + problems, homing, display, not_compared, laser)
+    sim = Steps(trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order])
+    comparison.add(whole_chapter(host, dilated), sim, sim.cycle)
+    return comparison.finish(full_trace, switches)
 
 
 def planned_stepping_s(host: HostBuild, warp=None) -> float:
@@ -183,35 +337,18 @@ def planned_stepping_s(host: HostBuild, warp=None) -> float:
     return float(warp(last) - warp(first)) if warp else float(last - first)
 
 
-def display_problems(host: HostBuild, trace, streamed: bool = False) -> list[str]:
-    """A board's status display: its decoded text at the end shows every motor's final position (a streaming
-    firmware's: its steps since the job's start), and the firmware drove it within the display's timing."""
+def display_problems(host: HostBuild, trace, twin_final: np.ndarray, streamed: bool = False) -> list[str]:
+    """A board's status display: its decoded text at the end shows every motor's final position (`twin_final`, the
+    twin's; a streaming firmware's: its steps since the job's start), and the firmware drove it within the
+    display's timing."""
     if trace.display is None:
         return []
     from codegen.firmware.mcs51.lcd import board_lcd
 
     lcd = board_lcd(host.target.board, host.kin.motors)
-    final = host.pulses.final_positions() + (0 if streamed else host.start_steps)
+    final = twin_final + (0 if streamed else host.start_steps)
     expected = lcd.expected_text([int(v) for v in final])
     problems = [f"display at clock {p.clock}: {p.message}" for p in trace.display.problems[:5]]
     if tuple(trace.display.lines) != tuple(expected):
         problems.append(f"the display ends showing {list(trace.display.lines)}, expected {list(expected)}")
-    return problems
-
-
-def tool_problems(host: HostBuild, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None) -> list[str]:
-    """The tool pin's level at every simulated event (its first pulse) against its block's tool flag; off at
-    the end."""
-    edges = np.array(trace.tool_edges, dtype=np.int64).reshape(-1, 2)
-    levels = np.concatenate([[0], edges[:, 1]])
-    problems = []
-    if twin_event is not None and len(event_cycle):
-        at = levels[np.searchsorted(edges[:, 0], event_cycle, side="right")]
-        want = host.schedule.block_tool[host.pulses.event_block[twin_event]].astype(np.int64)
-        wrong = np.flatnonzero(at != want)
-        if len(wrong):
-            problems.append(f"the tool pin is {'on' if at[wrong[0]] else 'off'} at simulated event {wrong[0]} "
-                            f"({len(wrong)} events differ from the tables)")
-    if levels[-1] != int(host.schedule.final_tool):
-        problems.append("the tool pin is still on when the program ends")
     return problems

@@ -37,8 +37,8 @@ from codegen.pipeline.host import HostBuild
 from codegen.program.heater_settings import heater_settings
 from codegen.sim.avr import SimTrace, switch_thresholds
 from codegen.sim.avr_plant import FAULTS, Fault, HeaterPlant, HeaterRun, heater_summary, simulate_heaters
-from codegen.tables.format import stream_bytes
-from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS, Schedule
+from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS
+from codegen.verify.chapters import RuntimeTimeline
 from codegen.verify.compare import MAX_TIMING_ERROR_US, compare, planned_stepping_s, simulated_switches
 from codegen.verify.results import verify_json
 
@@ -116,39 +116,45 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
     """verify_heaters' result for a run with heaters (a flash image's, or with `streamed` a stream's:
     codegen/sim/avr_link.py), and its trace on the simulated clock."""
     cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
-    waits = wait_ticks(host.schedule, host.pulses.event_tick)
-    table_start_s = _table_start_s(run.steps)
+    timeline = host_timeline(host)
+    waits = timeline.tick[timeline.waits()]
+    run_cycles = run.steps.run_only().step_cycle
+    table_start_s = _table_start_s(run.steps, int(run_cycles[0]) if len(run_cycles) else None)
     simulated = HeatedTrace(**vars(run.steps), plants=run.heaters)  # on the simulated clock, holds in it
     run.steps = on_twin_clock(run.steps, waits, cycles_per_tick)
     if run.trip is not None:
-        result = trip_result(host, run, image)
+        motors, problems = pulses_before_trip(host, run.steps.run_only())
+        span = float(np.ptp(run_cycles)) if len(run_cycles) else 0.0
+        result = trip_result(host, run, image, motors, problems, span, planned_stepping_s(host))
     else:
-        result = verify_json(host, compare(host, run.steps, switches, streamed), image)
-        if run.steps.timer_start_cycle is None and run.state == "budget":
-            result["problems"].insert(0, f"the heaters did not settle at their targets within {HEAT_LIMIT_S:g} s")
-        result["problems"] += hold_problems(run.steps, waits)
-        result["pass"] = result["pass"] and not result["problems"]
-    result.update(heater_figures(host, run, waits, table_start_s))
+        result = with_holds(verify_json(host, compare(host, run.steps, switches, streamed), image), run, waits)
+    result.update(heater_figures(host, run, timeline, table_start_s))
     result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
     return result, simulated
 
 
-def heater_figures(host: HostBuild, run: HeaterRun, waits: np.ndarray, table_start_s: float | None) -> dict:
-    """verify's `holds`, `heaters`, `table_start_s` and `fan` of a run with heaters (its steps on the twin's clock)."""
+def host_timeline(host: HostBuild) -> RuntimeTimeline:
+    """A kept host build's runtime records on the twin's clock."""
+    return RuntimeTimeline.of(host.schedule, host.pulses.event_tick)
+
+
+def with_holds(result: dict, run: HeaterRun, waits: np.ndarray) -> dict:
+    """verify's result of a run with heaters that did not trip: the heat-up's and the holds' problems added."""
+    if run.steps.timer_start_cycle is None and run.state == "budget":
+        result["problems"].insert(0, f"the heaters did not settle at their targets within {HEAT_LIMIT_S:g} s")
+    result["problems"] += hold_problems(run.steps, waits)
+    result["pass"] = result["pass"] and not result["problems"]
+    return result
+
+
+def heater_figures(host: HostBuild, run: HeaterRun, timeline: RuntimeTimeline, table_start_s: float | None) -> dict:
+    """verify's `holds`, `heaters`, `table_start_s` and `fan` of a run with heaters (its clock: the player's starts
+    in run.steps; `timeline`: the tables' runtime records on the twin's clock)."""
     cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
-    return {"holds": holds(run.steps, host.schedule, waits, cycles_per_tick),
-            "heaters": {h.name: _figures(host, run, h, waits, cycles_per_tick)
-                        for h in host.firmware_config().heaters},
+    return {"holds": holds(run.steps, timeline, cycles_per_tick),
+            "heaters": {h.name: _figures(run, h, timeline, cycles_per_tick) for h in host.firmware_config().heaters},
             "table_start_s": table_start_s,
             "fan": [{"at_s": round(float(t), 3), "duty": round(float(d), 4)} for t, d in run.fan[1:]]}
-
-
-def wait_ticks(schedule: Schedule, event_tick: np.ndarray) -> np.ndarray:
-    """The twin's tick of each WAIT record's event: the last event before its block (tick 0 before the first)."""
-    waits = schedule.waits()
-    block = schedule.runtime_block[waits]
-    first = np.concatenate([[0], np.cumsum(schedule.events_per_block())])[block]
-    return np.where(first > 0, event_tick[np.maximum(first - 1, 0)], 0).astype(np.int64)
 
 
 def on_twin_clock(trace, waits: np.ndarray, cycles_per_tick: int):
@@ -169,10 +175,10 @@ def on_twin_clock(trace, waits: np.ndarray, cycles_per_tick: int):
                    step_dir=trace.step_dir[order], step_phase=trace.step_phase[order], tool_edges=tool)
 
 
-def holds(trace, schedule: Schedule, waits: np.ndarray, cycles_per_tick: int) -> list[dict]:
+def holds(trace, timeline: RuntimeTimeline, cycles_per_tick: int) -> list[dict]:
     """Each hold: when the player stopped (s, simulated from power-up), how long until its timer's tick 0 again
     (waited_s), and the heaters of its WAIT record."""
-    masks = schedule.runtime_value[schedule.waits()]
+    masks, waits = timeline.value[timeline.waits()], timeline.tick[timeline.waits()]
     out, since_cycle, since_tick = [], trace.timer_start_cycle, 0
     for resume, tick, mask in zip(trace.resumes, waits, masks):
         stopped = since_cycle + (int(tick) - since_tick) * cycles_per_tick
@@ -195,14 +201,13 @@ def hold_lines(result: dict) -> list[str]:
             for h in result.get("holds", [])]
 
 
-def _table_start_s(trace) -> float | None:
+def _table_start_s(trace, first_step_cycle: int | None) -> float | None:
     """When the table's first step's tick 0 came (simulated s): the player's start, or the resume after the waits
-    before its first step."""
+    before its first step (`first_step_cycle`, as simulated; None: it made none)."""
     if trace.timer_start_cycle is None:
         return None
     starts = np.array([trace.timer_start_cycle, *trace.resumes])
-    run = trace.step_cycle[trace.step_phase == "run"]
-    first = starts[starts <= run[0]][-1] if len(run) else starts[0]
+    first = starts[starts <= first_step_cycle][-1] if first_step_cycle is not None else starts[0]
     return round(float(first) / trace.f_cpu, 6)
 
 
@@ -215,30 +220,26 @@ def _sim_s_of_tick(trace, waits: np.ndarray, tick: int, cycles_per_tick: int) ->
     return (start + (tick - since) * cycles_per_tick) / trace.f_cpu
 
 
-def _figures(host: HostBuild, run: HeaterRun, heater: HeaterFirmware, waits: np.ndarray,
-             cycles_per_tick: int) -> dict:
+def _figures(run: HeaterRun, heater: HeaterFirmware, timeline: RuntimeTimeline, cycles_per_tick: int) -> dict:
     """heater_summary's figures for the heater's last target (an off at the end aside), from when the player read
     it (an unset heater's figures are None), with `settled_s`: when the firmware's last wait for it was over
     (None: not waited for)."""
-    name, schedule, trace = heater.name, host.schedule, run.steps
-    mine = np.flatnonzero((schedule.runtime_command == HEATER_COMMANDS[name]) & (schedule.runtime_value > 0))
-    target_c = float(schedule.runtime_value[mine[-1]]) / 10 if len(mine) else 0.0
+    name, trace = heater.name, run.steps
+    mine = np.flatnonzero((timeline.command == HEATER_COMMANDS[name]) & (timeline.value > 0))
+    target_c = float(timeline.value[mine[-1]]) / 10 if len(mine) else 0.0
     none = {"target_c": target_c, "time_to_target_s": None, "overshoot_c": None, "band_c": None,
             "trip": run.trip if run.trip_heater == name else None, "settled_s": None}
     if target_c == 0 or trace.timer_start_cycle is None:
         return none
-    block = int(schedule.runtime_block[mine[-1]])
-    first = int(np.concatenate([[0], np.cumsum(schedule.events_per_block())])[block])
-    tick = int(host.pulses.event_tick[first - 1]) if first > 0 else 0
-    since_s = _sim_s_of_tick(trace, waits, tick, cycles_per_tick)
+    waits = timeline.tick[timeline.waits()]
+    since_s = _sim_s_of_tick(trace, waits, int(timeline.tick[mine[-1]]), cycles_per_tick)
     samples = run.heaters[name].time_s
     if not len(samples) or since_s > samples[-1]:  # the run ended (a trip) before the player read that target
         return none
-    waited = [k for k in schedule.waits() if schedule.runtime_block[k] >= block
-              and schedule.runtime_value[k] & WAIT_MASKS[name]]
+    waited = [k for k in timeline.waits() if k > mine[-1] and timeline.value[k] & WAIT_MASKS[name]]
     resume = None
     if waited:
-        k = int(np.searchsorted(schedule.waits(), waited[0]))
+        k = int(np.searchsorted(timeline.waits(), waited[0]))
         resume = trace.resumes[k] / trace.f_cpu if k < len(trace.resumes) else None
     figures = heater_summary(run, name, target_c, band_from_s=resume, since_s=since_s)
     figures["settled_s"] = settled_at(run, heater, round(target_c * 10), since_s) if waited else None
@@ -256,24 +257,25 @@ def settled_at(run: HeaterRun, heater: HeaterFirmware, target_dc: int, since_s: 
     return float(trace.read_s[after][done[0] + SETTLE_PERIODS - 1]) if len(done) else None
 
 
-def trip_result(host: HostBuild, run: HeaterRun, image) -> dict:
+def trip_result(host: HostBuild, run: HeaterRun, image, motors: dict, problems: list[str], span_cycles: float,
+                planned_s: float) -> dict:
     """A run the thermal protection stopped: not a pass, with its reason; the firmware must have stopped safely
-    (every heater pin low, the steppers stopped) and made only the twin's first pulses before the trip."""
-    motors, problems = pulses_before_trip(host, run.steps.run_only())
+    (every heater pin low, the steppers stopped) and made only the twin's first pulses before the trip (`motors`
+    and `problems`: pulses_before_trip's, or codegen/verify/compare.py Comparison.trip_figures'; `span_cycles`: from
+    its first pulse to its last)."""
     if not run.heater_pins_low:
         problems.append("after the trip a heater pin is not low")
     if not run.steppers_stopped:
         problems.append("after the trip the steppers are not stopped (Timer1 running or a driver enabled)")
-    run_cycles = run.steps.run_only().step_cycle
     return {
         "pass": False, "target": host.target.target, "board": host.target.board,
         "trip": {"reason": run.trip, "heater": run.trip_heater, "time_s": round(run.trip_s, 6)},
         "heater_pins_low": run.heater_pins_low, "steppers_stopped": run.steppers_stopped,
-        "duration_s": round(float(np.ptp(run_cycles)) / run.steps.f_cpu, 6) if len(run_cycles) else 0.0,
-        "planned_duration_s": round(planned_stepping_s(host), 6),
+        "duration_s": round(span_cycles / run.steps.f_cpu, 6),
+        "planned_duration_s": round(planned_s, 6),
         "motors": motors,
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
-                  "table_bytes": stream_bytes(host.schedule)},
+                  "table_bytes": host.totals.table_bytes},
         "problems": [f"heater {run.trip_heater} tripped: {run.trip} at {run.trip_s:.2f} s simulated"] + problems,
     }
 

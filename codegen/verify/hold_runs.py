@@ -20,9 +20,9 @@ from codegen.sim.mcs51 import simulate as simulate_51
 from codegen.sim.mcs51_keys import seen_at
 from codegen.verify.compare import simulated_switches
 from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, hold_problems,
-                                    job_plants, on_twin_clock, wait_ticks)
+                                    host_timeline, job_plants, on_twin_clock)
 from codegen.verify.results import verify_json
-from codegen.verify.stream import ShownSession, new_link, session_budget_s, stream_result
+from codegen.verify.stream import ShownSession, made_positions, new_link, session_budget_s, stream_result
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
 RESUME_EVERY_S = 0.01  # the first run's RESUME frames: every M0/M1 goes on at once
@@ -87,7 +87,8 @@ class HeatedRun(FlashRun):
     def __init__(self, host: HostBuild, image):
         super().__init__(host, image)
         self.plants = job_plants(host.job, self.config)
-        self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
+        self.timeline = host_timeline(host)
+        self.waits = self.timeline.tick[self.timeline.waits()]
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
         self.held_after_s = host.plan.total * HELD_AFTER_FACTOR + HELD_AFTER_S  # verify_heaters' own run
         self.seconds = HEAT_LIMIT_S + self.held_after_s
@@ -119,7 +120,7 @@ class HeatedRun(FlashRun):
         return self.heated.steps, [cycle for _, cycle in presses]
 
     def result(self, verdict, trace) -> dict:
-        return with_heaters(verify_json(self.host, verdict, self.image), self.host, self.heated, self.waits)
+        return with_heaters(verify_json(self.host, verdict, self.image), self.host, self.heated, self.timeline)
 
 
 class Scripted:
@@ -177,9 +178,10 @@ class StreamRun:
         self.streamed = True
         self.candidates = MAIN_TURN_CANDIDATES if setup.target.target == "mcs51" else None
         self.link = self.figures = self.heated = None
-        self.waits = None
+        self.waits = self.timeline = None
         if host.heaters:
-            self.waits = wait_ticks(host.schedule, host.pulses.event_tick)
+            self.timeline = host_timeline(host)
+            self.waits = self.timeline.tick[self.timeline.waits()]
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
         self.start = self.shift = self.after = 0  # as HeatedRun's
 
@@ -223,8 +225,9 @@ class StreamRun:
         return trace, arrived
 
     def result(self, verdict, trace) -> dict:
-        result = stream_result(self.host, self.link, self.figures, trace, verify_json(self.host, verdict, self.image))
-        return result if self.heated is None else with_heaters(result, self.host, self.heated, self.waits)
+        result = stream_result(self.host, self.link, self.figures, verify_json(self.host, verdict, self.image),
+                               self.host.pulses.final_positions(), made_positions(trace, len(self.host.kin.motors)))
+        return result if self.heated is None else with_heaters(result, self.host, self.heated, self.timeline)
 
 
 def waits_shift(trace, waits, cycles_per_tick: int) -> tuple[int, int]:
@@ -242,9 +245,9 @@ def refuse_before(presses: list[tuple[str, int]], start: int, after: int, f_cpu:
                          "holds and overrides after the waits")
 
 
-def with_heaters(result: dict, host: HostBuild, run, waits) -> dict:
+def with_heaters(result: dict, host: HostBuild, run, timeline) -> dict:
     """verify's result with the heaters' figures and the waits' holds (codegen/verify/heaters.py)."""
-    result["problems"] += hold_problems(run.steps, waits)
+    result["problems"] += hold_problems(run.steps, timeline.tick[timeline.waits()])
     result["pass"] = result["pass"] and not result["problems"]
-    result.update(heater_figures(host, run, waits, None), faults=[])
+    result.update(heater_figures(host, run, timeline, None), faults=[])
     return result

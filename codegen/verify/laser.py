@@ -43,10 +43,11 @@ class LaserVerdict:
 
 
 def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None,
-                  dilation=None) -> LaserVerdict | None:
-    """The laser's figures from a run whose simulated events (their first STEP edge, `event_cycle`) are paired
-    with the twin's events (`twin_event`; None: they could not be paired); `dilation`: a held or overridden
-    run's (codegen/tables/hold.py Dilation)."""
+                  dilation=None, counts_before: int = 0) -> LaserVerdict | None:
+    """The laser's figures from a stretch of a run (a chapter's: codegen/verify/chapters.py) whose simulated events
+    (their first STEP edge, `event_cycle`) are paired with the twin's events (`twin_event`; None: they could not be
+    paired); `dilation`: a held or overridden run's (codegen/tables/hold.py Dilation); `counts_before`: the PWM
+    counts the tables had set before the stretch. `merge_laser` joins the stretches' figures."""
     laser = host.laser
     if laser is None:
         return None
@@ -63,7 +64,7 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
     window = np.minimum(event_cycle + apply + 1, np.append(event_cycle[1:], np.iinfo(np.int64).max))
     at = np.searchsorted(duty[:, 0], window, side="left") - 1
     played = np.where(at >= 0, duty[np.maximum(at, 0), 1], 0)
-    records = played_counts(host.schedule)[twin_event]
+    records = played_counts(host.schedule, counts_before)[twin_event]
     factor = F_ONE if dilation is None else dilation.factor[twin_event]
     tables = follow(records, factor)
     differ = np.flatnonzero(played != tables)
@@ -82,12 +83,22 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
         verdict.problems.append(f"laser: at simulated event {k} the power is {100 * played[k] / laser.top:.2f} % of "
                                 f"full scale, the plan's {100 * ideal[k]:.2f} % (more than "
                                 f"{100 * MAX_POWER_ERROR:.0f} % apart)")
-    if len(duty) and duty[-1, 1] != 0:
-        verdict.problems.append(f"laser: the PWM still holds {duty[-1, 1]} counts when the program ends")
     seconds = (event_cycle - (trace.timer_start_cycle or 0)) / trace.f_cpu
     twin_s = host.events.time if dilation is None else dilation.tick / host.target.tick_hz
     verdict.cuts, verdict.max_energy_error = _energy(host, twin_event, seconds, played / laser.top, ideal, twin_s)
     return verdict
+
+
+def merge_laser(parts: list[LaserVerdict], duty: np.ndarray) -> LaserVerdict | None:
+    """The run's laser figures from its stretches' (their first problems), and the laser off at the end (`duty`:
+    every write of the compare register, cycle and counts)."""
+    if not parts:
+        return None
+    problems = list(dict.fromkeys(p for part in parts for p in part.problems[:1]))
+    if len(duty) and duty[-1, 1] != 0:
+        problems.append(f"laser: the PWM still holds {duty[-1, 1]} counts when the program ends")
+    return LaserVerdict(parts[0].pwm_hz, max(p.max_power_error for p in parts), sum(p.cuts for p in parts),
+                        max(p.max_energy_error for p in parts), problems)
 
 
 def _energy(host, twin_event: np.ndarray, seconds: np.ndarray, played: np.ndarray, ideal: np.ndarray,

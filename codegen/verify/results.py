@@ -4,7 +4,6 @@ timing, the image's sizes and every problem found; the figures of heaters, the l
 from __future__ import annotations
 
 from codegen.pipeline.host import HostBuild
-from codegen.tables.format import stream_bytes
 
 
 def rounded(value: float, digits: int = 6) -> float:
@@ -49,6 +48,6 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         "display": verdict.display,
         **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
-                  "table_bytes": stream_bytes(host.schedule)},
+                  "table_bytes": host.totals.table_bytes},
         "problems": verdict.problems + f.problems,
     }

@@ -4,14 +4,20 @@ code (codegen/link/host.py), and verify's result with the link's checks and figu
 from __future__ import annotations
 
 import importlib
+from typing import BinaryIO
+
+import numpy as np
 
 import codegen.tables.format as tables
 from codegen import progress
 from codegen.link.host import HostLink
 from codegen.pipeline.host import HostBuild
-from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, stream_chunks
+from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, file_chunks, stream_chunks
+from codegen.sim.avr_link import StreamSim, heater_run
+from codegen.verify.bounded import ComparingProcess
 from codegen.verify.compare import compare, simulated_switches
-from codegen.verify.heaters import HEAT_LIMIT_S, heater_result, job_plants
+from codegen.verify.heaters import (HEAT_LIMIT_S, _table_start_s, heater_figures, heater_result, job_plants,
+                                    trip_result, with_holds)
 from codegen.verify.results import verify_json
 
 
@@ -35,7 +41,9 @@ def simulate_stream(host: HostBuild, setup: StreamSetup, image, faults) -> tuple
         result, trace = heater_result(host, run, image, faults, switches, streamed=True)
     else:
         result = verify_json(host, compare(host, trace, switches, streamed=True), image)
-    return stream_result(host, link, figures, trace, result), trace
+    run_trace = run.steps if config.heaters else trace
+    return stream_result(host, link, figures, result, host.pulses.final_positions(),
+                         made_positions(run_trace, len(host.kin.motors))), trace
 
 
 class ShownSession:
@@ -64,25 +72,24 @@ def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
 
 def session_budget_s(host: HostBuild, setup: StreamSetup) -> float:
     """Simulated seconds a session may take: the plan, the ring's fill and drain, a heat-up."""
-    return (host.plan.total * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
+    return (host.totals.duration_s * 1.5 + 2.0 + 2 * setup.budget.ring_bytes / setup.budget.rate
             + (HEAT_LIMIT_S if setup.config.heaters else 0.0))
 
 
-def stream_result(host: HostBuild, link: HostLink, figures, trace, result: dict) -> dict:
-    """verify's result of a session with the link's checks and figures (`link`)."""
+def stream_result(host: HostBuild, link: HostLink, figures, result: dict, expected: np.ndarray,
+                  made: np.ndarray) -> dict:
+    """verify's result of a session with the link's checks and figures (`link`); `expected`: the twin's positions
+    at the end, `made`: where the simulated pulses took the motors (both from the job's start)."""
     problems = result["problems"]
     if link.outcome not in ("finished", "fault"):
         problems.append(f"the stream ended {link.outcome}: {link.message}".rstrip(": "))
-    expected = tuple(int(v) for v in host.pulses.final_positions())
+    expected = tuple(int(v) for v in expected)
     if link.outcome == "finished" and link.position != expected:
         problems.append(f"the firmware reports positions {list(link.position)} at the end, the twin "
                         f"{list(expected)}")
-    if link.outcome == "fault":  # the positions it reports must be where its pulses took the motors
-        run = trace.run_only()
-        made = tuple(int(run.step_dir[run.step_motor == m].sum()) for m in range(len(host.kin.motors)))
-        if link.position != made:
-            problems.append(f"the firmware reports positions {list(link.position)} at the trip, its pulses made "
-                            f"{list(made)}")
+    if link.outcome == "fault" and link.position != tuple(int(v) for v in made):  # where its pulses took them
+        problems.append(f"the firmware reports positions {list(link.position)} at the trip, its pulses made "
+                        f"{[int(v) for v in made]}")
     if figures.lost_bytes:
         problems.append(f"{figures.lost_bytes} received bytes were read too late: a real UART would have "
                         f"lost them")
@@ -95,3 +102,47 @@ def stream_result(host: HostBuild, link: HostLink, figures, trace, result: dict)
                       "prefill_bytes": host.link_plan.prefill_bytes,
                       "link_slowdown_s": round(host.link_plan.link_slowdown_s, 6)}
     return result
+
+
+def made_positions(trace, motors: int) -> np.ndarray:
+    """Where a trace's table pulses took the motors."""
+    run = trace.run_only()
+    return np.array([int(run.step_dir[run.step_motor == m].sum()) for m in range(motors)], dtype=np.int64)
+
+
+def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table: BinaryIO,
+                            strict: bool) -> tuple[dict, object]:
+    """simulate_stream in bounded memory (codegen/verify/bounded.py): `host` is the first pass's (not kept), its
+    table stream in `table`; the comparison runs in a second process while this one drives the link. The trace
+    returned has the homing pulses, the clock and the slow pins, not the table's pulses."""
+    config = setup.config
+    motors = len(host.kin.motors)
+    link = HostLink(file_chunks(table, motors), motors, setup.identity, 10 / setup.layout.baud,
+                    host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in config.heaters))
+    switches = simulated_switches(host)
+    cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
+    plants = job_plants(host.job, config) if config.heaters else None
+    with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
+        comparing = ComparingProcess(host, strict, setup.budget, sim.edges, switches, True)
+        try:
+            with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+                summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)
+            run = heater_run(sim, link, summary) if config.heaters else None
+            compared = comparing.result(summary)
+        finally:
+            comparing.stop()
+    if run is None:
+        result = verify_json(host, compared.verdict, image)
+    else:
+        run.steps = compared.trace
+        if run.trip is not None:
+            result = trip_result(host, run, image, *compared.trip, compared.span_cycles, compared.planned_s)
+        else:
+            result = with_holds(verify_json(host, compared.verdict, image), run,
+                                compared.timeline.tick[compared.timeline.waits()])
+        start = _table_start_s(run.steps, compared.first_run_cycle)
+        result.update(heater_figures(host, run, compared.timeline, start))
+        result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
+    result = stream_result(host, link, figures, result, compared.twin_final, compared.made_position)
+    return result, compared.trace

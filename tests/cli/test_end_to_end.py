@@ -11,7 +11,8 @@ import pytest
 
 from codegen.cli.main import main
 from codegen.targets import target_info
-from tests.helpers import ROOT, run_cli as run
+from tests.helpers import ROOT
+from tests.helpers import run_cli as run
 
 EXAMPLES = sorted((ROOT / "examples").glob("*.yaml")) + sorted((ROOT / "examples" / "gcode").glob("*.yaml"))
 

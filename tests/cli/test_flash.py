@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from codegen.cli.flash import flash_command
-from tests.helpers import STAR, run_cli as run
+from tests.helpers import STAR
+from tests.helpers import run_cli as run
 
 AVRDUDE = "avrdude -p atmega2560 -c wiring -P /dev/ttyACM0 -b 115200 -D -U flash:w:build/star/firmware.hex:i"
 STALE = ("error: build/star/firmware.hex is stale: it was built from another version of star.yaml (the job, its "

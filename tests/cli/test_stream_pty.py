@@ -26,13 +26,12 @@ from codegen.cli.stream import streamed_host
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import LinkFigures
+from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_setup
 from codegen.sim.avr import SimTrace
 from codegen.sim.avr_link import StreamSim
 from codegen.sim.pty_bridge import PtyBridge
-from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_setup
 from codegen.verify.compare import compare, simulated_switches
 from tests.helpers import ROOT
-
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")

@@ -21,13 +21,13 @@ from codegen.heaters.control import fixed_gains
 from codegen.heaters.plant import heating_figures, simulate
 from codegen.heaters.tuning import Relay, RelayLoop, Switch, marlin_bias, relay_test
 from codegen.job import load_job
-from codegen.pipeline.host import host_build
-from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
-from codegen.verify.heaters import job_plants
-from codegen.sim.avr_tune import TuneSim, simulate_tune
-from codegen.sim.pty_bridge import PtyBridge
 from codegen.link import protocol
 from codegen.link.tune import READY, STARTED, TuneHost
+from codegen.pipeline.host import host_build
+from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
+from codegen.sim.avr_tune import TuneSim, simulate_tune
+from codegen.sim.pty_bridge import PtyBridge
+from codegen.verify.heaters import job_plants
 from tests.helpers import HEATERS_JOB, ROOT
 
 JOB = ROOT / "examples" / "printers" / "benchy-mini.yaml"  # RAMPS 1.4, no `heaters:`: the board's defaults

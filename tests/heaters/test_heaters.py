@@ -11,18 +11,16 @@ import numpy as np
 import pytest
 
 from codegen.errors import JobError
-from codegen.heaters.control import (
-    D_FILTER_SHIFT, DEFAULT_CONTROL, INT32_MAX, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S, FixedBangBang, FixedPid,
-    _worst_sum, bang_bang, fixed_bang_bang, fixed_control, fixed_gains, gains_from_relay, pid_reference,
-)
+from codegen.heaters.control import (D_FILTER_SHIFT, DEFAULT_CONTROL, INT32_MAX, PID_FUNCTIONAL_RANGE_DC, PID_PERIOD_S,
+                                     FixedBangBang, FixedPid, _worst_sum, bang_bang, fixed_bang_bang, fixed_control,
+                                     fixed_gains, gains_from_relay, pid_reference)
 from codegen.heaters.plant import DEFAULT_PLANTS, Plant, heating_figures, simulate
-from codegen.heaters.protection import DEFAULT_PROTECTION, REASONS, fixed_protection, first_trip
-from codegen.heaters.sensors import (
-    THERMISTORS, adc_reading, adc_temperature_table, millivolts, resistance_ohm, sensor_limits, temperature_c,
-)
-from codegen.program.heater_settings import heater_settings
+from codegen.heaters.protection import DEFAULT_PROTECTION, REASONS, first_trip, fixed_protection
+from codegen.heaters.sensors import (THERMISTORS, adc_reading, adc_temperature_table, millivolts, resistance_ohm,
+                                     sensor_limits, temperature_c)
 from codegen.heaters.tuning import relay_test
 from codegen.job import load_job
+from codegen.program.heater_settings import heater_settings
 from tests.helpers import DATA
 
 EPCOS = "EPCOS 100K B57560G104F"

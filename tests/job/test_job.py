@@ -10,8 +10,8 @@ import pytest
 
 import codegen.paths
 from codegen.errors import JobError, SourceRef
-from codegen.job.calculus import derivative
 from codegen.job import Circle, Function, Job, Line, Program, load_job
+from codegen.job.calculus import derivative
 from tests.helpers import DATA
 
 DATA = DATA / "jobs"

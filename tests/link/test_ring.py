@@ -4,7 +4,6 @@ the bytes arriving and the records read, record by record."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from codegen.job import load_job
-from codegen.pipeline.host import host_build
-from codegen.tables.compress import compress
 from codegen.motion.curve_timing import smooth_curve_times
 from codegen.motion.stepgen import generate
-from codegen.toolpath.items import Arc, Toolpath
+from codegen.pipeline.host import host_build
+from codegen.tables.compress import compress
 from codegen.tables.twin import predict
+from codegen.toolpath.items import Arc, Toolpath
 from tests.helpers import SRC, planned, point, polyline
 
 TICK = 1_000_000

@@ -10,9 +10,9 @@ import pytest
 
 from codegen.errors import BuildError, JobError
 from codegen.firmware.avr.board import parse_pin
+from codegen.job import load_job
 from codegen.motion.jog import ACCEL_HEADROOM, RATE_HEADROOM, STILL, board_keys, direction_code, jog_plan
 from codegen.pipeline.settings import jog_settings
-from codegen.job import load_job
 from tests.helpers import ROOT
 
 JOB = """\

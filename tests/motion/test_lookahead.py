@@ -7,16 +7,15 @@ import pytest
 
 import codegen.motion.lookahead as lookahead
 from codegen.job import load_job
-from codegen.motion.lookahead import Lookahead
 from codegen.kinematics import make_kinematics
+from codegen.motion.lookahead import Lookahead
 from codegen.motion.pieces import pieces
-from codegen.pipeline.settings import front_end_settings, homing_settings, planner_limits
 from codegen.motion.planner import plan
+from codegen.pipeline.settings import front_end_settings, homing_settings, planner_limits
 from codegen.program.program import Program
-from codegen.toolpath.segments import concat
 from codegen.targets import target_info
+from codegen.toolpath.segments import concat
 from tests.helpers import ROOT, gcode_job_file
-
 
 
 def planner_input(path):

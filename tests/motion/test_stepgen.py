@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 
 from codegen.kinematics import make_kinematics
-from codegen.motion.staircase import STAIRCASE_LIMIT, refine
 from codegen.motion.blocks import MAX_MODULUS
-from codegen.motion.staircase import split_long, staircase_bound, staircase_error
+from codegen.motion.staircase import STAIRCASE_LIMIT, refine, split_long, staircase_bound, staircase_error
 from codegen.motion.stepgen import generate, segment_steps
 from codegen.toolpath.segments import flatten
 from tests.helpers import ROOT, machine, planned, polyline

@@ -17,12 +17,12 @@ from codegen.gcode.fast import NativeLines
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
 from codegen.motion.pieces import pieces
+from codegen.motion.staircase import staircase_error, staircase_error_numpy
+from codegen.native import library
 from codegen.pipeline.settings import front_end_settings, homing_settings
 from codegen.program.program import Program
-from codegen.toolpath.segments import flatten
-from codegen.motion.staircase import staircase_error, staircase_error_numpy
 from codegen.toolpath.items import Lines, Toolpath, expanded
-from codegen.native import library
+from codegen.toolpath.segments import flatten
 from tests.helpers import ROOT, machine
 
 FILES = sorted((ROOT / "tests" / "data" / "gcode").rglob("*.gcode"))

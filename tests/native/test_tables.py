@@ -8,19 +8,19 @@ import dataclasses
 import numpy as np
 import pytest
 
+import codegen.motion.stepgen as stepgen
+import codegen.pipeline.windows as windows
 import codegen.tables.checks as checks
 import codegen.tables.compress as compress_module
 import codegen.tables.runfit as runfit
-import codegen.motion.stepgen as stepgen
 import codegen.tables.twin as twin
-import codegen.pipeline.windows as windows
-from codegen.tables.compress import TimingWindow, compress, numpy_windows, rate_gaps
 from codegen.job import load_job
+from codegen.motion.stepgen import generate, segment_steps
 from codegen.native import library
 from codegen.pipeline.host import host_build
-from codegen.tables.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
-from codegen.motion.stepgen import generate, segment_steps
+from codegen.tables.compress import TimingWindow, compress, numpy_windows, rate_gaps
 from codegen.tables.format import stream_bytes
+from codegen.tables.schedule import MAX_ADD, MAX_COUNT, MAX_INTERVAL
 from tests.helpers import ROOT, gcode_job_file, planned, polyline
 
 EXAMPLES = ["examples/star.yaml", "examples/plotter-set-51.yaml", "examples/delta-seed.yaml",

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 
-from tests.jobgen import KINEMATICS, TARGETS, jobs, outcome
 from tests.helpers import DATA
+from tests.jobgen import KINEMATICS, TARGETS, jobs, outcome
 
 SHORT = settings(max_examples=34, deadline=None, derandomize=True, database=None, print_blob=True,
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,

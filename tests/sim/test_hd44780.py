@@ -14,8 +14,8 @@ import pytest
 
 from codegen.errors import BuildError
 from codegen.firmware.mcs51.board import SFR, board_data, memories
-from codegen.firmware.mcs51.sdcc import read_map
 from codegen.firmware.mcs51.lcd import Lcd, board_lcd, parse_lcd, pin_uses, render_lcd
+from codegen.firmware.mcs51.sdcc import read_map
 from codegen.sim.hd44780 import decode
 from codegen.sim.mcs51 import _records
 

@@ -3,8 +3,8 @@
 
 import numpy as np
 
-from codegen.tables.checks import MotorTrain, check
 from codegen.pipeline.host import trains_from
+from codegen.tables.checks import MotorTrain, check
 
 
 def judge(h, trains=None, positions=None):

@@ -4,11 +4,11 @@ import math
 
 import numpy as np
 
-from codegen.tables.compress import TimingWindow, compress, spread
 from codegen.motion.stepgen import generate
-from codegen.toolpath.items import Arc, Toolpath
-from codegen.tables.twin import predict
+from codegen.tables.compress import TimingWindow, compress, spread
 from codegen.tables.format import stream_bytes
+from codegen.tables.twin import predict
+from codegen.toolpath.items import Arc, Toolpath
 from tests.helpers import SRC, machine, planned, point, polyline
 
 TICK = 16_000_000

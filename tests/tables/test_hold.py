@@ -15,19 +15,19 @@ import yaml
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from codegen.tables.checks import check
-from codegen.firmware.avr.image import render_sources
 from codegen.cli.main import _build, main
 from codegen.errors import BuildError, JobError
-from codegen.tables.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
+from codegen.firmware.avr.image import render_sources
 from codegen.job import load_job
 from codegen.pipeline.host import host_build, trains_from
 from codegen.pipeline.streaming import stream_setup
-from codegen.verify.hold_runs import FlashRun
 from codegen.sim.avr import simulate
+from codegen.tables.checks import check
+from codegen.tables.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
 from codegen.verify.hold import hold_verify
-from tests.jobgen import jobs
+from codegen.verify.hold_runs import FlashRun
 from tests.helpers import ROOT
+from tests.jobgen import jobs
 
 needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="avr-gcc not installed")
 

@@ -10,11 +10,11 @@ import pytest
 
 from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.tables.laser import POWER_STEP, event_power, planned_speed, played_counts, with_power
 from codegen.link.protocol import Status
 from codegen.link.serial_port import status_line
 from codegen.pipeline.host import host_build
 from codegen.tables.format import POWER_BYTES, encode
+from codegen.tables.laser import POWER_STEP, event_power, planned_speed, played_counts, with_power
 from codegen.tables.twin import event_ticks
 from tests.helpers import ROOT, make_schedule
 from tests.reference_player import play_stream
@@ -119,8 +119,8 @@ def test_status_while_streaming_reports_the_pwm(tmp_path):
     import codegen.tables.format as tables
     from codegen.cli.stream import _firmware, streamed_host
     from codegen.link.host import HostLink
-    from codegen.sim.avr_link import simulate_stream
     from codegen.pipeline.streaming import stream_chunks, stream_setup
+    from codegen.sim.avr_link import simulate_stream
     from tests.firmware.avr.helpers import Scripted
 
     job = load_job(POWER_JOB)

@@ -14,19 +14,19 @@ import pytest
 import yaml
 
 import codegen.tables.hold
-from codegen.tables.checks import check
 from codegen.cli.main import _build
 from codegen.cli.stream import _firmware, streamed_host
 from codegen.errors import BuildError, JobError
-from codegen.tables.hold import F_ONE, dilate, event_ceilings, override_target
 from codegen.job import load_job
 from codegen.pipeline.host import host_build, trains_from
-from codegen.report.summaries import plan_summary
 from codegen.pipeline.streaming import stream_setup
+from codegen.report.summaries import plan_summary
+from codegen.tables.checks import check
 from codegen.tables.format import encode, stream_bytes
+from codegen.tables.hold import F_ONE, dilate, event_ceilings, override_target
 from codegen.verify.hold import hold_verify
-from tests.reference_player import play_stream
 from tests.helpers import ROOT
+from tests.reference_player import play_stream
 
 needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                   reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")

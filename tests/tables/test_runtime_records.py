@@ -17,10 +17,10 @@ import pytest
 from codegen.cli.main import main
 from codegen.job import load_job
 from codegen.pipeline.host import host_build, runtime_outputs
-from codegen.tables.schedule import RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
 from codegen.tables.format import RUNTIME_BYTES, RUNTIME_FLAGS, encode, record_events, stream_bytes
-from codegen.targets import target_info
+from codegen.tables.schedule import RT_FAN, RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
 from codegen.tables.twin import predict
+from codegen.targets import target_info
 from tests.helpers import HEATERS_JOB, make_schedule
 from tests.reference_player import play, play_stream
 

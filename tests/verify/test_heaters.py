@@ -19,7 +19,8 @@ from codegen.firmware.avr.image import render_sources
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.tables.schedule import RT_TARGET_BED, RT_TARGET_HOTEND, RT_WAIT
-from tests.helpers import GCODE_DATA, run_cli as run
+from tests.helpers import GCODE_DATA
+from tests.helpers import run_cli as run
 
 CURA = GCODE_DATA / "slicer" / "puzzle-cura.gcode"
 CURA_START_LINES = 32  # M190 S50, M104 S195, M109 S195, G28 X0 Y0, G28 Z0, ... and the skirt's first moves

@@ -13,8 +13,8 @@ import yaml
 
 import codegen.verify.laser
 from codegen.cli.main import _build
-from codegen.tables.hold import F_MAX, F_ONE, PARKED
 from codegen.job import load_job
+from codegen.tables.hold import F_MAX, F_ONE, PARKED
 from codegen.tables.laser import DYNAMIC_FLAG, follow
 from codegen.verify.hold import hold_verify
 from tests.helpers import ROOT

@@ -16,10 +16,10 @@ import pytest
 from codegen.cli.main import _build, main
 from codegen.errors import BuildError
 from codegen.firmware.mcs51.image import render_sources
-from codegen.tables.hold import RAMP_SHARE, dilate, override_target
 from codegen.job import load_job
 from codegen.sim.mcs51 import simulate
 from codegen.sim.mcs51_keys import seen_at
+from codegen.tables.hold import RAMP_SHARE, dilate, override_target
 from codegen.verify.hold import hold_verify
 from tests.verify.helpers import HOLD, job_file
 

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from codegen.verify.stream import new_link
-from codegen.tables.hold import F_ONE
-from codegen.verify.hold_runs import StreamRun
 from codegen.link import protocol
 from codegen.sim.mcs51_link import simulate_stream
+from codegen.tables.hold import F_ONE
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
+from codegen.verify.hold_runs import StreamRun
+from codegen.verify.stream import new_link
 from tests.helpers import streamed
 from tests.verify.helpers import Watched, job_file
 

@@ -11,19 +11,19 @@ import shutil
 import numpy as np
 import pytest
 
-from codegen.verify import hold_runs
 from codegen.cli.main import _build, main
-from codegen.verify.stream import new_link
 from codegen.errors import JobError
-from codegen.tables.hold import F_ONE
 from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.link.serial_port import send_hold_keys, status_line, terminal_keys
 from codegen.pipeline.host import host_build
 from codegen.sim.avr_link import simulate_stream
+from codegen.tables.hold import F_ONE
+from codegen.verify import hold_runs
 from codegen.verify.compare import simulated_switches
 from codegen.verify.hold import hold_verify
+from codegen.verify.stream import new_link
 from tests.helpers import ROOT, streamed
 from tests.verify.helpers import Watched
 

@@ -17,9 +17,9 @@ from hypothesis import strategies as st
 
 from codegen.cli.main import main
 from codegen.job import load_job
-from codegen.tables.laser import POWER_STEP, event_power, played_counts
 from codegen.pipeline.host import host_build
 from codegen.tables.format import encode
+from codegen.tables.laser import POWER_STEP, event_power, played_counts
 from tests.reference_player import play_stream
 
 HOST = settings(max_examples=30, deadline=None, derandomize=True, database=None, print_blob=True,

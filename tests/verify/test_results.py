@@ -11,9 +11,9 @@ import pytest
 from codegen.cli.main import main
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
-from codegen.verify.results import verify_json
 from codegen.sim.avr import simulate
 from codegen.verify.compare import compare, simulated_switches
+from codegen.verify.results import verify_json
 from tests.helpers import run_cli as run
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,

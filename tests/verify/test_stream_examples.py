@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from codegen.tables.compress import TimingWindow
-from tests.helpers import ROOT, run_cli as run
+from tests.helpers import ROOT
+from tests.helpers import run_cli as run
 
 BENCHY = ROOT / "examples" / "printers" / "benchy-mini.yaml"
 BENCHY_GCODE = ROOT / "tests" / "data" / "gcode" / "slicer" / "benchy-prusaslicer.gcode"

@@ -22,9 +22,9 @@ from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.link.serial_port import status_line
+from codegen.pipeline.streaming import stream_chunks, stream_setup
 from codegen.sim.avr_link import StreamSim, simulate_stream_heaters
 from codegen.sim.avr_plant import Fault
-from codegen.pipeline.streaming import stream_chunks, stream_setup
 from codegen.verify.compare import simulated_switches
 from codegen.verify.heaters import job_plants
 from tests.firmware.avr.helpers import Scripted
@@ -108,7 +108,7 @@ def test_the_plan_carries_the_settings_and_the_firmware_runs_the_heaters(job, fo
     assert report["image"]["flash_parts"]["heater_tables"] == 2 * 2048  # an int16 per ADC reading, per heater
 
 
-def test_a_plotter_streaming_firmware_runs_no_heaters_and_says_so(folder, capsys):
+def test_a_plotter_streaming_firmware_runs_no_heaters_and_says_so(folder, job, capsys):
     """A machine without an extruder or `heaters:`: its heater codes are warned about once, and its identity is
     not a printer's."""
     plotter = folder / "plotter.yaml"
@@ -120,7 +120,7 @@ def test_a_plotter_streaming_firmware_runs_no_heaters_and_says_so(folder, capsys
                                            "for a machine with an extruder e or a `heaters:` section" in err
     assert stream_setup(load_job(plotter)).config.heaters == ()
     a = stream_setup(load_job(plotter)).identity
-    b = stream_setup(load_job(folder / "printer.yaml")).identity
+    b = stream_setup(load_job(job)).identity
     assert a != b
 
 

@@ -10,8 +10,8 @@ import numpy as np
 
 from codegen.link import protocol
 from codegen.link.host import HostLink
-from codegen.targets import target_info
 from codegen.tables.twin import predict
+from codegen.targets import target_info
 from tests.helpers import make_schedule as hand_schedule
 
 F_CPU, TICK_HZ, BAUD = 16_000_000, 2_000_000, 250_000

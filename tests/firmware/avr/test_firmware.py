@@ -12,8 +12,8 @@ import pytest
 
 import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.firmware.avr.image import build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.sim.avr import simulate
 from codegen.tables.format import stream_bytes
 from tests.firmware.avr.helpers import BLOCKS, CYCLES, F_CPU, RUNS, cut, make_schedule

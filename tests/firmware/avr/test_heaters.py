@@ -10,22 +10,22 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from codegen.firmware.config import FirmwareConfig, MotorPins
-from codegen.firmware.avr.image import build_image, render_sources
 from codegen.firmware.avr.heaters import SLICE_CYCLES, heater_firmware
+from codegen.firmware.avr.image import build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.gcode import toolpath_from_gcode
 from codegen.heaters.control import bang_bang, pid_reference
-from codegen.tables.runtime import runtime_records
-from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
-from codegen.toolpath.segments import Flattener
-from codegen.program.heater_settings import HeaterSettings, heater_settings
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
+from codegen.program.heater_settings import HeaterSettings, heater_settings
 from codegen.sim.avr_plant import Fault, HeaterPlant, heater_summary, simulate_heaters
+from codegen.tables.format import stream_bytes
+from codegen.tables.runtime import runtime_records
+from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT, WAIT_MASKS
 from codegen.targets import board_heater_pins
+from codegen.toolpath.segments import Flattener
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import on_twin_clock, settled_at
-from codegen.tables.format import stream_bytes
 from tests.helpers import ROOT, gcode_job_file, make_schedule
 from tests.reference_player import play
 

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
-from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.image import build_image, render_sources
+from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.firmware.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
+from codegen.program.homing import HomingAxis
 from codegen.sim.avr import PHASE_HOME, PHASE_RUN, simulate
 from codegen.tables.format import stream_bytes
-from tests.reference_player import play
 from tests.firmware.avr.helpers import make_schedule
+from tests.reference_player import play
 
 F_CPU = 16_000_000
 CYCLES = 8  # CPU cycles per Timer1 tick (tick_hz 2 MHz): homing intervals are in ticks, as the player's times

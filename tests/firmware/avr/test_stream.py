@@ -13,12 +13,12 @@ import pytest
 
 import codegen.tables.format as tables
 from codegen.errors import BuildError
-from codegen.firmware.config import FirmwareConfig, MotorPins
-from codegen.program.homing import HomingAxis
 from codegen.firmware.avr.stream import build_stream_image, render_stream_sources
+from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
+from codegen.program.homing import HomingAxis
 from codegen.sim.avr_link import StreamSim, simulate_stream
 from codegen.tables.twin import predict
 from tests.firmware.avr.helpers import (BLOCKS, BUDGET, BYTE_S, CYCLES, F_CPU, MAX_LATE, RUNS, TICK_HZ, Scripted,

@@ -20,11 +20,11 @@ from codegen.job import load_job
 from codegen.link import protocol
 from codegen.link.host import HostLink
 from codegen.pipeline.host import host_build
+from codegen.pipeline.streaming import build_stream_firmware, stream_chunks, stream_setup
 from codegen.sim.avr_link import StreamSim
 from codegen.sim.keys import KeyPress
-from codegen.pipeline.streaming import build_stream_firmware, stream_chunks, stream_setup
-from tests.jog_checks import SCRIPT, check_limits, check_move, check_session, jog_pulses, moves
 from tests.firmware.avr.helpers import CYCLES, F_CPU, JOB, MAX_LATE, Scripted, check_pulses
+from tests.jog_checks import SCRIPT, check_limits, check_move, check_session, jog_pulses, moves
 
 pytestmark = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                 reason="needs avr-gcc and simavr (scripts/setup.sh installs them)")

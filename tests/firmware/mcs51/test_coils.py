@@ -9,8 +9,8 @@ import pytest
 from codegen.errors import BuildError
 from codegen.firmware.mcs51.image import HALF_STEPS, render_sources
 from codegen.sim.mcs51 import coil_steps
-from tests.reference_player import play
 from tests.firmware.mcs51.helpers import build_and_run, check_plays, config, make_schedule
+from tests.reference_player import play
 
 COIL_SCHEDULE = [
     # X the master (a step at every event) +, Y a Bresenham slave -

@@ -9,12 +9,12 @@ import json
 import numpy as np
 import pytest
 
+import codegen.tables.format as tables
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig
-from codegen.program.homing import HomingAxis
-import codegen.tables.format as tables
 from codegen.firmware.mcs51.image import build_image, render_sources
 from codegen.firmware.mcs51.sdcc import MAP_FILE, SYMBOLS_FILE
+from codegen.program.homing import HomingAxis
 from codegen.sim.mcs51 import simulate
 from codegen.tables.format import stream_bytes
 from tests.firmware.mcs51.helpers import CLOCKS, TOLERANCE, build_and_run, check_plays, config, make_schedule

@@ -15,10 +15,10 @@ import pytest
 from codegen.cli.main import main
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
-from codegen.program.homing import HomingAxis
 from codegen.firmware.homing import PHASE_PAUSE_US, backoff_limit, homing_steps
 from codegen.firmware.mcs51.image import build_image, render_sources
 from codegen.firmware.mcs51.sdcc import MAP_FILE
+from codegen.program.homing import HomingAxis
 from codegen.sim.mcs51 import PHASE_HOME, PHASE_RUN, simulate
 from codegen.tables.format import stream_bytes
 from tests.firmware.mcs51.helpers import check_plays, make_schedule

@@ -13,18 +13,18 @@ import numpy as np
 import pytest
 
 from codegen.errors import BuildError
-from codegen.program.homing import HomingAxis
 from codegen.firmware.homing import homing_steps
-from codegen.firmware.mcs51.sdcc import MAP_FILE
 from codegen.firmware.mcs51.lcd import board_lcd
+from codegen.firmware.mcs51.sdcc import MAP_FILE
 from codegen.firmware.mcs51.stream import render_stream_sources, ring_layout
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
+from codegen.program.homing import HomingAxis
 from codegen.sim.mcs51_link import simulate_stream
 from codegen.tables.twin import predict
-from tests.firmware.mcs51.stream_helpers import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses,
-                                                 config, make_schedule, net_steps, short_schedule, stream_of)
+from tests.firmware.mcs51.stream_helpers import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses, config,
+                                                 make_schedule, net_steps, short_schedule, stream_of)
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,
                                 reason="needs sdcc and s51 (scripts/setup.sh installs them)")

@@ -18,17 +18,17 @@ import codegen.firmware.mcs51.stream as mcs51_stream
 from codegen.cli.main import main
 from codegen.errors import BuildError
 from codegen.firmware.config import FirmwareConfig, MotorPins
-from codegen.program.homing import HomingAxis
 from codegen.firmware.mcs51.stream import (STACK_RESERVE, build_stream_image, iram_need, render_stream_sources,
                                            ring_layout)
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
 from codegen.link.ring import link_budget
+from codegen.program.homing import HomingAxis
 from codegen.sim.mcs51_link import simulate_stream
 from codegen.tables.twin import predict
 from tests.firmware.mcs51.stream_helpers import (BAUD, BUDGET, F_CPU, MOTORS, TICK_HZ, build, check_pulses, config,
-                                              make_schedule, net_steps, short_schedule, stream_of)
+                                                 make_schedule, net_steps, short_schedule, stream_of)
 from tests.helpers import ROOT
 
 pytestmark = pytest.mark.skipif(shutil.which("sdcc") is None or shutil.which("s51") is None,

@@ -1,0 +1,149 @@
+"""A simulated run read while the simavr harness writes it (codegen/sim/avr_edges.py): its pulses handed out a
+chapter at a time, per motor as many as the twin's chapter has (codegen/verify/compare.py Comparison pairs them),
+its homing pulses and its clock (the player's timer starts) kept, its slow pins as they come. What it holds of
+the run is the pulses read but not yet paired: about a chapter's.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from codegen.firmware.avr.board import board_pins
+from codegen.firmware.avr.player import START_TICKS
+from codegen.firmware.config import FirmwareConfig, load_target
+from codegen.sim.avr import PHASE_HOME, SimTrace, watched
+from codegen.sim.avr_edges import EdgeDecoder, EdgeFile, Steps
+
+MARGIN_CYCLES = 4096  # read this far past a chapter's last pulse: the laser's write after its edge comes with it
+BACKLOG = 8  # chapters' worth of pulses the reader holds at most while waiting for a motor's (a run gone wrong)
+POLL_S = 0.02  # between looks at a file that had less than a whole read's worth new: the simulator writes on
+
+
+def _cat(parts: list[Steps]) -> Steps:
+    return Steps(*(np.concatenate([getattr(p, k) for p in parts]) for k in ("cycle", "motor", "dir")))
+
+
+class RunReader:
+    """`ended()` says the harness has written its last record (the reader then reads what is left and stops)."""
+
+    def __init__(self, edges: Path, config: FirmwareConfig, ended: Callable[[], bool], since: int = 0):
+        pins = board_pins(config)
+        mcu = load_target(pins.mcu)
+        self.f_cpu = int(mcu["f_cpu"])
+        self.cycles_per_tick = self.f_cpu // int(mcu.get("tick_hz", self.f_cpu))
+        names = [name for name, _ in watched(config)]
+        self.motors = len(pins.motors)
+        self.decoder = EdgeDecoder([w.invert_dir for w in pins.motors], names[2 * self.motors:], since)
+        self.tool_on_level = 1 if pins.tool_active_high else 0
+        self.file, self.ended, self.done = EdgeFile(edges), ended, False
+        self.buffer = Steps.empty()  # the run's pulses read, not yet handed out
+        self.have = np.zeros(self.motors, dtype=np.int64)  # the buffer's, per motor
+        self.home: list[Steps] = []  # pulses before the player's first start: homing's
+        self.first_run_cycle: int | None = None
+        self.wait_s = 0.0  # wall time spent waiting for the harness
+
+    # -- the clock and the slow outputs, as read so far (Comparison's `levels`) --
+    @property
+    def starts(self) -> np.ndarray:
+        return self.decoder.starts()
+
+    @property
+    def timer_start_cycle(self) -> int | None:
+        """The player's tick 0: START_TICKS ticks after it first started its timer."""
+        starts = self.starts
+        return int(starts[0]) + START_TICKS * self.cycles_per_tick if len(starts) else None
+
+    @property
+    def resumes(self) -> tuple[int, ...]:
+        """Tick 0 of every restart of the player's timer after its first start (a hold's end)."""
+        return tuple(int(s) + START_TICKS * self.cycles_per_tick for s in self.starts[1:])
+
+    @property
+    def tool_edges(self) -> list[tuple[int, int]]:
+        tool = self.decoder.waves()["tool"]
+        after = tool.cycle >= self.decoder.since
+        return [(int(c), int(v) ^ (1 - self.tool_on_level)) for c, v in zip(tool.cycle[after], tool.level[after])]
+
+    @property
+    def laser_duty(self) -> np.ndarray:
+        return self.decoder.duty()
+
+    # -- reading --
+    def _more(self) -> bool:
+        """Read what the harness has written since; False once the run has ended and everything is read."""
+        rec = self.file.read()
+        if len(rec) < self.file.chunk and not self.done:  # the file's end, for now
+            if self.ended():
+                self.done = True  # what it wrote before it ended is there: one more read at the least
+            else:
+                began = time.perf_counter()
+                time.sleep(POLL_S)
+                self.wait_s += time.perf_counter() - began
+            if not len(rec):
+                return True
+        elif not len(rec):
+            return False
+        steps = self.decoder.feed(rec)
+        starts = self.starts
+        run = steps.cycle >= starts[0] if len(starts) else np.zeros(len(steps.cycle), dtype=bool)
+        if not run.all():
+            self.home.append(Steps(steps.cycle[~run], steps.motor[~run], steps.dir[~run]))
+        if run.any():
+            ran = Steps(steps.cycle[run], steps.motor[run], steps.dir[run])
+            self.first_run_cycle = self.first_run_cycle if self.first_run_cycle is not None else int(ran.cycle[0])
+            self.buffer = _cat([self.buffer, ran])
+            self.have += np.bincount(ran.motor, minlength=self.motors)
+        return True
+
+    def take(self, counts: np.ndarray, chapter_pulses: int) -> Steps:
+        """The run's next pulses: per motor the next counts[m] (fewer where the run made fewer), in time order."""
+        while True:
+            if np.all(self.have >= counts):
+                last = max((int(self.buffer.cycle[self.buffer.motor == m][c - 1]) for m, c in enumerate(counts) if c),
+                           default=0)
+                if self.decoder.last_cycle >= last + MARGIN_CYCLES or self.done:
+                    break
+            elif len(self.buffer.cycle) > BACKLOG * max(chapter_pulses, 1):
+                break  # the run went another way: pair what there is, the comparison says what differs
+            if not self._more():
+                break
+        taken = np.zeros(len(self.buffer.cycle), dtype=bool)
+        for m, count in enumerate(counts):
+            taken[np.flatnonzero(self.buffer.motor == m)[:count]] = True
+        out = Steps(self.buffer.cycle[taken], self.buffer.motor[taken], self.buffer.dir[taken])
+        self.buffer = Steps(self.buffer.cycle[~taken], self.buffer.motor[~taken], self.buffer.dir[~taken])
+        self.have -= np.bincount(out.motor, minlength=self.motors)
+        return out
+
+    def rest(self) -> Steps:
+        """Every pulse after the last handed out, to the run's end."""
+        while self._more():
+            pass
+        out, self.buffer = self.buffer, Steps.empty()
+        self.have[:] = 0
+        self.file.close()
+        return out
+
+    def trace(self, base: SimTrace) -> SimTrace:
+        """`base` (a run's state, cycles and homing fault, as its simulation ends) with what the reader kept: the
+        homing pulses, the clock, the pulse widths and DIR setup times, the slow pins."""
+        home = _cat(self.home) if self.home else Steps.empty()
+        return replace(base, timer_start_cycle=self.timer_start_cycle, resumes=self.resumes,
+                       step_cycle=home.cycle, step_motor=home.motor, step_dir=home.dir,
+                       step_phase=np.full(len(home.cycle), PHASE_HOME, dtype="<U4"),
+                       pulse_high_min_cycles=self.decoder.width_min, dir_setup_min_cycles=self.decoder.setup_min,
+                       tool_edges=self.tool_edges, laser_duty=self.laser_duty, pins=self.decoder.waves())
+
+    def clock(self, cycles: np.ndarray, waits: np.ndarray) -> np.ndarray:
+        """Simulated cycles on the twin's clock: after the k-th resume moved back by the k-th hold, as the twin
+        times the events after a wait from its tick (codegen/verify/heaters.py on_twin_clock)."""
+        resumes = np.asarray(self.resumes[:len(waits)], dtype=np.int64)
+        if not len(resumes):
+            return cycles
+        shift = np.concatenate([[0], self.timer_start_cycle + waits[:len(resumes)] * self.cycles_per_tick - resumes])
+        return cycles + shift[np.searchsorted(resumes, cycles, side="right")]
