@@ -17,6 +17,7 @@ from codegen.pipeline.host import HostBuild, trains_from
 from codegen.tables.checks import Findings, check
 from codegen.tables.twin import Pulses
 from codegen.verify.laser import LaserVerdict, laser_verdict
+from codegen.verify.pins import pin_problems
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -166,6 +167,7 @@ def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: boo
         if us is not None and us < cfg.dir_setup_us:
             problems.append(f"motor {name}: DIR changes {us:.2f} us before a step (needs {cfg.dir_setup_us} us)")
     problems.extend(tool_problems(host, trace, cycle[new_event], twin_event if matched else None))
+    problems.extend(pin_problems(host, full_trace, switches))  # enables, held pins, DIR hold, homing pace
     problems.extend(display_problems(host, trace, streamed))
     laser = laser_verdict(host, trace, cycle[new_event], twin_event if matched else None, dilation)
     problems.extend(laser.problems if laser else [])
