@@ -14,11 +14,12 @@ held pin's wave is named `held.P1_6` (codegen/sim/mcs51.py records it so).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from codegen.firmware.homing import PHASE_PAUSE_US, homing_steps, stepping_motors
+from codegen.program.homing import HomingAxis
 from codegen.sim.avr import PHASE_HOME, PinWave
 
 HOMING_PHASES = ("fast approach", "back off", "slow approach")
@@ -215,12 +216,23 @@ def homing_pace_chunk(rises: np.ndarray, phases: list[HomingPhase], pause_cycles
     return problems, HomingCarry(carry.seen + len(rises), int(cycles[-1]) if len(cycles) else carry.last)
 
 
-def motor_phases(host, switches: dict[int, int | None], motor: int, cycles_per_tick: int) -> list[HomingPhase]:
-    """The homing phases one motor makes, round by round, where the simulated switches close (towards each axis's
-    switch, in steps); [] if one of its axes has a switch that never closes."""
+def settings_axis(host, h: HomingAxis) -> HomingAxis:
+    """The axis with its intervals (ticks, unrounded) and back off read again from the job's homing settings (mm/s,
+    mm), so that homing is held to the job, not to program/homing.py's reading of it."""
+    homing = host.settings.homing
+    spm = homing.steppers[host.kin.motors[h.motors[0]]].steps_per_mm
+    per_step = host.target.tick_hz / spm
+    return replace(h, fast_interval=per_step / homing.speed, slow_interval=per_step / homing.slow_speed,
+                   backoff_steps=max(1, round(homing.backoff * spm)))
+
+
+def motor_phases(host, switches: dict[int, int | None], motor: int, axes) -> list[HomingPhase]:
+    """The homing phases one motor makes, round by round, with `axes` (host.homing, or those the settings give),
+    where the simulated switches close (towards each axis's switch, in steps); [] if one of its axes has a switch
+    that never closes."""
     phases = []
-    names = host.kin.motors
-    for k, h in sorted(enumerate(host.homing), key=lambda kh: kh[1].round):
+    names, cycles_per_tick = host.kin.motors, host.target.f_cpu // host.target.tick_hz
+    for k, h in sorted(enumerate(axes), key=lambda kh: kh[1].round):
         if motor not in h.motors:
             continue
         if switches.get(k) is None:
@@ -228,28 +240,34 @@ def motor_phases(host, switches: dict[int, int | None], motor: int, cycles_per_t
         counts = homing_steps(h, int(switches[k]) * h.direction)
         intervals = (h.fast_interval, h.fast_interval, h.slow_interval)
         axis = f"{'motor' if len(h.motors) == 1 else 'axis'} {h.label(names)} (switch {h.switch})"
-        phases += [HomingPhase(axis, name, n, i * cycles_per_tick)
+        phases += [HomingPhase(axis, name, n, round(i * cycles_per_tick))
                    for name, n, i in zip(HOMING_PHASES, counts, intervals) if n]
     return phases
 
 
 def homing_pace_problems(host, trace, switches: dict[int, int | None]) -> list[str]:
-    """Every homed motor's steps against its homing settings' intervals, phase by phase."""
+    """Every homed motor's steps against the job's homing settings, phase by phase: their intervals, and their
+    count where program/homing.py's axes (which the firmware and homing_report follow) give another."""
     if not host.homing or trace.homing_failed:
         return []
-    cycles_per_tick = host.target.f_cpu // host.target.tick_hz
+    f_cpu, cycles_per_tick = host.target.f_cpu, host.target.f_cpu // host.target.tick_hz
     pause = math.ceil(PHASE_PAUSE_US * host.target.tick_hz / 1e6) * cycles_per_tick
     work = host.target.mcu_data["homing_event_cycles"]
-    pulse = math.ceil(host.job.machine.step_pulse_us * host.target.f_cpu / 1e6)
+    pulse = math.ceil(host.job.machine.step_pulse_us * f_cpu / 1e6)
     config = host.firmware_config()
     tolerance = int(work[min(stepping_motors(config), len(work)) - 1]) + pulse + cycles_per_tick
     home = np.asarray(trace.step_phase) == PHASE_HOME
+    job_axes = [settings_axis(host, h) for h in host.homing]
     problems = []
     for m in sorted({m for h in host.homing for m in h.motors}):
-        phases = motor_phases(host, switches, m, cycles_per_tick)
+        phases = motor_phases(host, switches, m, job_axes)
         rises = trace.step_cycle[home & (trace.step_motor == m)]
-        if phases and len(rises) == sum(p.steps for p in phases):  # other counts: homing_report's problem
-            problems += homing_pace_chunk(rises, phases, pause, tolerance, host.target.f_cpu)[0]
+        made, want = len(rises), sum(p.steps for p in phases)
+        if phases and made == want:
+            problems += homing_pace_chunk(rises, phases, pause, tolerance, f_cpu)[0]
+        elif phases and made == sum(p.steps for p in motor_phases(host, switches, m, host.homing)):
+            problems.append(f"homing motor {host.kin.motors[m]}: {made} steps as program/homing.py's axes say, where "
+                            f"the job's homing settings (back off {host.settings.homing.backoff:g} mm) give {want}")
     return problems
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib
 import re
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -117,18 +118,21 @@ def test_homing_pace_names_the_phase_at_the_wrong_interval():
 TOOLS = {"avr": ("avr-gcc", "simavr"), "mcs51": ("sdcc", "s51")}
 
 
-def verify_patched(tmp_path, job: str, patch) -> dict:
+def verify_patched(tmp_path, job: str, patch=None, misread=None) -> dict:
     """verify's result for tests/data/mutants/<job>.yaml's image with `patch` (file name -> source text, changed in
-    place) applied to its sources; the patch must change something."""
+    place; it must change something) applied to its sources; `misread` replaces the host (a bug in the host code:
+    the image and verify's twin both follow it)."""
     host = host_build(load_job(DATA / "mutants" / f"{job}.yaml"))
+    host = misread(host) if misread else host
     target = host.target.target
     if any(shutil.which(tool) is None for tool in TOOLS[target]):
         pytest.skip(f"needs {' and '.join(TOOLS[target])} (scripts/setup.sh installs them)")
     firmware = importlib.import_module(f"codegen.firmware.{target}.image")
     sources = firmware.render_sources(host.schedule, host.firmware_config())
     patched = dict(sources)
-    patch(patched)
-    assert patched != sources, "the patch changed nothing"
+    if patch:
+        patch(patched)
+        assert patched != sources, "the patch changed nothing"
     image = firmware.build_image(patched, tmp_path / "out", stream_bytes(host.schedule))
     simulator = importlib.import_module(f"codegen.sim.{target}")
     switches = simulated_switches(host)
@@ -195,3 +199,13 @@ def test_avr_dir_written_while_step_is_high(tmp_path):
 
     result = verify_patched(tmp_path, "avr-home", patch)
     assert failed_with(result, "DIR changes", "the A4988 needs DIR held 0.250 us after the rise and while STEP is high")
+
+
+def test_homing_paced_by_the_job_not_by_its_reading_in_the_host(tmp_path):
+    # program/homing.py reading the fast approach's speed from slow_speed: the image homes slowly, and the host's own
+    # homing axes agree with it; verify reads the job's settings again
+    def misread(host):
+        return replace(host, homing=tuple(replace(h, fast_interval=h.slow_interval) for h in host.homing))
+
+    result = verify_patched(tmp_path, "avr-home", misread=misread)
+    assert failed_with(result, "homing motor x (switch x_min), fast approach", "the homing settings give 1250.0 us")
