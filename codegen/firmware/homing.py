@@ -37,7 +37,9 @@ def homing_ticks_bound(config: FirmwareConfig, distances: dict[int, int | None],
             if h.round != round_:
                 continue
             d = distances.get(k)
-            steps = (h.max_steps, 0, 0) if d is None else homing_steps(h, d)
+            # The fast approach may go on to max_steps: a switch that never closes, or one the firmware homes away
+            # from (its fault state then names the axis, where a budget run out would not).
+            steps = (h.max_steps, 0, 0) if d is None else (h.max_steps, *homing_steps(h, d)[1:])
             limits = (h.max_steps, backoff_limit(h), h.max_steps)
             intervals = (h.fast_interval, h.fast_interval, h.slow_interval)
             for phase, (n, limit, interval) in enumerate(zip(steps, limits, intervals)):

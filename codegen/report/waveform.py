@@ -1,7 +1,7 @@
 """verify --vcd: the simulated pins as a VCD waveform for GTKWave, written with pyvcd.
 
-Every pin the simulation recorded (SimTrace.pins: each motor's STEP and DIR and the tool; on the ATmega2560 also
-each motor's enable and the homed axes' endstops, on the 8051 coil pins and the display's) is a 1-bit wire at its
+Every pin the simulation recorded (SimTrace.pins: each motor's STEP, DIR and enable and the tool; on the ATmega2560
+also the homed axes' endstops, on the 8051 the held pins, coil pins and the display's) is a 1-bit wire at its
 level on the pin (no inversion undone), in a scope per motor under the job's name. Beside them `player.run`, 1
 from the player's tick 0 (the pulses from there on are the CSV trace's phase `run`), and a PWM laser's compare
 value, `laser.duty` (16 bits, counts of its PWM's top).

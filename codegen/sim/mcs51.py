@@ -224,7 +224,7 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
         extra = {**extra, "prelude": (*extra.get("prelude", ()), *held["prelude"]), "on_write": on_write,
                  "breaks": (*extra.get("breaks", ()), *held["breaks"])}
     watched = [p for m in pins["motors"] for p in (m["step"], m["dir"]) if p is not None] + [pins["tool"]]
-    watched += [c for m in pins["motors"] for c in m["coils"] or []]
+    watched += [c for m in pins["motors"] for c in m["coils"] or []] + [p for _, p in slow_pins(pins)]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         w = lcd.wiring
@@ -349,12 +349,20 @@ def trace_of(rec: np.ndarray, pins: dict, f_cpu: int, cycles: int, timer_start: 
     run = cyc[order] >= run_from if run_from is not None else np.zeros(len(order), dtype=bool)
     named = [(f"{m['name']}.{role}", m[role]) for m in pins["motors"] for role in ("step", "dir") if m[role]]
     named += [(f"{m['name']}.coil{k + 1}", c) for m in pins["motors"] for k, c in enumerate(m["coils"] or [])]
+    named += slow_pins(pins)
     return SimTrace(state="done", cycles=cycles, f_cpu=f_cpu, timer_start_cycle=timer_start,
                     step_cycle=cyc[order], step_motor=mot[order], step_dir=dirs[order],
                     pulse_high_min_cycles=high_min, dir_setup_min_cycles=setup_min,
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool_t, tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
                     pins=pin_waves(rec, named + [("tool", pins["tool"])]))
+
+
+def slow_pins(pins: dict) -> list[tuple[str, object]]:
+    """The pins codegen/verify/pins.py holds to a level, by name: each motor's enable ("x.enable") and the board's
+    held pins ("held.P1_6" for P1.6)."""
+    named = [(f"{m['name']}.enable", m["enable"]) for m in pins["motors"] if m["enable"] is not None]
+    return named + [(f"held.P{h['pin'].port}_{h['pin'].bit}", h["pin"]) for h in pins["held"]]
 
 
 def pin_waves(rec: np.ndarray, named: list[tuple[str, object]]) -> dict[str, PinWave]:

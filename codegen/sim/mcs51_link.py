@@ -51,7 +51,7 @@ from codegen.firmware.mcs51.stream import PAGE_BYTES, T2_CLOCKS_PER_BAUD, ring_l
 from codegen.link.host import LinkFigures
 from codegen.sim.avr import HOMING_FAILED, SimTrace, _homing_fault, switch_thresholds
 from codegen.sim.hd44780 import decode as decode_display
-from codegen.sim.mcs51 import switch_model, trace_of
+from codegen.sim.mcs51 import slow_pins, switch_model, trace_of
 
 TAG_TIMER, TAG_FAULT, TAG_RX, TAG_FILL = 16, 19, 21, 22  # record tags beyond the port tags 0..3
 SBUF = 0x99
@@ -142,6 +142,7 @@ def _setup(hex_path: Path, sym: dict, config: FirmwareConfig, pins: dict, switch
     prelude, on_write = switch_model(config, pins, switches) if config.homing else ((), {})
     cmds += [*prelude, "var tb", "var tw", "expression tb=0", "expression tw=1"]
     watched = [p for m in pins["motors"] for p in (m["step"], m["dir"])] + [pins["tool"]]
+    watched += [p for _, p in slow_pins(pins)]
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
         w = lcd.wiring

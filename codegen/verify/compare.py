@@ -21,6 +21,7 @@ from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
+from codegen.verify.pins import pin_problems
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -290,12 +291,19 @@ class Comparison:
         edges = np.array(trace.tool_edges, dtype=np.int64).reshape(-1, 2)
         if len(edges) and edges[-1, 1]:
             problems.append("the tool pin is still on when the program ends")
-        problems.extend(display_problems(host, trace, self.twin_final, self.streamed))
+        problems.extend(pin_problems(host, trace, switches, self.step_span(trace)))  # enables, held pins, DIR hold,
+        problems.extend(display_problems(host, trace, self.twin_final, self.streamed))  # homing's pace
         laser = merge_laser(self.laser_parts, trace.laser_duty) if host.laser is not None else None
         problems.extend(laser.problems if laser else [])
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
                        homing_problems + problems, homing, display, not_compared, laser)
+
+    def step_span(self, trace) -> tuple[int, int] | None:
+        """The first and the last STEP rise of the run, homing's (in `trace`) included."""
+        cycles = [int(trace.step_cycle.min()), int(trace.step_cycle.max())] if len(trace.step_cycle) else []
+        cycles += self.span_cycles
+        return (min(cycles), max(cycles)) if cycles else None
 
     @property
     def tick0(self) -> int:
