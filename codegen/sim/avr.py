@@ -70,6 +70,7 @@ class SimTrace:
     # Every recorded pin as it was, by signal name: "x.step", "x.dir", "tool", and where recorded "x.enable",
     # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/report/waveform.py writes them for GTKWave).
     pins: dict[str, PinWave] = field(default_factory=dict)
+    dir_watches: tuple = ()  # a run read a chunk at a time: its DIR timing, watched as it came (codegen/verify/pins.py)
 
     def run_only(self) -> SimTrace:
         """The same trace with the step table's pulses only (phase "run")."""

@@ -71,6 +71,8 @@ class EdgeDecoder:
         self._duty: list[np.ndarray] = []
         self._starts: list[np.ndarray] = []
         self.last_cycle = 0
+        self.motor_edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # the last piece's, per motor:
+        #                                                                  STEP rises, STEP falls, DIR changes
 
     def feed(self, rec: np.ndarray) -> Steps:
         if not len(rec):
@@ -80,10 +82,12 @@ class EdgeDecoder:
         bounds = np.searchsorted(rec["pin"][order], np.arange(257))
         mine = lambda pin: rec[order[bounds[pin]:bounds[pin + 1]]]  # noqa: E731
         cycles, motors, dirs = [], [], []
+        self.motor_edges = []
         for m in range(len(self.invert)):
             step, direction = mine(2 * m), mine(2 * m + 1)
             rise, fall = self._rises_falls(m, step)
             d_cycle = direction["cycle"].astype(np.int64)
+            self.motor_edges.append((rise, fall, d_cycle))
             levels = np.concatenate([[self.dir_level[m]], direction["level"].astype(np.int64)])
             level = levels[np.searchsorted(d_cycle, rise, side="right")]
             self.dir_level[m] = levels[-1]

@@ -151,24 +151,51 @@ def dir_setup_short(rise: np.ndarray, dir_change: np.ndarray, setup_cycles: int)
     return dir_change[followed][rise[nxt[followed]] - dir_change[followed] < setup_cycles]
 
 
+class DirWatch:
+    """One motor's DIR against its driver, its edges fed a chunk at a time (`add`): held after each STEP rise (and
+    while STEP is high), set up before; `problems` once the run has ended."""
+
+    def __init__(self, motor: str, driver: Driver, f_cpu: int):
+        self.motor, self.driver, self.f_cpu = motor, driver, f_cpu
+        self.carry = DirCarry()
+        self.late: tuple[int, int] | None = None  # the first DIR change too soon after a rise: it, the rise
+        self.late_count = 0
+        self.early: int | None = None  # the first DIR change too soon before a rise
+        self.early_count = 0
+
+    def add(self, rise: np.ndarray, fall: np.ndarray, moved: np.ndarray) -> None:
+        """The chunk's STEP rises and falls and DIR changes (cycles, each after the chunks before)."""
+        before = self.carry.rise
+        late, self.carry = dir_hold_chunk(rise, fall, moved, self.driver.hold_cycles, self.carry)
+        if len(late) and self.late is None:
+            at = int(late[0])
+            rises = np.concatenate([[before], rise]) if before is not None else rise
+            self.late = (at, int(rises[np.searchsorted(rises, at, side="right") - 1]))
+        self.late_count += len(late)
+        early = dir_setup_short(rise, moved, self.driver.setup_cycles)
+        if len(early) and self.early is None:
+            self.early = int(early[0])
+        self.early_count += len(early)
+
+    def problems(self) -> list[str]:
+        f_cpu, driver, problems = self.f_cpu, self.driver, []
+        if self.late is not None:
+            at, pulse = self.late
+            problems.append(f"motor {self.motor}: DIR changes {(at - pulse) / f_cpu * 1e6:.3f} us after a STEP rise "
+                            f"(at {ms(at, f_cpu)}; {self.late_count} in all): the {driver.part} needs DIR held "
+                            f"{driver.hold_cycles / f_cpu * 1e6:.3f} us after the rise and while STEP is high")
+        if self.early is not None:
+            problems.append(f"motor {self.motor}: DIR changes less than {driver.setup_cycles / f_cpu * 1e6:.3f} us "
+                            f"before a STEP rise (at {ms(self.early, f_cpu)}; {self.early_count} in all): the "
+                            f"{driver.part}'s DIR setup time")
+        return problems
+
+
 def dir_timing_problems(motor: str, step: PinWave, direction: PinWave, driver: Driver, f_cpu: int) -> list[str]:
-    """One motor's DIR against its driver: held after each STEP rise (and while STEP is high), set up before."""
-    rise, fall = edges(step)
-    moved = changes(direction)
-    problems = []
-    late, _ = dir_hold_chunk(rise, fall, moved, driver.hold_cycles)
-    if len(late):
-        at = int(late[0])
-        pulse = int(rise[np.searchsorted(rise, at, side="right") - 1])
-        problems.append(f"motor {motor}: DIR changes {(at - pulse) / f_cpu * 1e6:.3f} us after a STEP rise (at "
-                        f"{ms(at, f_cpu)}; {len(late)} in all): the {driver.part} needs DIR held "
-                        f"{driver.hold_cycles / f_cpu * 1e6:.3f} us after the rise and while STEP is high")
-    early = dir_setup_short(rise, moved, driver.setup_cycles)
-    if len(early):
-        problems.append(f"motor {motor}: DIR changes less than {driver.setup_cycles / f_cpu * 1e6:.3f} us before a "
-                        f"STEP rise (at {ms(int(early[0]), f_cpu)}; {len(early)} in all): the "
-                        f"{driver.part}'s DIR setup time")
-    return problems
+    """One motor's DIR against its driver, its whole run at once (DirWatch)."""
+    watch = DirWatch(motor, driver, f_cpu)
+    watch.add(*edges(step), changes(direction))
+    return watch.problems()
 
 
 @dataclass(frozen=True)
@@ -306,4 +333,6 @@ def pin_problems(host, trace, switches: dict[int, int | None], span: tuple[int, 
     for m in host.kin.motors:
         if driver is not None and f"{m}.step" in waves and f"{m}.dir" in waves:
             problems += dir_timing_problems(m, waves[f"{m}.step"], waves[f"{m}.dir"], driver, f_cpu)
+    for watch in getattr(trace, "dir_watches", ()):  # a run read a chunk at a time watched its DIR as it came
+        problems += watch.problems()
     return problems + homing_pace_problems(host, trace, switches)

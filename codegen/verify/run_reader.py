@@ -18,6 +18,7 @@ from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.sim.avr import PHASE_HOME, SimTrace, watched
 from codegen.sim.avr_edges import EdgeDecoder, EdgeFile, Steps
+from codegen.verify.pins import DirWatch, board_driver
 
 MARGIN_CYCLES = 4096  # read this far past a chapter's last pulse: the laser's write after its edge comes with it
 BACKLOG = 8  # chapters' worth of pulses the reader holds at most while waiting for a motor's (a run gone wrong)
@@ -45,6 +46,8 @@ class RunReader:
         self.have = np.zeros(self.motors, dtype=np.int64)  # the buffer's, per motor
         self.home: list[Steps] = []  # pulses before the player's first start: homing's
         self.first_run_cycle: int | None = None
+        driver = board_driver(load_target(config.board), self.f_cpu)
+        self.dir_watches = [] if driver is None else [DirWatch(w.name, driver, self.f_cpu) for w in pins.motors]
         self.wait_s = 0.0  # wall time spent waiting for the harness
 
     # -- the clock and the slow outputs, as read so far (Comparison's `levels`) --
@@ -89,6 +92,8 @@ class RunReader:
         elif not len(rec):
             return False
         steps = self.decoder.feed(rec)
+        for watch, edges in zip(self.dir_watches, self.decoder.motor_edges):
+            watch.add(*edges)
         starts = self.starts
         run = steps.cycle >= starts[0] if len(starts) else np.zeros(len(steps.cycle), dtype=bool)
         if not run.all():
@@ -137,7 +142,8 @@ class RunReader:
                        step_cycle=home.cycle, step_motor=home.motor, step_dir=home.dir,
                        step_phase=np.full(len(home.cycle), PHASE_HOME, dtype="<U4"),
                        pulse_high_min_cycles=self.decoder.width_min, dir_setup_min_cycles=self.decoder.setup_min,
-                       tool_edges=self.tool_edges, laser_duty=self.laser_duty, pins=self.decoder.waves())
+                       tool_edges=self.tool_edges, laser_duty=self.laser_duty, pins=self.decoder.waves(),
+                       dir_watches=tuple(self.dir_watches))
 
     def clock(self, cycles: np.ndarray, waits: np.ndarray) -> np.ndarray:
         """Simulated cycles on the twin's clock: after the k-th resume moved back by the k-th hold, as the twin

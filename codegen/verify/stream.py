@@ -110,11 +110,12 @@ def made_positions(trace, motors: int) -> np.ndarray:
     return np.array([int(run.step_dir[run.step_motor == m].sum()) for m in range(motors)], dtype=np.int64)
 
 
-def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table: BinaryIO,
-                            strict: bool) -> tuple[dict, object]:
+def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table: BinaryIO, strict: bool,
+                            comparing=ComparingProcess) -> tuple[dict, object]:
     """simulate_stream in bounded memory (codegen/verify/bounded.py): `host` is the first pass's (not kept), its
-    table stream in `table`; the comparison runs in a second process while this one drives the link. The trace
-    returned has the homing pulses, the clock and the slow pins, not the table's pulses."""
+    table stream in `table`; the comparison runs beside the simulation (`comparing`: in a second process, while this
+    one drives the link). The trace returned has the homing pulses, the clock and the slow pins, not the table's
+    pulses."""
     config = setup.config
     motors = len(host.kin.motors)
     link = HostLink(file_chunks(table, motors), motors, setup.identity, 10 / setup.layout.baud,
@@ -124,7 +125,7 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
     plants = job_plants(host.job, config) if config.heaters else None
     with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
-        comparing = ComparingProcess(host, strict, setup.budget, sim.edges, switches, True)
+        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True)
         try:
             with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
                 summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)
