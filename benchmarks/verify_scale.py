@@ -74,18 +74,26 @@ def measure(job: Path, out: Path) -> dict:
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=ROOT)
     peak_one = peak_sum = 0
     cpu: dict[int, tuple[str, float]] = {}
+    peaks: dict[str, int] = {}  # by kind of process: the verb's, the comparing one, the simulator...
     while proc.poll() is None:
         sample = tree(proc.pid)
         peak_one = max([peak_one] + [rss for _, rss, _ in sample.values()])
+        for pid, (command, rss, _) in sample.items():
+            role = "verb" if pid == proc.pid else "comparing" if "spawn_main" in command else kind(command)
+            peaks[role] = max(peaks.get(role, 0), rss)
         peak_sum = max(peak_sum, sum(rss for _, rss, _ in sample.values()))
         cpu.update({pid: (command, seconds) for pid, (command, _, seconds) in sample.items()})
         time.sleep(0.1)
     wall = time.perf_counter() - began
     result = json.loads(proc.stdout.read() or "{}")
     shares = {"simulator": 0.0, "python": 0.0, "other": 0.0}
+    others: dict[str, float] = {}
     for command, seconds in cpu.values():
         shares[kind(command)] += seconds
-    return {"result": result, "wall_s": wall, "peak_one": peak_one, "peak_sum": peak_sum, "cpu": shares}
+        if kind(command) == "other":
+            others[command.split(" ")[0]] = others.get(command.split(" ")[0], 0.0) + seconds
+    return {"result": result, "wall_s": wall, "peak_one": peak_one, "peak_sum": peak_sum, "cpu": shares,
+            "peaks": peaks, "others": others}
 
 
 def copies(job: Path, n: int, folder: Path) -> Path:
@@ -114,9 +122,12 @@ def report(label: str, m: dict) -> None:
     print(f"  wall time          {m['wall_s']:8.1f} s   ({simulated / m['wall_s']:.1f} s simulated per wall s, "
           f"heat-up waits not counted in the simulated figure)")
     print(f"  peak RSS           {m['peak_one'] / 2**20:8.1f} MiB (the largest process; the tree at once: "
-          f"{m['peak_sum'] / 2**20:.1f} MiB)")
+          f"{m['peak_sum'] / 2**20:.1f} MiB; " + ", ".join(f"{k} {v / 2**20:.0f}" for k, v in sorted(m["peaks"].items()))
+          + ")")
     print(f"  CPU                {total:8.1f} s   simulator {100 * cpu['simulator'] / total:.0f} %, Python "
-          f"{100 * cpu['python'] / total:.0f} %, other {100 * cpu['other'] / total:.0f} % (compiler, G-code reader)")
+          f"{100 * cpu['python'] / total:.0f} %, other {100 * cpu['other'] / total:.0f} % ("
+          + ", ".join(f"{Path(k).name} {v:.0f} s" for k, v in sorted(m["others"].items(), key=lambda kv: -kv[1])[:3])
+          + ")")
 
 
 def main() -> None:

@@ -23,6 +23,7 @@ from codegen.pipeline.host import HostBuild, host_build
 from codegen.report.summaries import build_report, human_plan, motion, plan_summary, write_json, write_trace
 from codegen.report.waveform import write_vcd
 from codegen.tables.format import stream_bytes
+from codegen.verify.bounded import verify_flash
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify.hold import hold_lines, hold_verify, pauses
@@ -61,7 +62,7 @@ def _image_from_report(out_dir: Path, data: dict) -> Image:
                  dict(data["ram_parts"]))
 
 
-def _host(job, strict: bool, keep: bool = True, observe=None) -> HostBuild:
+def _host(job, strict: bool, keep: bool | str = True, observe=None) -> HostBuild:
     """The host side of the build; the front end's warnings go to stderr."""
     host = host_build(job, strict, keep=keep, observe=observe)
     if host.warnings:
@@ -69,8 +70,8 @@ def _host(job, strict: bool, keep: bool = True, observe=None) -> HostBuild:
     return host
 
 
-def _checked_host(job, strict: bool) -> HostBuild:
-    host = _host(job, strict)
+def _checked_host(job, strict: bool, keep: bool | str = True) -> HostBuild:
+    host = _host(job, strict, keep)
     if not host.findings.ok:
         raise BuildError(f"{job.name}: the tables do not do what the job says:\n  "
                          + "\n  ".join(host.findings.problems))
@@ -81,8 +82,8 @@ FIT_HINT = ("what helps: a larger machine.tolerance (fewer chords on curves), fe
             "with more flash")
 
 
-def _build(job, out: str | None, reuse: bool, strict: bool) -> tuple[HostBuild, object, Path]:
-    host = _checked_host(job, strict)
+def _build(job, out: str | None, reuse: bool, strict: bool, keep: bool | str = True) -> tuple[HostBuild, object, Path]:
+    host = _checked_host(job, strict, keep)
     table = stream_bytes(host.schedule)
     if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
         raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
@@ -126,6 +127,11 @@ def cmd_verify(args) -> int:
         host, result, trace, headline = cli_stream.verify_stream(args)
         return _conclude_verify(args, host, result, trace, headline)
     job = load_job(Path(args.job), args.target)
+    if cli_stream.bounded(args, job.target, job):  # codegen/verify/bounded.py: a chapter at a time, on two cores
+        host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables")
+        result, trace = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
+                                     args.strict)
+        return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
     if args.hold is not None or args.override is not None or pauses(host):
@@ -138,10 +144,13 @@ def cmd_verify(args) -> int:
         switches = simulated_switches(host)
         trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
         result = verify_json(host, compare(host, trace, switches), image)
-    headline = [f"{'PASS' if result['pass'] else 'FAIL'} {job.name}: {out_dir / 'firmware.hex'} in "
-                f"{SIMULATORS[host.target.target]}, {result['duration_s']:.4f} s simulated, "
-                f"{result['planned_duration_s']:.4f} s planned"]
-    return _conclude_verify(args, host, result, trace, headline)
+    return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
+
+
+def _verify_headline(host: HostBuild, result: dict, out_dir: Path) -> list[str]:
+    return [f"{'PASS' if result['pass'] else 'FAIL'} {host.job.name}: {out_dir / 'firmware.hex'} in "
+            f"{SIMULATORS[host.target.target]}, {result['duration_s']:.4f} s simulated, "
+            f"{result['planned_duration_s']:.4f} s planned"]
 
 
 def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[str]) -> int:

@@ -6,7 +6,7 @@ Each stage is a function with a typed result; this module only composes them (an
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import BinaryIO, Callable
 
@@ -24,7 +24,7 @@ from codegen.motion.jog import jog_plan
 from codegen.motion.lookahead import Lookahead, Window
 from codegen.motion.pieces import front_end
 from codegen.motion.planner import Plan, PlannerLimits, plan
-from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_segments
+from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_schedule, join_segments
 from codegen.pipeline.settings import JobSettings, job_settings, planner_limits
 from codegen.pipeline.windows import Played, Stages, Totals
 from codegen.program.heater_settings import heater_settings
@@ -126,13 +126,14 @@ def trains_from(pulse_time: np.ndarray, motor: np.ndarray, direction: np.ndarray
     return [MotorTrain(pulse_time[motor == m], direction[motor == m]) for m in range(motors)]
 
 
-def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool = True,
+def host_build(job, strict: bool = False, watch: Stopwatch | None = None, keep: bool | str = True,
                tables: BinaryIO | None = None, link: LinkBudget | None = None,
                observe: Callable[[Played], None] | None = None) -> HostBuild:
     """Everything up to the twin and its checks against the plan: no compiler, no simulator. The program
     is read, planned and played a window at a time (codegen/motion/lookahead.py, codegen/pipeline/windows.py); `keep` joins
     the windows' results into the whole program's (for an image and its verification), otherwise only their
-    totals are kept and memory stays bounded whatever the program's size. `tables` gets the table stream as
+    totals are kept and memory stays bounded whatever the program's size; keep="tables" joins only the schedule
+    (an image's tables, which flash bounds: codegen/verify/bounded.py verifies it planning again). `tables` gets the table stream as
     its windows are made. With `link`, the job is planned for the streaming player: its costs, and a ring that
     the link keeps fed (host.link_plan). `observe` gets each final window (codegen/report/plan_samples.py). A bar shows
     the share of the program planned (codegen/progress.py)."""
@@ -167,13 +168,16 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
         with watch("front end (waiting for it)"):
             chunk = next(chunks, None)
         if stages is None:
-            stages = Stages(settings.stages, kin, target, limits, kin.to_steps(program.start[None, :])[0], ahead, keep,
-                            watch, tables, link, runtime, laser, hold, observe)
+            start_steps = kin.to_steps(program.start[None, :])[0]
+            stages = Stages(settings.stages, kin, target, limits, start_steps, ahead, keep is True, watch, tables, link,
+                            runtime, laser, hold, observe)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
             final = stages.play(window, None if chunk is None else ahead.next_segment(), chunk is None)
-            if keep:
+            if keep == "tables":
+                played += [_tables_only(p) for p in final]
+            elif keep:
                 played += final
         progress.move_to(bar, program.handed_on)
         bar.set_postfix_str(f"{stages.totals.duration_s:.1f} s of motion", refresh=False)
@@ -198,7 +202,12 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     if runtime is not None:
         host.runtime = runtime()
         stages.totals.table_bytes += RUNTIME_BYTES * len(host.runtime)
-    if keep:
+    if keep == "tables":
+        host.compressed = Compressed(join_schedule(played, False), *(np.zeros(0) for _ in range(3)))
+        if runtime is not None:
+            items = np.concatenate([p.window.segments.item for p in played]) if played else np.zeros(0, np.int64)
+            host.compressed.schedule = with_runtime(host.compressed.schedule, runtime(), items)
+    elif keep:
         bar.set_postfix_str("joining the windows")
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)
@@ -207,6 +216,13 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             if runtime is not None:
                 host.compressed.schedule = with_runtime(host.compressed.schedule, runtime(), host.segments.item)
     return host
+
+
+def _tables_only(played: Played) -> Played:
+    """A final window with only what its tables need (its schedule, its segments' items for the runtime records)."""
+    empty = np.zeros(0)
+    return replace(played, compressed=Compressed(played.compressed.schedule, empty, empty, empty), events=None,
+                   pulses=None)
 
 
 def runtime_outputs(job, target: TargetInfo, streamed: bool) -> tuple[str, ...]:

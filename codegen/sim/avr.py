@@ -15,7 +15,7 @@ import subprocess
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -148,7 +148,7 @@ def _homing_fault(config: FirmwareConfig, status: int, axis_bits: int, phase: in
 
 def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
              switches: dict[int, int | None] | None = None, keys: list | None = None,
-             presses: list[tuple[str, int, int]] = ()) -> SimTrace:
+             presses: list[tuple[str, int, int]] = (), beside: Callable | None = None) -> SimTrace:
     """Run `hex_path` until the firmware sleeps with interrupts off; BuildError on a crash or the budget.
 
     `switches` maps a homing axis's index (config.homing) to the position, in steps (of each of its motors) from
@@ -160,7 +160,9 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     A failed homing is not an error here: see `homing_failed`. `keys`: a jog image's key script
     (codegen/sim/keys.py; it must press start; without one, start alone; firmware.elf beside the hex), its time
     on top of the budget; the trace then has `jog_positions` (the firmware's counts at the end). `presses`: keys
-    to ground held down, (pin such as PL2, from cycle, to cycle): the feed hold keys (codegen/verify/hold.py)."""
+    to ground held down, (pin such as PL2, from cycle, to cycle): the feed hold keys (codegen/verify/hold.py).
+    `beside(edges, ended)` reads the records while the harness writes them (run_harness); the trace then has none
+    of them, only the run's state, clock and homing fault."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu = int(mcu["f_cpu"])
@@ -181,10 +183,10 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
                *switch_args(config, switches), *keyed[0], *(f"key={pin[1:]},{a},{b}" for pin, a, b in presses),
                *watched_pins(config)]
         with progress.stage("simulate", cycle_budget / f_cpu, "s simulated", 1) as bar:
-            done = progress.run_watched(cmd, bar, lambda _: simulated_s(edges_path, f_cpu))
+            done = run_harness(cmd, bar, edges_path, f_cpu, beside)
         if done.returncode not in EXIT_STATES:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
-        rec = read_edges(edges_path)
+        rec = read_edges(edges_path) if beside is None else np.zeros(0, EDGE_RECORD)
     fields = dict(kv.split("=", 1) for kv in done.stdout.strip().splitlines()[-1].split())
     state, cycles = EXIT_STATES[done.returncode], int(fields["cycles"])
     if state == "crashed":
@@ -201,6 +203,23 @@ def simulate(hex_path: Path, config: FirmwareConfig, cycle_budget: int,
     if keys is not None:
         trace.jog_positions = jog_positions(fields["dump"], *keyed[1:])
     return trace
+
+
+def run_harness(cmd: list[str], bar, edges: Path, f_cpu: int, beside: Callable | None) -> subprocess.CompletedProcess:
+    """The harness run to its end (progress.run_watched); with `beside`, beside(edges, ended) runs in this process
+    while it does (ended(): the harness has exited)."""
+    if beside is None:
+        return progress.run_watched(cmd, bar, lambda _: simulated_s(edges, f_cpu))
+    process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)  # it prints one line at its end
+    try:
+        beside(edges, lambda: process.poll() is not None)
+        out, err = process.communicate()
+    finally:
+        if process.poll() is None:  # an exception here (Ctrl-C, a failed comparison): the harness goes too
+            process.kill()
+            process.wait()
+    return subprocess.CompletedProcess(cmd, process.returncode, out, err)
 
 
 def timer_ticks0(fields: dict, f_cpu: int, tick_hz: int) -> list[int]:

@@ -26,9 +26,9 @@ from codegen.heaters.control import PID_PERIOD_S
 from codegen.heaters.plant import Plant, heating_figures
 from codegen.heaters.protection import REASONS
 from codegen.heaters.sensors import SensorSpec, millivolts
-from codegen.sim.avr import (EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, simulated_s,
-                             switch_args, timer_ticks0, watched_pins)
-from codegen.sim.avr_edges import read_edges
+from codegen.sim.avr import (EXIT_STATES, SimTrace, _homing_fault, decode_edges, harness_binary, run_harness,
+                             simulated_s, switch_args, timer_ticks0, watched_pins)
+from codegen.sim.avr_edges import EDGE_RECORD, read_edges
 
 FAULTS = {"thermistor-open": "open", "thermistor-short": "short", "heater-dead": "dead",
           "thermistor-loose": "loose"}
@@ -159,11 +159,13 @@ def read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
 
 def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, plants: dict[str, HeaterPlant],
                      faults: tuple[Fault, ...] = (), switches: dict[int, int | None] | None = None,
-                     held_after_s: float | None = None, presses: list[tuple[str, int, int]] = ()) -> HeaterRun:
+                     held_after_s: float | None = None, presses: list[tuple[str, int, int]] = (),
+                     beside=None) -> HeaterRun:
     """Run `hex_path` with a plant behind each heater for `seconds` of simulated time, or until it halts (the
     table played and the heaters off, a protection trip, a failed homing), or with `held_after_s` until that long
     after the player started its timer (state "held": an image that holds its heaters after the table).
-    `presses`: keys to ground held down, (pin such as PL2, from cycle, to cycle), as codegen/sim/avr.py's."""
+    `presses`: keys to ground held down, (pin such as PL2, from cycle, to cycle), as codegen/sim/avr.py's; `beside`
+    as codegen/sim/avr.py simulate's (the run's steps then hold none of its records)."""
     pins = board_pins(config)
     mcu = load_target(pins.mcu)
     f_cpu, tick_hz = int(mcu["f_cpu"]), int(mcu["tick_hz"])
@@ -176,11 +178,14 @@ def simulate_heaters(hex_path: Path, config: FirmwareConfig, seconds: float, pla
                f"plant={spec}", *held, *switch_args(config, switches),
                *(f"key={pin[1:]},{a},{b}" for pin, a, b in presses), *watched_pins(config)]
         with progress.stage("simulate", seconds, "s simulated", 1) as bar:
-            done = progress.run_watched(cmd, bar, lambda _: max(simulated_s(edges, f_cpu) or 0.0,
-                                                                 _logged_s(log, f_cpu) or 0.0))
+            if beside is None:
+                done = progress.run_watched(cmd, bar, lambda _: max(simulated_s(edges, f_cpu) or 0.0,
+                                                                     _logged_s(log, f_cpu) or 0.0))
+            else:
+                done = run_harness(cmd, bar, edges, f_cpu, beside)
         if done.returncode not in EXIT_STATES or done.returncode == 1:
             raise BuildError(f"simavr harness failed on {hex_path}:\n{(done.stderr + done.stdout).strip()}")
-        rec = read_edges(edges)
+        rec = read_edges(edges) if beside is None else np.zeros(0, EDGE_RECORD)
         per, end = read_trace(log, len(config.heaters), f_cpu)
     fields = dict(kv.split("=", 1) for kv in done.stdout.strip().splitlines()[-1].split())
     state, cycles = EXIT_STATES[done.returncode], int(fields["cycles"])

@@ -1,5 +1,5 @@
 """verify in bounded memory, on both cores: the simulator's records compared with the twin a chapter at a time
-while the simulation runs.
+while the simulation runs (a streamed run: verify_stream in codegen/verify/stream.py; a flash image: verify_flash).
 
 The host's first pass (the caller's, `keep=False`) gave the tables, the link's plan and the totals. While the
 simulator runs, the program is planned again window by window (the same windows: planning is deterministic) and
@@ -21,10 +21,15 @@ from typing import Callable
 import numpy as np
 
 from codegen import progress
+from codegen.firmware.homing import homing_ticks_bound
 from codegen.pipeline.host import HostBuild, host_build
-from codegen.sim.avr import SimTrace
+from codegen.sim.avr import SimTrace, simulate, switch_thresholds
+from codegen.sim.avr_plant import HeaterRun, simulate_heaters
 from codegen.verify.chapters import CHAPTER_PULSES, Chapter, Chapters, RuntimeTimeline
-from codegen.verify.compare import Comparison, Verdict
+from codegen.verify.compare import Comparison, Verdict, simulated_switches
+from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, _table_start_s, heater_figures,
+                                    job_plants, trip_result, with_holds)
+from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 
 
@@ -44,31 +49,51 @@ class Compared:
     seconds: dict = field(default_factory=dict)  # wall time: planning again, waiting for the simulator, in all
 
 
+class BoundedComparison:
+    """Plan `host`'s job again and compare it, chapter by chapter, with the run the harness writes (`run`), then
+    the verdict (`finish`)."""
+
+    def __init__(self, host: HostBuild, strict: bool, link, switches: dict, streamed: bool,
+                 chapter_pulses: int = CHAPTER_PULSES):
+        self.host, self.strict, self.link, self.switches = host, strict, link, switches
+        self.streamed, self.chapter_pulses = streamed, chapter_pulses
+        self.began = time.perf_counter()
+        self.reader = self.comparison = self.chapters = None
+
+    def run(self, edges: Path, ended: Callable[[], bool]) -> None:
+        """`ended()`: the harness has written its last record."""
+        host = self.host
+        self.reader = reader = RunReader(edges, host.firmware_config(), ended)
+        self.comparison = comparison = Comparison(host, reader, self.streamed)
+
+        def chapter(ch: Chapter) -> None:
+            sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), self.chapter_pulses)
+            timeline = chapters.timeline()
+            comparison.add(ch, sim, reader.clock(sim.cycle, timeline.tick[timeline.waits()]))
+
+        self.chapters = chapters = Chapters(chapter, self.chapter_pulses)
+        host_build(host.job, self.strict, keep=False, link=self.link, observe=chapters)
+        chapters.close()
+        comparison.extra(reader.rest())
+
+    def finish(self, end: SimTrace) -> Compared:
+        """`end`: the run's state, cycles and homing fault as its simulation ended."""
+        comparison, reader = self.comparison, self.reader
+        trace = reader.trace(end)
+        verdict = comparison.finish(trace, self.switches)
+        span = comparison.span_cycles[1] - comparison.span_cycles[0] if comparison.span_cycles else 0
+        return Compared(verdict, trace, self.chapters.timeline(), comparison.twin_final, comparison.position,
+                        comparison.trip_figures(), span, comparison.planned_s(), reader.first_run_cycle,
+                        {"wait_s": reader.wait_s, "compare_s": time.perf_counter() - self.began})
+
+
 def compare_run(host: HostBuild, strict: bool, link, edges: Path, ended: Callable[[], bool],
                 end_trace: Callable[[], SimTrace], switches: dict, streamed: bool,
                 chapter_pulses: int = CHAPTER_PULSES) -> Compared:
-    """Plan `host`'s job again and compare it, chapter by chapter, with the run the harness writes to `edges`
-    (`ended()`: it has written its last record; `end_trace()`: the run's state and cycles then)."""
-    began = time.perf_counter()
-    config = host.firmware_config()
-    reader = RunReader(edges, config, ended)
-    comparison = Comparison(host, reader, streamed)
-
-    def chapter(ch: Chapter) -> None:
-        sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), chapter_pulses)
-        timeline = chapters.timeline()
-        comparison.add(ch, sim, reader.clock(sim.cycle, timeline.tick[timeline.waits()]))
-
-    chapters = Chapters(chapter, chapter_pulses)
-    host_build(host.job, strict, keep=False, link=link, observe=chapters)
-    chapters.close()
-    comparison.extra(reader.rest())
-    trace = reader.trace(end_trace())
-    verdict = comparison.finish(trace, switches)
-    span = comparison.span_cycles[1] - comparison.span_cycles[0] if comparison.span_cycles else 0
-    return Compared(verdict, trace, chapters.timeline(), comparison.twin_final, comparison.position,
-                    comparison.trip_figures(), span, comparison.planned_s(), reader.first_run_cycle,
-                    {"wait_s": reader.wait_s, "compare_s": time.perf_counter() - began})
+    """BoundedComparison's run and finish (`end_trace()`: the run's end, once it has ended)."""
+    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses)
+    comparison.run(edges, ended)
+    return comparison.finish(end_trace())
 
 
 class ComparingProcess:
@@ -111,3 +136,40 @@ def _compare_there(conn, host, strict, link, edges, switches, streamed) -> None:
         conn.send(("result", compared))
     except BaseException:  # noqa: BLE001 -- whatever it was, the parent reports it
         conn.send(("error", traceback.format_exc()))
+
+
+def heater_verdict(host: HostBuild, run: HeaterRun, compared: Compared, image, faults) -> dict:
+    """verify's result of a run with heaters compared chunk by chunk (run.steps: its end, without its pulses): a
+    trip's (codegen/verify/heaters.py trip_result), or the comparison's with the holds' problems; the heaters'
+    figures."""
+    run.steps = compared.trace
+    if run.trip is not None:
+        result = trip_result(host, run, image, *compared.trip, compared.span_cycles, compared.planned_s)
+    else:
+        waits = compared.timeline.tick[compared.timeline.waits()]
+        result = with_holds(verify_json(host, compared.verdict, image), run, waits)
+    start = _table_start_s(run.steps, compared.first_run_cycle)
+    result.update(heater_figures(host, run, compared.timeline, start))
+    result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
+    return result
+
+
+def verify_flash(host: HostBuild, image, faults, strict: bool) -> tuple[dict, SimTrace]:
+    """verify of a flash image in bounded memory: `host` keeps its tables only (host_build keep="tables"); the
+    simulator runs as its own process, the comparison in this one beside it. The trace returned has the homing
+    pulses, the clock and the slow pins."""
+    config = host.firmware_config()
+    switches = simulated_switches(host)
+    comparison = BoundedComparison(host, strict, None, switches, streamed=False)
+    if host.heaters:
+        homing_s = homing_ticks_bound(config, switch_thresholds(config, switches), host.target.tick_hz) \
+            / host.target.tick_hz
+        held_after_s = host.totals.duration_s * HELD_AFTER_FACTOR + HELD_AFTER_S  # as verify_heaters'
+        run = simulate_heaters(image.hex_path, config, HEAT_LIMIT_S + homing_s + held_after_s,
+                               job_plants(host.job, config), faults, switches, held_after_s, beside=comparison.run)
+        compared = comparison.finish(run.steps)
+        return heater_verdict(host, run, compared, image, faults), compared.trace
+    budget = int((host.totals.duration_s * 1.2 + 1.0) * host.target.f_cpu)
+    trace = simulate(image.hex_path, config, budget, switches=switches, beside=comparison.run)
+    compared = comparison.finish(trace)
+    return verify_json(host, compared.verdict, image), compared.trace

@@ -119,6 +119,7 @@ class Comparison:
         self.events = 0  # simulated events so far
         self.problems: list[str] = []
         self.laser_parts: list[LaserVerdict] = []
+        self.tool_on = False  # at the last chapter's last event
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
 
@@ -230,7 +231,11 @@ class Comparison:
         event_cycle = sim.cycle[new_event]
         view = chapter_view(host, chapter)
         self.tool_events(view, event_cycle, twin_event)
-        laser = laser_verdict(view, self.levels, event_cycle, twin_event, self.dilation, chapter.laser_before)
+        laser = laser_verdict(view, self.levels, event_cycle, twin_event, self.dilation, chapter.laser_before,
+                              self.tool_on)
+        pulses = chapter.pulses
+        if len(pulses.event_block):  # the tool at the chapter's last event: a cut may go on into the next
+            self.tool_on = bool(chapter.schedule.block_tool[pulses.event_block[-1]])
         if laser is not None:
             self.laser_parts.append(laser)
         self.events += len(event_cycle)

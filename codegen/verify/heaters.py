@@ -45,6 +45,7 @@ from codegen.verify.results import verify_json
 HEAT_LIMIT_S = 600.0  # simulated: the start sequence's waits are over by then, or the run fails
 HELD_AFTER_FACTOR, HELD_AFTER_S = 1.2, 1.0  # a holding image's run ends the table's planned duration x 1.2 + 1 s
 #                                            after the player started its timer (verify's budget for any table)
+FAN_SHOWN = 8  # the fan's first changes in verify's text (a sliced print has hundreds)
 FAULT_FORM = f"NAME[:HEATER]@SECONDS (NAME: {', '.join(FAULTS)})"
 
 
@@ -326,7 +327,10 @@ def heater_lines(result: dict) -> list[str]:
         lines.append(f"  heater {name}: {text}" + (f", trip: {h['trip']}" if h["trip"] else ""))
     lines += hold_lines(result)
     if result.get("fan"):
-        lines.append("  fan: " + ", ".join(f"{100 * f['duty']:.0f} % at {f['at_s']:.2f} s" for f in result["fan"]))
+        fan = result["fan"]
+        shown = ", ".join(f"{100 * f['duty']:.0f} % at {f['at_s']:.2f} s" for f in fan[:FAN_SHOWN])
+        more = f", and {len(fan) - FAN_SHOWN} changes more (verify --json lists them)" if len(fan) > FAN_SHOWN else ""
+        lines.append(f"  fan: {shown}{more}")
     start = result["table_start_s"]
     if start is not None and any(h["at_s"] < start for h in result["holds"]):
         lines.append(f"  the table's first move started at {start:.2f} s simulated, after the waits before it")

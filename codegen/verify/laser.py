@@ -43,11 +43,12 @@ class LaserVerdict:
 
 
 def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None,
-                  dilation=None, counts_before: int = 0) -> LaserVerdict | None:
+                  dilation=None, counts_before: int = 0, cut_open: bool = False) -> LaserVerdict | None:
     """The laser's figures from a stretch of a run (a chapter's: codegen/verify/chapters.py) whose simulated events
     (their first STEP edge, `event_cycle`) are paired with the twin's events (`twin_event`; None: they could not be
     paired); `dilation`: a held or overridden run's (codegen/tables/hold.py Dilation); `counts_before`: the PWM
-    counts the tables had set before the stretch. `merge_laser` joins the stretches' figures."""
+    counts the tables had set before the stretch; `cut_open`: the tool was on at the end of the stretch before (its
+    first cut goes on, and is counted there). `merge_laser` joins the stretches' figures."""
     laser = host.laser
     if laser is None:
         return None
@@ -85,7 +86,8 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
                                 f"{100 * MAX_POWER_ERROR:.0f} % apart)")
     seconds = (event_cycle - (trace.timer_start_cycle or 0)) / trace.f_cpu
     twin_s = host.events.time if dilation is None else dilation.tick / host.target.tick_hz
-    verdict.cuts, verdict.max_energy_error = _energy(host, twin_event, seconds, played / laser.top, ideal, twin_s)
+    verdict.cuts, verdict.max_energy_error = _energy(host, twin_event, seconds, played / laser.top, ideal, twin_s,
+                                                     cut_open)
     return verdict
 
 
@@ -102,10 +104,11 @@ def merge_laser(parts: list[LaserVerdict], duty: np.ndarray) -> LaserVerdict | N
 
 
 def _energy(host, twin_event: np.ndarray, seconds: np.ndarray, played: np.ndarray, ideal: np.ndarray,
-            twin_s: np.ndarray):
-    """Cuts (stretches of tool-on events) and the largest relative difference of a cut's energy per mm, simulated
-    (the played power over the simulated times) against planned (the ideal power over the plan's times): the
-    path is the same, so the energies' ratio is that of their energy per mm."""
+            twin_s: np.ndarray, cut_open: bool = False):
+    """Cuts (stretches of tool-on events; one going on from before, `cut_open`, not counted again) and the largest
+    relative difference of a cut's energy per mm, simulated (the played power over the simulated times) against
+    planned (the ideal power over the plan's times): the path is the same, so the energies' ratio is that of their
+    energy per mm."""
     on = host.schedule.block_tool[host.pulses.event_block[twin_event]].astype(bool)
     if not on.any():
         return 0, 0.0
@@ -116,4 +119,4 @@ def _energy(host, twin_event: np.ndarray, seconds: np.ndarray, played: np.ndarra
     sim = np.bincount(cut[:-1][inside], weights=(played[:-1] * np.diff(seconds))[inside], minlength=n)
     plan = np.bincount(cut[:-1][inside], weights=(ideal[:-1] * np.diff(planned_s))[inside], minlength=n)
     lit = plan > 0
-    return n, float(np.max(np.abs(sim[lit] - plan[lit]) / plan[lit], initial=0.0))
+    return n - int(cut_open and on[0]), float(np.max(np.abs(sim[lit] - plan[lit]) / plan[lit], initial=0.0))

@@ -14,10 +14,9 @@ from codegen.link.host import HostLink
 from codegen.pipeline.host import HostBuild
 from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, file_chunks, stream_chunks
 from codegen.sim.avr_link import StreamSim, heater_run
-from codegen.verify.bounded import ComparingProcess
+from codegen.verify.bounded import ComparingProcess, heater_verdict
 from codegen.verify.compare import compare, simulated_switches
-from codegen.verify.heaters import (HEAT_LIMIT_S, _table_start_s, heater_figures, heater_result, job_plants,
-                                    trip_result, with_holds)
+from codegen.verify.heaters import HEAT_LIMIT_S, heater_result, job_plants
 from codegen.verify.results import verify_json
 
 
@@ -136,14 +135,6 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     if run is None:
         result = verify_json(host, compared.verdict, image)
     else:
-        run.steps = compared.trace
-        if run.trip is not None:
-            result = trip_result(host, run, image, *compared.trip, compared.span_cycles, compared.planned_s)
-        else:
-            result = with_holds(verify_json(host, compared.verdict, image), run,
-                                compared.timeline.tick[compared.timeline.waits()])
-        start = _table_start_s(run.steps, compared.first_run_cycle)
-        result.update(heater_figures(host, run, compared.timeline, start))
-        result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
+        result = heater_verdict(host, run, compared, image, faults)
     result = stream_result(host, link, figures, result, compared.twin_final, compared.made_position)
     return result, compared.trace

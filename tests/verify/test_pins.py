@@ -17,8 +17,8 @@ from codegen.pipeline.host import host_build
 from codegen.sim.avr import PinWave
 from codegen.tables.format import stream_bytes
 from codegen.verify.compare import compare, simulated_switches
-from codegen.verify.pins import (DirCarry, HomingCarry, HomingPhase, dir_hold_chunk, first_off_level,
-                                 homing_pace_chunk, level_at, level_problems, tool_off_problems)
+from codegen.verify.pins import (DirCarry, HomingCarry, HomingPhase, dir_hold_chunk, first_off_level, homing_pace_chunk,
+                                 level_at, level_problems, tool_off_problems)
 from codegen.verify.results import verify_json
 from tests.helpers import DATA
 
