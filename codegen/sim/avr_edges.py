@@ -96,14 +96,17 @@ class EdgeDecoder:
             cycles.append(rise[keep])
             motors.append(np.full(int(keep.sum()), m, dtype=np.int64))
             dirs.append(np.where(level[keep] ^ self.invert[m], 1, -1).astype(np.int64))
-        for k in range(len(self.slow_names)):
+        for k in range(len(self.slow_names)):  # (only pieces that have some: a run is read in thousands)
             wave = mine(2 * len(self.invert) + k)
-            self._slow[k].append(wave)
+            if len(wave):
+                self._slow[k].append(wave)
         starts = mine(START_PIN)["cycle"].astype(np.int64)
-        self._starts.append(starts[starts >= self.since])
+        if len(starts):
+            self._starts.append(starts[starts >= self.since])
         low, high = mine(DUTY_LOW_PIN), mine(DUTY_HIGH_PIN)  # a write's two, in order
-        self._duty.append(np.stack([low["cycle"].astype(np.int64),
-                                    low["level"].astype(np.int64) | high["level"].astype(np.int64) << 8], axis=1))
+        if len(low):
+            self._duty.append(np.stack([low["cycle"].astype(np.int64),
+                                        low["level"].astype(np.int64) | high["level"].astype(np.int64) << 8], axis=1))
         cyc, mot, dirs = (np.concatenate(a) for a in (cycles, motors, dirs))
         order = np.lexsort((mot, cyc))
         return Steps(cyc[order], mot[order], dirs[order])

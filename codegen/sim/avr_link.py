@@ -18,6 +18,7 @@ plant file in link mode): simulate_stream_heaters gives the session as a HeaterR
 
 from __future__ import annotations
 
+import array
 import math
 import struct
 import subprocess
@@ -185,7 +186,7 @@ class StreamSim:
         link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
         counted = None  # the latest answer before the stream's last ring went out (the plan's lowest fill too)
         starts: list[int] = []  # every start of the player's timer: START's, then a resume after each hold
-        fills: list[tuple[int, int]] = []  # (cycle, ring bytes held) at each ACK: after every frame it took
+        fills = array.array("q")  # cycle, ring bytes held, at each ACK: after every frame it took (8 bytes each)
         reset = True
         while not host.done:
             data = host.transmit(now)
@@ -202,7 +203,7 @@ class StreamSim:
                     underruns += f.kind == protocol.UNDERRUN
                     if f.kind == protocol.ACK:
                         free = int.from_bytes(f.payload[:2], "little")
-                        fills.append((int(answer.arrived[-1]), self.ring_bytes - free))
+                        fills.extend((int(answer.arrived[-1]), self.ring_bytes - free))
                     if f.kind == protocol.HOMING_FAILED and f.payload:
                         fault = _homing_fault(self.config, HOMING_FAILED, f.payload[0] & 0x0F, f.payload[0] >> 4)
                 host.receive(answer.data, int(answer.arrived[-1]) / self.f_cpu)
@@ -215,7 +216,7 @@ class StreamSim:
         records = read_edges(self.edges) if decode else np.zeros(0, EDGE_RECORD)
         trace = decode_edges(records, self.config, "done", answer.cycle, ticks0[0] if ticks0 else None, fault,
                              since=start)
-        trace = replace(trace, resumes=tuple(ticks0[1:]), ring_fill=np.array(fills, dtype=np.int64).reshape(-1, 2))
+        trace = replace(trace, resumes=tuple(ticks0[1:]), ring_fill=np.frombuffer(fills, dtype=np.int64).reshape(-1, 2).copy())
         stats = link.stats
         counted = answer if counted is None or link.outcome != "finished" else counted
         figures = LinkFigures(baud=self.layout.baud, bytes=stats.bytes, frames=stats.frames,

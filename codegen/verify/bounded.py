@@ -11,6 +11,7 @@ process, beside the simulator's. Memory holds a chapter of each, whatever the pr
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import time
 import traceback
@@ -70,6 +71,7 @@ class BoundedComparison:
             sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), self.chapter_pulses)
             timeline = chapters.timeline()
             comparison.add(ch, sim, reader.clock(sim.cycle, timeline.tick[timeline.waits()]))
+            give_back_freed_memory()
 
         self.chapters = chapters = Chapters(chapter, self.chapter_pulses)
         host_build(host.job, self.strict, keep=False, link=self.link, observe=chapters)
@@ -85,6 +87,20 @@ class BoundedComparison:
         return Compared(verdict, trace, self.chapters.timeline(), comparison.twin_final, comparison.position,
                         comparison.trip_figures(), span, comparison.planned_s(), reader.first_run_cycle,
                         {"wait_s": reader.wait_s, "compare_s": time.perf_counter() - self.began})
+
+
+_LIBC = None
+
+
+def give_back_freed_memory() -> None:
+    """glibc keeps the pages of freed arrays in its heap, and a long run's chapters fragment it upward: hand the
+    free pages back to the system (malloc_trim; elsewhere nothing)."""
+    global _LIBC
+    try:
+        _LIBC = _LIBC or ctypes.CDLL("libc.so.6")
+        _LIBC.malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def compare_run(host: HostBuild, strict: bool, link, edges: Path, ended: Callable[[], bool],

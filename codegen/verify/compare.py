@@ -152,7 +152,7 @@ class Comparison:
                                           for m in range(len(names)))
         matched = matched and self.paired
         if len(twin.event_position):
-            self.twin_final = twin.event_position[-1]
+            self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
             times = chapter.events.time[twin.event[[0, -1]]]
             self.planned = [self.planned[0] if self.planned else float(times[0]), float(times[1])]
