@@ -1,8 +1,8 @@
 """`verify JOB.yaml... | DIR [--jobs N] [--junit FILE.xml]` (CLI.md): many jobs verified in parallel, one summary
 table, a JUnit file for CI. One job file without --jobs or --junit is main.py's single verify, not this.
 
-Each job is a child process, `python -m codegen verify JOB --json --quiet` with this run's flags, at most N at
-once; its JSON (stdout) and stderr make its case (codegen/report/junit.py). The rules, also in `verify --help`:
+Each job is a child process, `python -m codegen verify JOB --json --quiet` (CHILD) with this run's flags, at most
+N at once; its JSON (stdout) and stderr make its case (codegen/report/junit.py). The rules, also in `verify --help`:
 - a folder stands for every *.yaml under it, recursively, in sorted order; one that is not a job is a case of its
   own with the loader's error (bad input);
 - every flag goes to every job; --out DIR with several jobs is their parent folder (DIR/<name>/); --trace, --vcd
@@ -32,7 +32,10 @@ import yaml
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.report.junit import write_junit
 
-ROOT = Path(__file__).resolve().parents[2]  # the folder holding this codegen/: the children import the same one
+# `python -m codegen`, but with this codegen/ first on the path: -m would put the working folder first, and a
+# checkout there would answer for an installed printer-codegen
+CHILD = "import sys; sys.path[0] = sys.argv.pop(1); from codegen.cli.main import main; raise SystemExit(main())"
+ROOT = Path(__file__).resolve().parents[2]  # the folder holding this codegen/
 VALUES = {"target": "--target", "baud": "--baud", "hold": "--hold", "override": "--override"}
 SWITCHES = {"strict": "--strict", "stream": "--stream"}
 ONE_JOB = {"trace": "--trace", "vcd": "--vcd", "report": "--report"}  # a file per run: one job file only
@@ -110,10 +113,9 @@ def child_flags(args) -> list[str]:
 
 def _child(argv: list[str], running: set) -> tuple[int, str, str, float]:
     """One child to its end: exit code (negative: the signal that killed it), stdout, stderr, wall seconds."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))}
     began = time.monotonic()
     with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                          text=True, errors="replace", env=env) as child:
+                          text=True, errors="replace") as child:
         running.add(child)
         try:
             out, err = child.communicate()
@@ -171,7 +173,7 @@ def jobs_of(args, several: bool) -> list[Job]:
 
 def verify_one(job: Job, flags: list[str], running: set) -> dict:
     """One job's case: verified as a flash image, or streamed where the flash image is too big."""
-    command = [sys.executable, "-m", "codegen", "verify", str(job.path), "--json", "--quiet", *flags]
+    command = [sys.executable, "-c", CHILD, str(ROOT), "verify", str(job.path), "--json", "--quiet", *flags]
     code, stdout, stderr, wall = _child(command + (["--out", str(job.out)] if job.out else []), running)
     note, stream = "", "--stream" in flags
     if code == 1 and not stream and _json(stdout) is None and TOO_BIG.search(stderr):

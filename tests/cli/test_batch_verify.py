@@ -3,6 +3,7 @@ over a folder of small jobs (never examples/printers: the Benchy takes minutes).
 
 import json
 import shutil
+import sys
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -145,3 +146,9 @@ def test_child_flags_read_back_as_given():
 def test_a_childs_end_makes_its_verdict(code, stdout, stderr, expected):
     status, kind, problems, _ = batch._verdict(code, stdout, stderr)
     assert (status, kind, problems[0] if problems else None) == expected
+
+
+def test_a_killed_child_is_a_failed_case_with_its_signal():
+    code, stdout, stderr, _ = batch._child(
+        [sys.executable, "-c", "import os, signal; print('{'); os.kill(os.getpid(), signal.SIGKILL)"], set())
+    assert batch._verdict(code, stdout, stderr)[:3] == ("FAIL", "crash", ["the child was killed by SIGKILL"])
