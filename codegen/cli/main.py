@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from codegen import __version__, progress
+from codegen.cli import batch as cli_batch
 from codegen.cli import config as cli_config
 from codegen.cli import flash as cli_flash
 from codegen.cli import stream as cli_stream
@@ -123,6 +124,9 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
+    if cli_batch.is_batch(args):  # several jobs, a folder, --jobs or --junit: codegen/cli/batch.py
+        return cli_batch.cmd_verify_many(args)
+    args.job = args.job[0]  # one job file: the single verify below
     if args.stream:
         host, result, trace, headline = cli_stream.verify_stream(args)
         return _conclude_verify(args, host, result, trace, headline)
@@ -253,7 +257,10 @@ def parser() -> argparse.ArgumentParser:
     ):
         v = verbs.add_parser(name, help=help_text)
         v.set_defaults(handler=handler)
-        v.add_argument("job", help="the job file (YAML)")
+        if name == "verify":  # several jobs or folders: codegen/cli/batch.py
+            v.add_argument("job", nargs="+", help="the job file (YAML); or several, and folders (see 'several jobs')")
+        else:
+            v.add_argument("job", help="the job file (YAML)")
         v.add_argument("--target", choices=("avr", "mcs51"), help="override the job's target")
         v.add_argument("--strict", action="store_true", help="G-code codes skipped with a warning are errors")
         if name in ("build", "verify"):
@@ -287,6 +294,7 @@ def parser() -> argparse.ArgumentParser:
                            help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
                                 "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "
                                 "(hotend, bed) defaults to the hot end, e.g. thermistor-open:bed@30")
+            cli_batch.add_options(v)
         if name == "plan":
             v.add_argument("--tables", help="write the table stream (codegen/tables/format.py) to this file as it is made")
     cli_tune.add_parser(verbs)
