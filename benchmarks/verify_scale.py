@@ -82,7 +82,8 @@ def measure(job: Path, out: Path) -> dict:
             role = "verb" if pid == proc.pid else "comparing" if "spawn_main" in command else kind(command)
             peaks[role] = max(peaks.get(role, 0), rss)
         peak_sum = max(peak_sum, sum(rss for _, rss, _ in sample.values()))
-        cpu.update({pid: (command, seconds) for pid, (command, _, seconds) in sample.items()})
+        cpu.update({pid: (command or cpu.get(pid, ("", 0.0))[0], seconds)  # a process that has just ended has
+                    for pid, (command, _, seconds) in sample.items()})      # no command line any more
         time.sleep(0.1)
     wall = time.perf_counter() - began
     result = json.loads(proc.stdout.read() or "{}")
