@@ -107,7 +107,7 @@ def test_verify_fails_a_pwm_that_differs_from_the_tables(tmp_path, monkeypatch, 
     import codegen.verify.laser as verify_laser
 
     real = verify_laser.played_counts
-    monkeypatch.setattr(verify_laser, "played_counts", lambda schedule: np.roll(real(schedule), 1))
+    monkeypatch.setattr(verify_laser, "played_counts", lambda schedule, before=0: np.roll(real(schedule, before), 1))
     code = main(["verify", str(POWER_JOB), "--json", "--out", str(tmp_path)])
     result = json.loads(capsys.readouterr().out)
     assert code == 1
