@@ -17,6 +17,18 @@ import pytest
 
 from tests.helpers import EXAMPLES, streamed
 
+# Modules whose tests take 10 s and more each (simulated streams, the 8051's holds, every example end to end): run
+# first, so that the two workers do not end on one of them while the other waits (pytest-xdist worksteal).
+SLOW_FIRST = ("tests/verify/test_stream_examples.py", "tests/firmware/mcs51/test_stream_iram.py",
+              "tests/cli/test_end_to_end.py", "tests/verify/test_hold_mcs51.py",
+              "tests/verify/test_hold_mcs51_stream.py", "tests/report/test_html.py", "tests/pipeline/test_properties.py",
+              "tests/tables/test_hold.py", "tests/verify/test_bounded.py", "tests/verify/test_pins.py")
+
+
+def pytest_collection_modifyitems(items: list) -> None:
+    rank = {name: k for k, name in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))  # stable: the rest as collected
+
 
 @pytest.fixture(scope="session")
 def planned_example():
