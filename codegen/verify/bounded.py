@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 
 from codegen import progress
+from codegen.errors import BuildError
 from codegen.firmware.homing import homing_ticks_bound
 from codegen.pipeline.host import HostBuild, host_build
 from codegen.sim.avr import SimTrace, simulate, switch_thresholds
@@ -136,7 +137,7 @@ class ComparingProcess:
 
         self._process.join()
         if kind == "error":
-            raise RuntimeError(f"the comparison failed:\n{value}")
+            raise BuildError(f"verify's comparing process failed (a bug of printer-codegen: please report it):\n{value}")
         return value
 
     def stop(self) -> None:
