@@ -36,13 +36,14 @@ class KeptRun:
     compare again)."""
 
     kept: dict = {}
+    folder: Path | None = None  # where the copy goes (the fixture's temporary folder)
 
     def __init__(self, host, strict, link, edges, switches, streamed):
         self.args, self.edges = (host, strict, link, switches, streamed), edges
 
     def result(self, end_trace):
         host, strict, link, switches, streamed = self.args
-        copy = Path(tempfile.mkdtemp(prefix="kept-run-")) / "edges.bin"
+        copy = KeptRun.folder / "edges.bin"
         shutil.copy(self.edges, copy)
         KeptRun.kept.update(args=self.args, edges=copy, end=end_trace)
         return compare_run(host, strict, link, copy, lambda: True, lambda: end_trace, switches, streamed)
@@ -56,6 +57,7 @@ def session(tmp_path_factory):
     """The Benchy's start and first layer, streamed with its heaters: verify's result (bounded, kept) and the host
     build of a whole comparison's."""
     folder = tmp_path_factory.mktemp("bounded")
+    KeptRun.folder = folder
     lines = GCODE.read_text().splitlines(keepends=True)
     changes = [i for i, line in enumerate(lines) if line.startswith(";LAYER_CHANGE")]
     (folder / "one-layer.gcode").write_text("".join(lines[:changes[1]]))
