@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import math
 
+import codegen.gcode.mcodes as mcodes
 from codegen.errors import Diagnostic, SourceRef
-from codegen.gcode import mcodes
 from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
                                  code_name, group_of, harmless_reason)
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState

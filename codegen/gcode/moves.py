@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from codegen.gcode import arcs
+import codegen.gcode.arcs as arcs
 from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
 from codegen.gcode.fast import RUN
 from codegen.toolpath.items import Arc, Home, Lines
