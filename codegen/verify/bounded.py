@@ -29,8 +29,8 @@ from codegen.sim.avr import SimTrace, simulate, switch_thresholds
 from codegen.sim.avr_plant import HeaterRun, simulate_heaters
 from codegen.verify.chapters import CHAPTER_PULSES, Chapter, Chapters, RuntimeTimeline
 from codegen.verify.compare import Comparison, Verdict, simulated_switches
-from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, _table_start_s, heater_figures,
-                                    job_plants, trip_result, with_holds)
+from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, job_plants,
+                                    table_start_s, trip_result, with_holds)
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 
@@ -165,7 +165,7 @@ def heater_verdict(host: HostBuild, run: HeaterRun, compared: Compared, image, f
     else:
         waits = compared.timeline.tick[compared.timeline.waits()]
         result = with_holds(verify_json(host, compared.verdict, image), run, waits)
-    start = _table_start_s(run.steps, compared.first_run_cycle)
+    start = table_start_s(run.steps, compared.first_run_cycle)
     result.update(heater_figures(host, run, compared.timeline, start))
     result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
     return result

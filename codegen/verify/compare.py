@@ -130,26 +130,23 @@ class Comparison:
         host, twin, names = self.host, chapter.pulses, self.host.kin.motors
         sim_s = (clock - self.tick0) / self.f_cpu
         twin_s = twin.tick / host.target.tick_hz
-        matched = self.paired
+        matched, counts_agree = self.paired, True
         limit = MAX_TIMING_ERROR_US + host.target.isr_latency_us
         for m, name in enumerate(names):
             mine, theirs = sim.motor == m, twin.motor == m
             got, want = int(mine.sum()), int(theirs.sum())
-            if self._prefix(m, sim_s[mine], sim.dir[mine], twin_s[theirs], twin.dir[theirs]):
-                matched = False
-            if matched and got == want:
-                err = np.abs(sim_s[mine] - twin_s[theirs]) * 1e6
-                if len(err) and err.max() > self.timing[m]:
-                    self.timing[m] = float(err.max())
-                    if self.timing[m] > limit:
-                        self.problems.append(f"motor {name}: step {int(self.made[m] + np.argmax(err))} comes "
-                                             f"{self.timing[m]:.2f} us away from its predicted time (limit "
-                                             f"{limit:.2f} us: {MAX_TIMING_ERROR_US} us beyond the player's "
-                                             f"latency)")
+            counts_agree = counts_agree and got == want
+            err, wrong = self._pair(m, sim_s[mine], sim.dir[mine], twin_s[theirs], twin.dir[theirs])
+            matched = matched and not wrong
+            if matched and got == want and len(err) and err.max() > self.timing[m]:
+                self.timing[m] = float(err.max())
+                if self.timing[m] > limit:
+                    self.problems.append(f"motor {name}: step {int(self.made[m] + np.argmax(err))} comes "
+                                         f"{self.timing[m]:.2f} us away from its predicted time (limit "
+                                         f"{limit:.2f} us: {MAX_TIMING_ERROR_US} us beyond the player's latency)")
             self.made[m] += got
             self.predicted[m] += want
-        self.paired = self.paired and all(int((sim.motor == m).sum()) == int((twin.motor == m).sum())
-                                          for m in range(len(names)))
+        self.paired = self.paired and counts_agree
         matched = matched and self.paired
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
@@ -161,20 +158,21 @@ class Comparison:
             self.span_cycles = [self.span_cycles[0] if self.span_cycles else int(sim.cycle[0]), int(sim.cycle[-1])]
         self._motion(chapter, sim, sim_s, matched)
 
-    def _prefix(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
-                twin_dir: np.ndarray) -> bool:
+    def _pair(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
+              twin_dir: np.ndarray) -> tuple[np.ndarray, bool]:
         """Motor m's simulated pulses against the twin's first as many (all of a paired chapter's; what a run the
-        heaters' protection stopped made before the trip: trip_figures); whether a direction differs."""
+        heaters' protection stopped made before the trip: trip_figures): each pair's timing error (us), and
+        whether a direction differs. Nothing once an earlier chapter's counts disagreed."""
         n = min(len(sim_s), len(twin_s))
         if not n or not self.paired:
-            return False
-        worst = float(np.abs(sim_s[:n] - twin_s[:n]).max() * 1e6)
-        self.prefix_timing[m] = max(self.prefix_timing[m] or 0.0, worst)
+            return np.zeros(0), False
+        err = np.abs(sim_s[:n] - twin_s[:n]) * 1e6
+        self.prefix_timing[m] = max(self.prefix_timing[m] or 0.0, float(err.max()))
         wrong = np.flatnonzero(sim_dir[:n] != twin_dir[:n])
         if len(wrong):
             first, count = self.wrong_dir[m] or (int(self.made[m] + wrong[0]), 0)
             self.wrong_dir[m] = (first, count + len(wrong))
-        return bool(len(wrong))
+        return err, bool(len(wrong))
 
     def extra(self, sim: Steps) -> None:
         """Simulated pulses after the twin's last chapter: counted (the twin predicted none)."""

@@ -120,7 +120,7 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
     timeline = host_timeline(host)
     waits = timeline.tick[timeline.waits()]
     run_cycles = run.steps.run_only().step_cycle
-    table_start_s = _table_start_s(run.steps, int(run_cycles[0]) if len(run_cycles) else None)
+    start_s = table_start_s(run.steps, int(run_cycles[0]) if len(run_cycles) else None)
     simulated = HeatedTrace(**vars(run.steps), plants=run.heaters)  # on the simulated clock, holds in it
     run.steps = on_twin_clock(run.steps, waits, cycles_per_tick)
     if run.trip is not None:
@@ -129,7 +129,7 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
         result = trip_result(host, run, image, motors, problems, span, planned_stepping_s(host))
     else:
         result = with_holds(verify_json(host, compare(host, run.steps, switches, streamed), image), run, waits)
-    result.update(heater_figures(host, run, timeline, table_start_s))
+    result.update(heater_figures(host, run, timeline, start_s))
     result["faults"] = [{"name": f.kind, "heater": f.heater, "at_s": f.at_s} for f in faults]
     return result, simulated
 
@@ -148,13 +148,13 @@ def with_holds(result: dict, run: HeaterRun, waits: np.ndarray) -> dict:
     return result
 
 
-def heater_figures(host: HostBuild, run: HeaterRun, timeline: RuntimeTimeline, table_start_s: float | None) -> dict:
+def heater_figures(host: HostBuild, run: HeaterRun, timeline: RuntimeTimeline, start_s: float | None) -> dict:
     """verify's `holds`, `heaters`, `table_start_s` and `fan` of a run with heaters (its clock: the player's starts
     in run.steps; `timeline`: the tables' runtime records on the twin's clock)."""
     cycles_per_tick = run.steps.f_cpu // host.target.tick_hz
     return {"holds": holds(run.steps, timeline, cycles_per_tick),
             "heaters": {h.name: _figures(run, h, timeline, cycles_per_tick) for h in host.firmware_config().heaters},
-            "table_start_s": table_start_s,
+            "table_start_s": start_s,
             "fan": [{"at_s": round(float(t), 3), "duty": round(float(d), 4)} for t, d in run.fan[1:]]}
 
 
@@ -202,7 +202,7 @@ def hold_lines(result: dict) -> list[str]:
             for h in result.get("holds", [])]
 
 
-def _table_start_s(trace, first_step_cycle: int | None) -> float | None:
+def table_start_s(trace, first_step_cycle: int | None) -> float | None:
     """When the table's first step's tick 0 came (simulated s): the player's start, or the resume after the waits
     before its first step (`first_step_cycle`, as simulated; None: it made none)."""
     if trace.timer_start_cycle is None:
