@@ -135,7 +135,7 @@ def cmd_stream(args) -> int:
         plan = host.link_plan
         chunks = stream_chunks(table.read(), motors)
         link = HostLink(chunks, motors, setup.identity, 10 / setup.layout.baud, plan.prefill_bytes,
-                        payload=setup.budget.payload, stream_bytes=plan.stream_bytes,
+                        payload=setup.budget.payload, ping_s=setup.budget.ping_s, stream_bytes=plan.stream_bytes,
                         answer_within_s=serial_port.BOOT_S, latency_s=serial_port.LATENCY_S,
                         heaters=tuple(h.name for h in setup.config.heaters),
                         laser_top=setup.config.laser.top if setup.config.laser else 0)

@@ -18,7 +18,7 @@ within `ack_timeout_s` of a frame's last byte, sends every frame in flight again
 (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame) every `ping_s`, and
 never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow line), for a fresh ACK;
 a firmware that sends window updates (an ACK unasked once its ring has room for a DATA frame again, after an ACK
-that said it had not: the 8051's) leaves the pings a fallback. `refill_byte_times` says how late the host starts to
+that said it had not: both targets') leaves the pings a fallback (LinkBudget.ping_s: rarer). `refill_byte_times` says how late the host starts to
 refill a ring that was full, either way (the plan counts on it: codegen/link/ring.py).
 Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
 """

@@ -26,13 +26,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from codegen.link import protocol
-from codegen.link.host import refill_byte_times
+from codegen.link.host import PING_S, refill_byte_times
 from codegen.tables.format import end_marker
 
 RATE_MARGIN = 0.97  # of the link's stream bytes per second the plan counts on
 PAYLOAD_SHARE = 8  # DATA frames carry at most an eighth of the ring
 PREFILL_MARGIN = 2  # frames sent before START beyond what the plan needs
 MIN_PAYLOAD = 8  # DATA bytes a frame carries at the least (a 64-byte ring: an eighth)
+UPDATES_LOST_PING_S = 0.1  # the host's pings where the firmware sends window updates: a fallback for a lost one
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,12 @@ class LinkBudget:
     def rate(self) -> float:
         """Stream bytes per second the plan counts on: 10 bits a byte, a frame's overhead, a margin."""
         return self.baud / 10 * self.payload / (self.payload + protocol.OVERHEAD_BYTES) * RATE_MARGIN
+
+    @property
+    def ping_s(self) -> float:
+        """How long the host, blocked on credit, waits before it pings for a fresh ACK: with window updates only
+        in case one was lost on the line (the firmware's ACK comes first), else its ordinary interval."""
+        return UPDATES_LOST_PING_S if self.window_updates else PING_S
 
     @property
     def refill_latency_s(self) -> float:

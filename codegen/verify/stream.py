@@ -65,7 +65,7 @@ def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
     """The host's side of a simulated session: the job's table stream, as `stream` sends it."""
     data = tables.encode(host.schedule).data
     return HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
-                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload, ping_s=setup.budget.ping_s,
                     stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in setup.config.heaters))
 
 
@@ -118,7 +118,7 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     config = setup.config
     motors = len(host.kin.motors)
     link = HostLink(file_chunks(table, motors), motors, setup.identity, 10 / setup.layout.baud,
-                    host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    host.link_plan.prefill_bytes, payload=setup.budget.payload, ping_s=setup.budget.ping_s,
                     stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in config.heaters))
     switches = simulated_switches(host)
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)

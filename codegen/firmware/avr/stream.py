@@ -21,6 +21,7 @@ from codegen.firmware.avr.toolchain import run_avr
 from codegen.firmware.config import FirmwareConfig, Image, load_target
 from codegen.firmware.render import render
 from codegen.link import protocol
+from codegen.link.ring import link_budget
 
 MCU = "atmega2560"
 MAX_BAUD_ERROR = 0.02
@@ -48,6 +49,7 @@ JOG_PER_MOTOR = 4  # jog.c's position count (int32) per jogged motor
 HEATER_VARIABLES, RAM_PER_HEATER = 14, 79  # 79: CONFIG 41 (.rodata is in RAM), state 32, reading 2, report 4
 HEATER_CONFIG_BYTES = 41  # in .data, which the linker pads to an even length
 CRC_LINE_BYTES = 16
+WINDOW_UPDATES = True  # player_run ACKs unasked once the ring has room for a DATA frame again (link_tx.S: link_window)
 STATE_NAMES = {"idle": "STATE_IDLE", "homing": "STATE_HOMING", "playing": "STATE_PLAYING",
                "finished": "STATE_FINISHED", "underrun": "STATE_UNDERRUN", "aborted": "STATE_ABORTED",
                "homing failed": "STATE_HOMING_FAILED", "fault": "STATE_FAULT"}
@@ -158,6 +160,7 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
         "ring_end": RING_END, "position_bias": POSITION_BIAS, "message_max": protocol.MAX_ANSWER,
         "ident_payload": IDENT_PAYLOAD,
         "status_payload": status_payload,
+        "data_payload": link_budget(layout.baud, layout.ring_bytes, len(config.motors)).payload,
         "need_bits": ", ".join(str(m["need_bit"]) for m in context["motors"]),
         "callee_saved": CALLEE_SAVED, "crc_hi": crc_hi, "crc_lo": crc_lo,
     })

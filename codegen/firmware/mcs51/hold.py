@@ -25,6 +25,7 @@ from codegen.tables.schedule import FRAC_BITS
 HOLD_KEYS = ("hold", "resume", "feed-", "feed+")  # in the order of their bits in hold.c
 DEBOUNCE_MS = 20  # as the AVR's (codegen/firmware/avr/hold.py): presses closer than this count once
 TH1_TICKS = 256  # Timer1's high byte counts this many machine cycles
+POLL_MS = 2  # main looks at the keys this often (each look drives the matrix rows: no faster than a person needs)
 
 
 def hold_context(config: FirmwareConfig, board: dict, parse_pin, stop_ticks: int, tick_hz: int,
@@ -46,7 +47,8 @@ def hold_context(config: FirmwareConfig, board: dict, parse_pin, stop_ticks: int
         "targets": [override_target(s) for s in range(plan.max_step + 1)],
         "runtime_flags": RUNTIME_FLAGS, "runtime_bytes": RUNTIME_BYTES, "override_steps": plan.max_step,
         "start_step": start, "start_target": override_target(start),
-        "debounce_ms": DEBOUNCE_MS, "debounce_units": -(-DEBOUNCE_MS * tick_hz // (1000 * TH1_TICKS))}}
+        "debounce_ms": DEBOUNCE_MS, "debounce_units": -(-DEBOUNCE_MS * tick_hz // (1000 * TH1_TICKS)),
+        "poll_ms": POLL_MS, "poll_units": -(-POLL_MS * tick_hz // (1000 * TH1_TICKS))}}
 
 
 def _scans(config: FirmwareConfig, board: dict, parse_pin, plan) -> list[dict]:

@@ -34,6 +34,10 @@ NUMBER_COLUMNS = 6
 MAX_MOTORS = 4
 POSITION_MIN, POSITION_MAX = -32768, 32767  # the firmware's signed 16-bit step counters
 WAIT_UNIT = 10  # machine cycles per unit of the driver's busy wait (lcd_wait)
+# While the job plays, main refreshes the positions at most this often: 20 a second is more than an eye reads, and
+# a refresh (seven writes a motor) keeps main from its other work (keys, the link's answers) for milliseconds.
+REFRESH_MS = 50
+TH1_TICKS = 256  # machine cycles per count of Timer1's high byte, the refresh's clock
 # The driver's waits: name -> (microseconds, why). The HD44780U's execution times are for its oscillator at
 # 270 kHz; it may run as slow as 190 kHz (times x 1.42), hence the margins.
 WAITS = {
@@ -167,7 +171,17 @@ class Lcd:
             "number_columns": NUMBER_COLUMNS, "wait_unit": WAIT_UNIT, "waits": waits,
             "init_ms": sum(us for name, (us, _) in WAITS.items() if name != "EXECUTE") // 1000,
             "show_us": (1 + NUMBER_COLUMNS) * WAITS["EXECUTE"][0],
+            "refresh_ms": REFRESH_MS, "refresh_units": refresh_units(tick_hz),
         }}
+
+
+def refresh_units(tick_hz: int) -> int:
+    """REFRESH_MS in counts of Timer1's high byte at `tick_hz` machine cycles a second (a byte: at most 255)."""
+    units = -(-REFRESH_MS * tick_hz // (1000 * TH1_TICKS))
+    if units > 255:
+        raise BuildError(f"a display refresh every {REFRESH_MS} ms takes {units} counts of Timer1's high byte at "
+                         f"{tick_hz} machine cycles a second: more than a byte holds")
+    return units
 
 
 def board_lcd(board: str, motor_names: Sequence[str]) -> Lcd | None:

@@ -18,10 +18,11 @@ from codegen.firmware.config import FirmwareConfig, MotorPins
 from codegen.link import protocol
 from codegen.link.faults import Faulty, LineFaults
 from codegen.link.host import HostLink
+from codegen.link.ring import link_budget
 from codegen.program.homing import HomingAxis
 from codegen.sim.avr_link import StreamSim, simulate_stream
 from codegen.tables.twin import predict
-from tests.firmware.avr.helpers import (BLOCKS, BUDGET, BYTE_S, CYCLES, F_CPU, MAX_LATE, RUNS, TICK_HZ, Scripted,
+from tests.firmware.avr.helpers import (BAUD, BLOCKS, BUDGET, BYTE_S, CYCLES, F_CPU, MAX_LATE, RUNS, TICK_HZ, Scripted,
                                         check_pulses, cut, make_schedule)
 
 
@@ -211,6 +212,33 @@ def test_a_switch_that_never_closes_ends_in_homing_failed(homing_image):
     assert host.outcome == "homing failed" and "0x12" in host.message
     assert trace.homing_failed and "motor y (switch y_min)" in trace.homing_fault
     assert trace.timer_start_cycle is None and int((trace.step_motor == 1).sum()) == 400
+
+
+def test_window_updates_spare_the_host_its_pings(images, tmp_path):
+    """The player takes 6 bytes every 2-2.5 ms, a tenth of what the link carries: the ring fills and the host, blocked
+    on credit, waits. player_run's window update (link_window: an ACK unasked once the player has made room for a
+    DATA frame) brings the next frame long before the host's fallback ping (budget.ping_s) would: no ping. The same
+    firmware without them leaves the host waiting for its pings."""
+    cfg, image = CONFIGS["x"], images["x"]
+    sources = render_stream_sources(cfg)
+    call = "    rcall link_window ; room for a DATA frame again: an ACK unasked (link_tx.S)\n"
+    assert sources["player_isr.S"].count(call) == 1
+    sources["player_isr.S"] = sources["player_isr.S"].replace(call, "")
+    without = build_stream_image(sources, tmp_path)
+    without.identity = image.identity
+    schedule = long_schedule(("x",), events=3000, gap_ticks=(4000, 5000))
+    budget = link_budget(BAUD, image.ring_bytes, 1, window_updates=True)  # as streaming.py makes it
+    assert len(stream_of(schedule)) > 2 * image.ring_bytes and budget.payload == 128
+    pings = []
+    for hex_path in (image.hex_path, without.hex_path):
+        data = stream_of(schedule)
+        host = HostLink([data], 1, image.identity, BYTE_S, 2000, payload=budget.payload, ping_s=budget.ping_s)
+        trace, link = simulate_stream(hex_path, cfg, host, BUDGET)
+        assert host.outcome == "finished", host.message
+        check_pulses(schedule, trace)
+        assert link.lost_bytes == 0 and link.underruns == 0
+        pings.append(host.stats.pings)
+    assert pings[0] == 0 and pings[1] >= 20, pings
 
 
 def test_build_reports_the_ring_and_every_byte(images):
