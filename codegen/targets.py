@@ -60,12 +60,13 @@ class TargetInfo:
 
     def pulse_jitter_s(self, heaters: bool = False) -> float:
         """How much earlier than its tick + the constant latency a pulse may come against the one before: the
-        latency's spread (a link interrupt in the way), a heater stage's check (heater_check_cycles) where
-        heaters run, and the measurements' +-2 cycles. Eight steps may be this much closer than planned."""
+        latency's spread (a link interrupt in the way, a hold poll), then main's longest stretch with interrupts
+        off (a heater stage's check where heaters run, heater_check_cycles; the link's answers, main_cli_cycles),
+        and the measurements' +-2 cycles. Eight steps may be this much closer than planned."""
         latency = int(self.mcu_data.get("isr_latency_cycles", 0))
         spread = latency - int(self.mcu_data.get("isr_latency_min_cycles", latency))
         hook = int(self.mcu_data.get("heater_check_cycles", 0)) if heaters else 0
-        return (spread + hook + 4) / self.f_cpu
+        return (spread + max(hook, int(self.mcu_data.get("main_cli_cycles", 0))) + 4) / self.f_cpu
 
     @property
     def isr_latency_us(self) -> float:

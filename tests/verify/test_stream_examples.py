@@ -61,8 +61,9 @@ def first_layers(gcode: str, layers: int) -> str:
 
 @needs_avr
 def test_the_laser_engravings_first_strokes_stream_to_ramps(tmp_path, capsys):
-    """The engraving's first 900 lines (its first strokes, 13 minutes of engraving, 180 KB of stream: 23 rings;
-    the whole engraving is 50 minutes, examples/gcode/laser-hiking.yaml)."""
+    """The engraving's first 900 lines (its first strokes, 13 minutes of engraving, 29 KB on the line: the ring
+    filled almost four times; the whole engraving is 50 minutes, examples/gcode/laser-hiking.yaml). The firmware's
+    window updates spare the host its pings (without them: 182 KB in 28,465 frames)."""
     gcode = (ROOT / "tests" / "data" / "gcode" / "laser" / "hiking.gcode").read_text().splitlines(keepends=True)
     (tmp_path / "hiking-part.gcode").write_text("".join(gcode[:900]))
     job, replaced = re.subn(r"(?m)^  gcode: .*$", "  gcode: hiking-part.gcode", LASER.read_text())
@@ -72,7 +73,7 @@ def test_the_laser_engravings_first_strokes_stream_to_ramps(tmp_path, capsys):
     assert_streamed_as_planned(result, baud=250_000)
     assert result["image"]["table_bytes"] == 0  # the program came over the line, none of it in flash
     ring = json.loads((tmp_path / "out" / "report.json").read_text())["link"]["ring_bytes"]
-    assert result["link"]["bytes"] > 8 * ring
+    assert 3 * ring < result["link"]["bytes"] < 4 * ring
     assert result["laser"]["max_power_error_pct"] <= 1.0
     assert (tmp_path / "out" / "firmware.hex").is_file()
 

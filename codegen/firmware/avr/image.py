@@ -22,6 +22,7 @@ from codegen.firmware.avr.board import board_pins
 from codegen.firmware.avr.heaters import heaters_context
 from codegen.firmware.avr.hold import hold_context
 from codegen.firmware.avr.homing import homing_context
+from codegen.firmware.avr.interrupts_off import check_interrupts_off
 from codegen.firmware.avr.jog import jog_context
 from codegen.firmware.avr.laser import laser_context
 from codegen.firmware.avr.player import isr_context, table_chunks
@@ -69,7 +70,9 @@ def render_sources(schedule: Schedule, config: FirmwareConfig) -> dict[str, str]
     names += ("heaters.h", "heaters.c", "heaters_table.c", "heaters_hook.S") if config.heaters else ()
     names += ("laser.h",) if config.laser else ()
     names += ("jog.c",) if config.jog else ()
-    return {name: render(f"avr/{name}.j2", **context) for name in names}
+    sources = {name: render(f"avr/{name}.j2", **context) for name in names}
+    check_interrupts_off(sources, config, stream=False)
+    return sources
 
 
 def player_context(config: FirmwareConfig, stream: bool) -> dict:

@@ -16,6 +16,7 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.firmware.avr.hold import HOLD_STREAM_VARIABLES, HOLD_VARIABLES
 from codegen.firmware.avr.image import build_image, player_context
+from codegen.firmware.avr.interrupts_off import check_interrupts_off
 from codegen.firmware.avr.laser import LASER_HOLD_VARIABLES, LASER_VARIABLES
 from codegen.firmware.avr.toolchain import run_avr
 from codegen.firmware.config import FirmwareConfig, Image, load_target
@@ -167,7 +168,9 @@ def render_stream_sources(config: FirmwareConfig) -> dict[str, str]:
     names = STREAM_NAMES + (("homing.c",) if config.homing else ()) + (HEATER_NAMES if config.heaters else ())
     names += ("laser.h",) if config.laser else ()
     names += ("jog.c",) if config.jog else ()
-    return {name: render(f"avr/{name}.j2", **context) for name in names}
+    sources = {name: render(f"avr/{name}.j2", **context) for name in names}
+    check_interrupts_off(sources, config, stream=True)
+    return sources
 
 
 def build_stream_image(sources: dict[str, str], out_dir: Path) -> StreamImage:
