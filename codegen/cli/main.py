@@ -29,6 +29,7 @@ from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify.hold import hold_lines, hold_verify, pauses
 from codegen.verify.results import verify_json
+from codegen.verify.shipped import shipped_problems
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -135,7 +136,8 @@ def cmd_verify(args) -> int:
         host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables")
         result, trace = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
                                      args.strict)
-        return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
+        return _conclude_verify(args, host, _shipped(host, image, result), trace,
+                                _verify_headline(host, result, out_dir))
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
     if args.hold is not None or args.override is not None or pauses(host):
@@ -148,7 +150,15 @@ def cmd_verify(args) -> int:
         switches = simulated_switches(host)
         trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
         result = verify_json(host, compare(host, trace, switches), image)
-    return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
+    return _conclude_verify(args, host, _shipped(host, image, result), trace, _verify_headline(host, result, out_dir))
+
+
+def _shipped(host: HostBuild, image, result: dict) -> dict:
+    """verify's result, failed where the image's table is not the schedule the twin played."""
+    problems = shipped_problems(image, host.target.target, host.schedule)
+    if problems:
+        result.update({"pass": False, "problems": problems + result["problems"]})
+    return result
 
 
 def _verify_headline(host: HostBuild, result: dict, out_dir: Path) -> list[str]:

@@ -41,7 +41,8 @@ def test_a_tool_two_steps_off_the_path_is_reported(star_host):
 
 def test_steps_too_close_together_exceed_the_rate(star_host):
     h = star_host
-    trains = trains_from(h.pulses.tick / h.target.tick_hz * 0.9, h.pulses.motor, h.pulses.dir, 2)  # 11 % faster
+    faster = max(h.findings.rate_ratio.values()) / 1.1  # 10 % over the fastest motor's limit
+    trains = trains_from(h.pulses.tick / h.target.tick_hz * faster, h.pulses.motor, h.pulses.dir, 2)
     found = judge(h, trains=trains)
     assert any("exceeds its rate over 8 steps" in p for p in found.problems)
 

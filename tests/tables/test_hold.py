@@ -54,8 +54,12 @@ def test_star_held_at_a_random_point_comes_to_rest_within_its_limits_and_ends_ex
     result, trace = hold_verify(host, image, at, None)
     assert result["pass"], result["problems"]
     hold = result["hold"]
-    # at rest no sooner than the ramp allows (0.253 s from 100 % to 0), and not much later (the braking it waited for)
-    assert hold["ramp_s"] - 0.001 < hold["stopping_s"] < hold["ramp_s"] + 0.15
+    # at rest (its last pulse) no sooner than the ramp allows (0.262 s from 100 % to 0; the last pulse may come a
+    # dilated gap, a few ms, before the factor reaches 0) unless the plan stops at a star's point meanwhile (its
+    # clock runs slower than the ramp's), and not much later (the braking it waited for)
+    stops = (host.plan.t_start + host.plan.duration)[host.plan.v_exit < 1e-9]
+    stops_anyway = np.any((stops > at) & (stops < at + hold["ramp_s"]))
+    assert (0 if stops_anyway else hold["ramp_s"] - 0.005) < hold["stopping_s"] < hold["ramp_s"] + 0.15
     assert hold["resume_s"] > hold["at_rest_s"]
     for name, motor in result["motors"].items():
         assert motor["final"] == motor["expected_final"]

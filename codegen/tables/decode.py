@@ -1,0 +1,158 @@
+"""The table stream read back, record by record, as a player reads it (the format: codegen/tables/format.py's
+docstring), and compared with the schedule the twin plays: so that verify proves the bytes an image ships, not
+only the schedule in memory. Written from the format's description, not from its encoder: a wrong encoder is found
+too. A loop per record (a flash table holds tens of thousands), none per step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from codegen.tables.format import block_fields
+from codegen.tables.schedule import Schedule
+
+LONG = 0x80
+RUNTIME = 0x90  # a long record with master bits 01
+TOOL = 0x40
+MOST_PROBLEMS = 5
+
+
+class TableError(ValueError):
+    """The bytes are not a table stream (cut short, a record no player reads)."""
+
+
+@dataclass
+class Decoded:
+    motors: int
+    flags: list[int] = field(default_factory=list)  # per block, as stored (LONG and master bits cleared)
+    modulus: list[int] = field(default_factory=list)
+    steps: list[list[int]] = field(default_factory=list)
+    init: list[list[int]] = field(default_factory=list)  # -1: not stored (a short record's master)
+    block_at: list[int] = field(default_factory=list)  # byte offset of each block record
+    runtime: list[tuple[int, int, int]] = field(default_factory=list)  # (command, value, the block it precedes)
+    runs: list[tuple[int, int, int]] = field(default_factory=list)  # (count, interval, add)
+    run_at: list[int] = field(default_factory=list)
+    power: dict[int, int] = field(default_factory=dict)  # run index -> PWM counts
+    ceiling: dict[int, int] = field(default_factory=dict)  # run index -> F
+    final_tool: bool = False
+
+
+def _u(data: bytes, at: int, width: int) -> int:
+    if at + width > len(data):
+        raise TableError(f"the table ends inside a record at byte {at}")
+    return int.from_bytes(data[at:at + width], "little")
+
+
+def _i(data: bytes, at: int, width: int) -> int:
+    value = _u(data, at, width)
+    return value - (1 << 8 * width) if value >> (8 * width - 1) else value
+
+
+def decode(data: bytes, motors: int) -> Decoded:
+    """Every record of `data` (a whole table stream, the end marker included), in the order a player reads them:
+    at an event that ends the block, its runtime records and the next block; at one that ends the run, a power
+    record, a ceiling record and the next run."""
+    out = Decoded(motors)
+    at = event = block_end = run_end = 0
+    while True:
+        if event == block_end:
+            while _u(data, at, 1) == RUNTIME:
+                out.runtime.append((_u(data, at + 1, 1), _u(data, at + 2, 2), len(out.modulus)))
+                at += 4
+            flags = _u(data, at, 1)
+            if flags & LONG:
+                modulus = _u(data, at + 1, 2)
+                steps = [_u(data, at + 3 + 2 * m, 2) for m in range(motors)]
+                init = [_u(data, at + 3 + 2 * (motors + m), 2) for m in range(motors)]
+                size = 3 + 4 * motors
+            else:
+                modulus = _u(data, at + 1, 1)
+                if modulus == 0:  # the end marker
+                    out.final_tool = bool(flags & TOOL)
+                    if at + 2 != len(data):
+                        raise TableError(f"{len(data) - at - 2} bytes after the end marker at byte {at}")
+                    return out
+                master = (flags >> 4) & 3
+                if master >= motors:
+                    raise TableError(f"block at byte {at}: master motor {master} of {motors}")
+                slaves = [m for m in range(motors) if m != master]
+                steps, init = [0] * motors, [-1] * motors
+                steps[master] = modulus
+                for k, m in enumerate(slaves):
+                    steps[m] = _u(data, at + 2 + k, 1)
+                    init[m] = _u(data, at + 2 + len(slaves) + k, 1)
+                size = 2 * motors
+            if modulus == 0:
+                raise TableError(f"block at byte {at}: a long record of modulus 0")
+            out.flags.append(flags & ~(LONG | 0x30))
+            out.modulus.append(modulus)
+            out.steps.append(steps)
+            out.init.append(init)
+            out.block_at.append(at)
+            at += size
+            block_end += modulus
+        if event == run_end:
+            if _u(data, at, 1) == 0 and _u(data, at + 1, 2) == 0:  # a power record for the next run
+                out.power[len(out.runs)] = _u(data, at + 3, 2)
+                at += 5
+            if _u(data, at, 1) == 0 and _u(data, at + 1, 2) == 0xFFFF:  # a ceiling record
+                out.ceiling[len(out.runs)] = _u(data, at + 3, 1)
+                at += 4
+            count = _u(data, at, 1)
+            out.run_at.append(at)
+            if count:
+                out.runs.append((count, _u(data, at + 1, 3), _i(data, at + 4, 2)))
+                at += 6
+            else:
+                count = _u(data, at + 1, 2)
+                if count == 0:
+                    raise TableError(f"run at byte {at}: a long run of count 0")
+                out.runs.append((count, _u(data, at + 3, 4), _i(data, at + 7, 3)))
+                at += 10
+            run_end += count
+        event = min(block_end, run_end)
+
+
+def differences(decoded: Decoded, schedule: Schedule) -> list[str]:
+    """Where the decoded table and the schedule differ (empty: they are the same program), the first few."""
+    problems: list[str] = []
+    modulus, steps, init = block_fields(schedule)
+    if len(decoded.modulus) != schedule.n_blocks or len(decoded.runs) != schedule.n_runs:
+        return [f"it holds {len(decoded.modulus)} blocks and {len(decoded.runs)} runs, the plan "
+                f"{schedule.n_blocks} and {schedule.n_runs}"]
+    got_init = np.array(decoded.init, dtype=np.int64).reshape(-1, decoded.motors)
+    block_checks = {
+        "flags (directions, tool)": (np.array(decoded.flags, dtype=np.int64), schedule.block_flags()),
+        "modulus": (np.array(decoded.modulus, dtype=np.int64), modulus),
+        "steps": (np.array(decoded.steps, dtype=np.int64).reshape(-1, decoded.motors), steps),
+        "Bresenham start": (got_init, np.where(got_init < 0, -1, init)),
+    }
+    for what, (got, planned) in block_checks.items():
+        wrong = np.flatnonzero((got != planned).reshape(len(got), -1).any(axis=1))
+        problems += [f"block {k} (byte {decoded.block_at[k]}): {what} {got[k].tolist()}, planned "
+                     f"{planned[k].tolist()}" for k in wrong[:MOST_PROBLEMS]]
+    runs = np.array(decoded.runs, dtype=np.int64).reshape(-1, 3)
+    planned = np.stack([schedule.run_count, schedule.run_interval, schedule.run_add], axis=1)
+    for k in np.flatnonzero((runs != planned).any(axis=1))[:MOST_PROBLEMS]:
+        problems.append(f"run {k} (byte {decoded.run_at[k]}): count, interval, add {runs[k].tolist()}, planned "
+                        f"{planned[k].tolist()}")
+    for name, got_map, column in (("power", decoded.power, schedule.run_power),
+                                  ("ceiling", decoded.ceiling, schedule.run_ceiling)):
+        want = {int(k): int(v) for k, v in enumerate(column) if v >= 0} if len(column) else {}
+        if got_map != want:
+            first = min(set(got_map.items()) ^ set(want.items()))[0]
+            problems.append(f"run {first}: {name} {got_map.get(first)}, planned {want.get(first)}")
+    runtime = [(int(c), int(v), int(b)) for c, v, b in zip(schedule.runtime_command, schedule.runtime_value,
+                                                           schedule.runtime_block)]
+    if decoded.runtime != runtime:
+        k = next((k for k, (a, b) in enumerate(zip(decoded.runtime, runtime)) if a != b),
+                 min(len(decoded.runtime), len(runtime)))
+        problems.append(f"runtime record {k} (command, value, block): "
+                        f"{decoded.runtime[k] if k < len(decoded.runtime) else None}, planned "
+                        f"{runtime[k] if k < len(runtime) else None}")
+    if decoded.final_tool != schedule.final_tool:
+        problems.append(f"the end marker leaves the tool {'on' if decoded.final_tool else 'off'}, planned "
+                        f"{'on' if schedule.final_tool else 'off'}")
+    return problems
