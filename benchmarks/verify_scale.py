@@ -1,6 +1,6 @@
 """Benchmark: `verify --stream` of a real print at scale, in bounded memory (codegen/verify/bounded.py).
 
-    python benchmarks/verify_scale.py [--job JOB.yaml] [--copies N] [--both]
+    python benchmarks/verify_scale.py [--job JOB.yaml] [--gcode FILE] [--copies N] [--both]
 
 Runs `printer-codegen verify JOB --stream --json` (default: the PrusaSlicer Benchy on the Prusa MINI,
 examples/printers/benchy-mini.yaml, heaters on) as a child process and samples every process of its tree from
@@ -9,8 +9,10 @@ memory (the largest process: what `/usr/bin/time -f %M` reports; and the largest
 sample), and where the CPU time went: the simulator (the simavr harness) and Python (the verb's process and its
 comparing process), with the rest (the compiler, the G-code reader's process).
 
-`--copies N` verifies the job's G-code N times over (G92 E0 between copies: a print N times as long) as well, so
-that the memory can be compared: it must not grow with the print. `--both` runs the job and its copies.
+`--gcode FILE` runs the job's machine with another program (the slicer set: ../shared/gcode/slicer, copied in
+tests/data/gcode/slicer). `--copies N` verifies the job's G-code N times over (G92 E0 between copies: a print N
+times as long) as well, so that the memory can be compared: it must not grow with the print. `--both` runs the job
+and its copies.
 """
 
 from __future__ import annotations
@@ -97,6 +99,16 @@ def measure(job: Path, out: Path) -> dict:
             "peaks": peaks, "others": others}
 
 
+def with_gcode(job: Path, gcode: Path, folder: Path) -> Path:
+    """The job's machine with another G-code file (e.g. the ArcWelder Benchy: an 11.5-hour print)."""
+    text = job.read_text()
+    name = f"{re.search(r'(?m)^name: (.*)$', text).group(1).strip()}-{gcode.stem}"
+    other = folder / f"{name}.yaml"
+    other.write_text(re.sub(r"(?m)^  gcode: .*$", f"  gcode: {gcode.resolve()}", text)
+                     .replace(re.search(r"(?m)^name: .*$", text).group(0), f"name: {name}"))
+    return other
+
+
 def copies(job: Path, n: int, folder: Path) -> Path:
     """The job with its G-code n times over, G92 E0 between the copies."""
     text = job.read_text()
@@ -136,8 +148,12 @@ def main() -> None:
     parser.add_argument("--job", type=Path, default=JOB)
     parser.add_argument("--copies", type=int, default=3)
     parser.add_argument("--both", action="store_true", help="the job, then its copies")
+    parser.add_argument("--gcode", type=Path, help="the job's machine with this G-code instead (e.g. "
+                        "tests/data/gcode/slicer/benchy-arcs-arcwelder.gcode)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="verify-scale-") as tmp:
+        if args.gcode:
+            args.job = with_gcode(args.job, args.gcode, Path(tmp))
         once = measure(args.job, Path(tmp) / "once")
         report(args.job.name, once)
         if args.both:

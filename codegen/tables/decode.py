@@ -130,7 +130,8 @@ def differences(decoded: Decoded, schedule: Schedule) -> list[str]:
         "Bresenham start": (got_init, np.where(got_init < 0, -1, init)),
     }
     for what, (got, planned) in block_checks.items():
-        wrong = np.flatnonzero((got != planned).reshape(len(got), -1).any(axis=1))
+        differ = np.asarray(got != planned)
+        wrong = np.flatnonzero(differ.reshape(len(got), -1).any(axis=1)) if len(got) else []
         problems += [f"block {k} (byte {decoded.block_at[k]}): {what} {got[k].tolist()}, planned "
                      f"{planned[k].tolist()}" for k in wrong[:MOST_PROBLEMS]]
     runs = np.array(decoded.runs, dtype=np.int64).reshape(-1, 3)

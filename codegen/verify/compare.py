@@ -40,7 +40,7 @@ def homing_report(host: HostBuild, trace, switches: dict[int, int | None]) -> tu
     """Homing steps per motor against what the switch positions imply: per axis that moves it, fast + back
     off + slow approach steps, ending at the switch (a corexy's belts home in x and again in y). A switch at
     None never closes."""
-    problems = [f"homing failed: {trace.homing_fault}"] if trace.homing_failed else []
+    problems = [trace.homing_fault or "homing failed"] if trace.homing_failed else []  # "homing failed in the ..."
     home = np.asarray(trace.step_phase) == "home"
     expected: dict[int, dict] = {}
     for k, h in enumerate(host.homing):

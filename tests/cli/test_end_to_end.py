@@ -232,7 +232,7 @@ def test_delta_homing_with_a_switch_that_never_closes_fails_verification(verifie
     trace = simulate(out / "firmware.hex", host.firmware_config(), 16_000_000 * 60, switches=switches)
     verdict = compare(host, trace, switches)
     assert trace.homing_failed and not verdict.ok
-    assert any(p.startswith("homing failed:") for p in verdict.problems)
+    assert any(p.startswith("homing failed in the fast approach: motor c") for p in verdict.problems), verdict.problems
     c = host.homing[2]
     assert verdict.homing["c"]["steps"] == c.max_steps  # it gave up after the tower's travel, no endless motion
     assert not np.any(np.asarray(trace.step_phase) == "run")  # and played nothing of the program
