@@ -154,7 +154,7 @@ HOST = [
            "pulses = predict(compressed.schedule, 0, before.position)", GCODE_JOB, names=("twin",)),
     Mutant("short runs' add +1/256 tick in the bytes", "codegen/tables/format.py",
            "    runs[rs, 4:6] = _le(add[rs] & 0xFFFF, 2)", "    runs[rs, 4:6] = _le((add[rs] + 1) & 0xFFFF, 2)",
-           LIMITS_JOB, names=("predicted time",)),
+           LIMITS_JOB, names=("predicted time", "the image's table")),
     Mutant("homing fast interval from the slow speed", "codegen/program/homing.py",
            "fast_interval=max(1, round(tick_hz / (settings.speed * spm)))",
            "fast_interval=max(1, round(tick_hz / (settings.slow_speed * spm)))", AVR_JOB, names=("homing",)),
