@@ -22,7 +22,7 @@ import numpy as np
 from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware.avr.board import Pin, board_pins
-from codegen.firmware.avr.laser import laser_ocr_address
+from codegen.firmware.avr.laser import LASER_TOP_ADDRESS, laser_ocr_address
 from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.firmware.homing import homing_ticks_bound
@@ -66,6 +66,7 @@ class SimTrace:
     display: Any = None  # a board's status display, decoded (codegen.sim.hd44780.Display); None without one
     resumes: tuple[int, ...] = ()  # tick 0 of each restart of the player's timer after a hold (a WAIT record)
     laser_duty: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, counts
+    laser_top: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) its TOP's writes
     ring_fill: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, bytes held
     # Every recorded pin as it was, by signal name: "x.step", "x.dir", "tool", and where recorded "x.enable",
     # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/report/waveform.py writes them for GTKWave).
@@ -259,7 +260,7 @@ def decode_edges(rec: np.ndarray, config: FirmwareConfig, state: str, cycles: in
                     tool_edges=[(int(c), int(v)) for c, v in zip(tool.cycle[after], tool_on)],
                     step_phase=np.where(run, PHASE_RUN, PHASE_HOME).astype("<U4"),
                     homing_failed=fault is not None, homing_fault=fault, laser_duty=decoder.duty(),
-                    pins=pin_waves(rec, names))
+                    laser_top=decoder.top(), pins=pin_waves(rec, names))
 
 
 def pin_waves(rec: np.ndarray, names: list[str]) -> dict[str, PinWave]:
@@ -282,7 +283,7 @@ def watched(config: FirmwareConfig) -> list[tuple[str, Pin]]:
 
 
 def watched_pins(config: FirmwareConfig) -> list[str]:
-    """The harness's PIN arguments (`watched`); before them, a laser's duty= option (its compare register's
-    writes)."""
-    laser = [f"duty={laser_ocr_address(config.laser.pin)}"] if config.laser else []
+    """The harness's PIN arguments (`watched`); before them, a laser's duty= and top= options (its compare
+    register's writes and its TOP register's)."""
+    laser = [f"duty={laser_ocr_address(config.laser.pin)}", f"top={LASER_TOP_ADDRESS}"] if config.laser else []
     return laser + [f"{p.port}{p.bit}" for _, p in watched(config)]

@@ -3,7 +3,8 @@ or a piece at a time while the harness writes them.
 
 A record is 10 bytes: cycle u64, pin u8, level u8, in cycle order. Pins 0.. are the watched pins (codegen/sim/avr.py
 `watched`: STEP and DIR of each motor, then the tool, the enables, the endstops); START_PIN marks each start of the
-player's timer, DUTY_LOW_PIN and DUTY_HIGH_PIN a laser's compare register writes. An EdgeDecoder carries what a
+player's timer, DUTY_LOW_PIN and DUTY_HIGH_PIN a laser's compare register writes (TOP_LOW_PIN and TOP_HIGH_PIN
+its TOP register's). An EdgeDecoder carries what a
 record's meaning needs of the records before it (each DIR's level, a STEP still high, a DIR change no step has
 followed yet), so a run of any length decodes in pieces of bounded size; the slow pins (all but STEP and DIR) and
 the timer starts are kept whole: they change a few times a job, not at every step.
@@ -21,6 +22,7 @@ import numpy as np
 
 EDGE_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1")])
 START_PIN, DUTY_LOW_PIN, DUTY_HIGH_PIN = 0xFD, 0xFE, 0xFF
+TOP_LOW_PIN, TOP_HIGH_PIN = 0xFB, 0xFC  # the laser PWM's TOP register (its period)
 FALLOC_PUNCH_HOLE = 0x03  # FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE (linux/falloc.h)
 PAGE = 1 << 16
 
@@ -69,6 +71,7 @@ class EdgeDecoder:
         self.slow_names = slow_names  # pins 2 x motors on, by name
         self._slow: list[list[np.ndarray]] = [[] for _ in slow_names]
         self._duty: list[np.ndarray] = []
+        self._top: list[np.ndarray] = []
         self._starts: list[np.ndarray] = []
         self.last_cycle = 0
         self.motor_edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # the last piece's, per motor:
@@ -103,9 +106,11 @@ class EdgeDecoder:
         starts = mine(START_PIN)["cycle"].astype(np.int64)
         if len(starts):
             self._starts.append(starts[starts >= self.since])
-        low, high = mine(DUTY_LOW_PIN), mine(DUTY_HIGH_PIN)  # a write's two, in order
-        if len(low):
-            self._duty.append(np.stack([low["cycle"].astype(np.int64),
+        registers = ((self._duty, DUTY_LOW_PIN, DUTY_HIGH_PIN), (self._top, TOP_LOW_PIN, TOP_HIGH_PIN))
+        for writes, low_pin, high_pin in registers:
+            low, high = mine(low_pin), mine(high_pin)  # a write's two, in order
+            if len(low):
+                writes.append(np.stack([low["cycle"].astype(np.int64),
                                         low["level"].astype(np.int64) | high["level"].astype(np.int64) << 8], axis=1))
         cyc, mot, dirs = (np.concatenate(a) for a in (cycles, motors, dirs))
         order = np.lexsort((mot, cyc))
@@ -142,6 +147,10 @@ class EdgeDecoder:
     def duty(self) -> np.ndarray:
         """(K, 2) each compare register write: cycle, counts."""
         return np.concatenate(self._duty) if self._duty else np.zeros((0, 2), np.int64)
+
+    def top(self) -> np.ndarray:
+        """(K, 2) each TOP register write: cycle, counts."""
+        return np.concatenate(self._top) if self._top else np.zeros((0, 2), np.int64)
 
     def waves(self) -> dict[str, PinWave]:
         """The slow pins' levels, by name (every change, `since` or not)."""

@@ -7,7 +7,8 @@
  *   at the end: simavr_keys.c), or link=BYTE_CYCLES, check=ADDR, fill=ADDR (link mode: simavr_link.c; the budget is
  *   then the boot's, until the firmware turns its receiver on), or plant=FILE (thermal plants behind the ADC and
  *   the heaters' PWM: simavr_plant.c), or duty=ADDR (a 16-bit PWM compare register at data address ADDR, its
- *   high byte at ADDR + 1: each write of its low byte, which completes the 16-bit write, is logged), or held=CYCLES (the run ends CYCLES after the player started its timer
+ *   high byte at ADDR + 1: each write of its low byte, which completes the 16-bit write, is logged), or top=ADDR
+ *   (the same for the PWM's TOP register: its period), or held=CYCLES (the run ends CYCLES after the player started its timer
  *   if the firmware has not halted by then: an image that holds its heaters after the table never halts; counted
  *   from the latest start, and not while the player holds: its timer stopped before the end of the table)
  *   SWITCH: switch=PIN,CLOSED,AT,STEP,DIR,INVERT,COEF[,STEP,DIR,INVERT,COEF]   e.g. switch=E4,0,400,0,1,0,1
@@ -21,7 +22,8 @@
  * EDGES.bin receives one 10-byte record per real level change of a watched pin:
  *   cycle u64 little-endian, pin index u8 (position in the PIN list), level u8;
  * and with duty=, two per write of the compare register: pin DUTY_LOW_PIN with the value's low byte, then
- * DUTY_HIGH_PIN with its high byte, both at the write's cycle; and one per start of the player's timer (each
+ * DUTY_HIGH_PIN with its high byte, both at the write's cycle (with top=, TOP_LOW_PIN and TOP_HIGH_PIN the
+ * same for the TOP register); and one per start of the player's timer (each
  * write listed in starts= below): pin START_PIN, level 0, at the write's cycle (so the records alone tell a run's
  * clock, read while the harness writes them: codegen/sim/avr_edges.py).
  * The last line on stdout is "state=<done|crashed|budget> cycles=<n> timer_start=<cycle or -1>
@@ -61,6 +63,8 @@
 #define START_PIN 0xFD /* EDGES.bin's pin index of a start of the player's timer */
 #define DUTY_LOW_PIN 0xFE /* EDGES.bin's pin index of a duty write's low byte (duty=) */
 #define DUTY_HIGH_PIN 0xFF
+#define TOP_LOW_PIN 0xFB /* EDGES.bin's pin index of a TOP write's low byte (top=) */
+#define TOP_HIGH_PIN 0xFC
 
 typedef struct {
     int step, dir;      /* the motor's watched STEP and DIR pins */
@@ -162,6 +166,15 @@ static void duty_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value, 
     (void)param;
     write_record(DUTY_LOW_PIN, value);
     write_record(DUTY_HIGH_PIN, avr->data[addr + 1]);
+}
+
+/* The same for the PWM's TOP register (top=). */
+static void top_written(struct avr_t *core, avr_io_addr_t addr, uint8_t value, void *param)
+{
+    (void)core;
+    (void)param;
+    write_record(TOP_LOW_PIN, value);
+    write_record(TOP_HIGH_PIN, avr->data[addr + 1]);
 }
 
 /* Shares TCCR1B with the timer module (simavr dispatches to both) to note the player's tick 0. */
@@ -340,6 +353,8 @@ int main(int argc, char **argv)
             held_after = strtoull(argv[i] + 5, NULL, 10);
         else if (strncmp(argv[i], "duty=", 5) == 0)
             avr_register_io_write(avr, (avr_io_addr_t)strtoul(argv[i] + 5, NULL, 0), duty_written, NULL);
+        else if (strncmp(argv[i], "top=", 4) == 0)
+            avr_register_io_write(avr, (avr_io_addr_t)strtoul(argv[i] + 4, NULL, 0), top_written, NULL);
         else if (strncmp(argv[i], "switch=", 7) == 0   ? parse_switch(argv[i], n_pins)
                  : strncmp(argv[i], "plant=", 6) == 0 ? plant_setup(avr, argv[i] + 6)
                  : strncmp(argv[i], "key=", 4) == 0 || strncmp(argv[i], "dump=", 5) == 0 ? key_option(argv[i])

@@ -296,7 +296,8 @@ class Comparison:
             problems.append("the tool pin is still on when the program ends")
         problems.extend(pin_problems(host, trace, switches, self.step_span(trace)))  # enables, held pins, DIR hold,
         problems.extend(display_problems(host, trace, self.twin_final, self.streamed))  # homing's pace
-        laser = merge_laser(self.laser_parts, trace.laser_duty) if host.laser is not None else None
+        laser = merge_laser(self.laser_parts, trace.laser_duty, trace.laser_top, host.laser.top) \
+            if host.laser is not None else None
         problems.extend(laser.problems if laser else [])
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,

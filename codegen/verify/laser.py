@@ -91,12 +91,19 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
     return verdict
 
 
-def merge_laser(parts: list[LaserVerdict], duty: np.ndarray) -> LaserVerdict | None:
-    """The run's laser figures from its stretches' (their first problems), and the laser off at the end (`duty`:
-    every write of the compare register, cycle and counts)."""
+def merge_laser(parts: list[LaserVerdict], duty: np.ndarray, top: np.ndarray, planned_top: int) -> LaserVerdict | None:
+    """The run's laser figures from its stretches' (their first problems), the PWM's period as planned (`top`:
+    every write of its TOP register; the power checks count in the plan's TOP, so a wrong period scales every
+    power), and the laser off at the end (`duty`: every write of the compare register, cycle and counts)."""
     if not parts:
         return None
     problems = list(dict.fromkeys(p for part in parts for p in part.problems[:1]))
+    wrong = top[top[:, 1] != planned_top]
+    if len(top) == 0 or len(wrong):
+        counts = int(wrong[0, 1]) if len(wrong) else None
+        problems.insert(0, f"laser: the PWM's TOP is {counts if counts is not None else 'never set'}"
+                           f"{' counts' if counts is not None else ''}, where the plan's period takes {planned_top}: "
+                           f"every power would be off by that ratio")
     if len(duty) and duty[-1, 1] != 0:
         problems.append(f"laser: the PWM still holds {duty[-1, 1]} counts when the program ends")
     return LaserVerdict(parts[0].pwm_hz, max(p.max_power_error for p in parts), sum(p.cuts for p in parts),

@@ -142,7 +142,8 @@ class RunReader:
                        step_cycle=home.cycle, step_motor=home.motor, step_dir=home.dir,
                        step_phase=np.full(len(home.cycle), PHASE_HOME, dtype="<U4"),
                        pulse_high_min_cycles=self.decoder.width_min, dir_setup_min_cycles=self.decoder.setup_min,
-                       tool_edges=self.tool_edges, laser_duty=self.laser_duty, pins=self.decoder.waves(),
+                       tool_edges=self.tool_edges, laser_duty=self.laser_duty, laser_top=self.decoder.top(),
+                       pins=self.decoder.waves(),
                        dir_watches=tuple(self.dir_watches))
 
     def clock(self, cycles: np.ndarray, waits: np.ndarray) -> np.ndarray:

@@ -209,3 +209,10 @@ def test_homing_paced_by_the_job_not_by_its_reading_in_the_host(tmp_path):
 
     result = verify_patched(tmp_path, "avr-home", misread=misread)
     assert failed_with(result, "homing motor x (switch x_min), fast approach", "the homing settings give 1250.0 us")
+
+
+def test_avr_laser_pwm_period_not_the_plans(tmp_path):
+    # ICR5 a sixteenth over the plan's TOP: every power 16/17 of what the tables say, with the same compare writes
+    result = verify_patched(tmp_path, "laser-end", lambda s: replace_once(
+        s, "laser.h", r"ICR5 = LASER_TOP;", "ICR5 = LASER_TOP + LASER_TOP / 16;"))
+    assert failed_with(result, "laser: the PWM's TOP is", "counts, where the plan's period takes")

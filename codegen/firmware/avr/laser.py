@@ -14,6 +14,7 @@ from codegen.firmware.config import FirmwareConfig
 # period, Timer4 the bed's PWM) and their channels; OC5A (PL3) is RAMPS's Z STEP.
 LASER_CHANNELS = {"PL4": "B", "PL5": "C"}
 OCR_ADDRESS = {"B": 0x12A, "C": 0x12C}  # data-space addresses of OCR5BL and OCR5CL (the high byte follows)
+LASER_TOP_ADDRESS = 0x126  # ICR5L's: Timer5's TOP, the PWM's period (the high byte follows)
 LASER_VARIABLES = 3  # bytes of SRAM: the latched counts (u16) and whether they wait for the next event (u8)
 LASER_HOLD_VARIABLES = 4  # beside feed hold: the counts in force (u16) and a spill of two registers
 
