@@ -135,7 +135,8 @@ def cmd_verify(args) -> int:
     if cli_stream.bounded(args, job.target, job):  # codegen/verify/bounded.py: a chapter at a time, on two cores
         host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables")
         result, trace = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
-                                     args.strict)
+                                     args.strict, steps_csv=Path(args.trace) if args.trace else None)
+        args.trace = None  # written as the run was compared
         return _conclude_verify(args, host, _shipped(host, image, result), trace,
                                 _verify_headline(host, result, out_dir))
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)

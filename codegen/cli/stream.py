@@ -89,7 +89,9 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
     if bounded(args, setup.target.target, job):
         with tempfile.TemporaryFile() as table:
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
-            result, trace = simulate_stream_bounded(host, setup, image, faults, table, args.strict)
+            result, trace = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
+                                                    steps_csv=Path(args.trace) if args.trace else None)
+            args.trace = None  # written
     else:
         host = _checked(streamed_host(job, setup, args.strict, keep=True))
         if args.hold is not None or args.override is not None or pauses(host):
@@ -108,9 +110,10 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
 
 def bounded(args, target: str, job) -> bool:
     """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold, and
-    without the outputs that draw or list every pulse (--trace, --vcd, --report: those keep the whole run)."""
+    without the outputs that draw every pulse (--vcd, --report: those keep the whole run; --trace's rows are written
+    as they are compared)."""
     return (target == "avr" and job.machine.feed_hold is None and args.hold is None and args.override is None
-            and not (args.trace or args.vcd or args.report))
+            and not (args.vcd or args.report))
 
 
 def _checked(host: HostBuild) -> HostBuild:

@@ -13,6 +13,7 @@ from codegen.pipeline.normalized import job_fingerprint
 from codegen.tables.format import stream_bytes
 from codegen.tables.schedule import HEATER_COMMANDS, RT_WAIT
 from codegen.verify.results import positions, rounded
+from codegen.verify.steps_csv import StepsCsv
 
 
 def plan_summary(host: HostBuild) -> dict:
@@ -108,16 +109,10 @@ def write_json(path: Path, data: dict) -> None:
 def write_trace(path: Path, host: HostBuild, trace) -> None:
     """One row per simulated step pulse: time_s,motor,dir,phase (CLI.md), written in chunks."""
     order = np.argsort(trace.step_cycle, kind="stable")
-    names = np.asarray(host.kin.motors, dtype=object)
-    phases = np.asarray(trace.step_phase, dtype=object)
-    with path.open("w", encoding="utf-8") as out:
-        out.write("time_s,motor,dir,phase\n")
-        for lo in range(0, len(order), 1 << 16):
-            rows = order[lo:lo + (1 << 16)]
-            seconds = trace.step_cycle[rows] / trace.f_cpu
-            columns = zip(np.char.mod("%.9f", seconds), names[trace.step_motor[rows]],
-                          trace.step_dir[rows].tolist(), phases[rows])
-            out.write("".join(f"{t},{m},{d},{p}\n" for t, m, d, p in columns))
+    rows = StepsCsv(path, host.kin.motors, trace.f_cpu)
+    rows.write(trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order],
+               np.asarray(trace.step_phase, dtype=object)[order])
+    rows.close()
 
 
 def motion(m: dict) -> str:

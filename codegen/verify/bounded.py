@@ -25,7 +25,8 @@ from codegen import progress
 from codegen.errors import BuildError
 from codegen.firmware.homing import homing_ticks_bound
 from codegen.pipeline.host import HostBuild, host_build
-from codegen.sim.avr import SimTrace, simulate, switch_thresholds
+from codegen.sim.avr import PHASE_HOME, PHASE_RUN, SimTrace, simulate, switch_thresholds
+from codegen.sim.avr_edges import Steps
 from codegen.sim.avr_plant import HeaterRun, simulate_heaters
 from codegen.verify.chapters import CHAPTER_PULSES, Chapter, Chapters, RuntimeTimeline
 from codegen.verify.compare import Comparison, Verdict, simulated_switches
@@ -33,6 +34,7 @@ from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_
                                     table_start_s, trip_result, with_holds)
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
+from codegen.verify.steps_csv import StepsCsv
 
 
 @dataclass
@@ -56,11 +58,13 @@ class BoundedComparison:
     the verdict (`finish`)."""
 
     def __init__(self, host: HostBuild, strict: bool, link, switches: dict, streamed: bool,
-                 chapter_pulses: int = CHAPTER_PULSES):
+                 chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None):
         self.host, self.strict, self.link, self.switches = host, strict, link, switches
         self.streamed, self.chapter_pulses = streamed, chapter_pulses
         self.began = time.perf_counter()
         self.reader = self.comparison = self.chapters = None
+        self.steps_csv = steps_csv  # verify --trace: the pulses written as they are compared
+        self.rows: StepsCsv | None = None
 
     def run(self, edges: Path, ended: Callable[[], bool]) -> None:
         """`ended()`: the harness has written its last record."""
@@ -70,6 +74,7 @@ class BoundedComparison:
 
         def chapter(ch: Chapter) -> None:
             sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), self.chapter_pulses)
+            self._rows(sim)
             timeline = chapters.timeline()
             comparison.add(ch, sim, reader.clock(sim.cycle, timeline.tick[timeline.waits()]))
             give_back_freed_memory()
@@ -77,12 +82,27 @@ class BoundedComparison:
         self.chapters = chapters = Chapters(chapter, self.chapter_pulses)
         host_build(host.job, self.strict, keep=False, link=self.link, observe=chapters)
         chapters.close()
-        comparison.extra(reader.rest())
+        rest = reader.rest()
+        self._rows(rest)
+        comparison.extra(rest)
+
+    def _rows(self, sim) -> None:
+        """--trace's rows of the table's pulses `sim`; homing's first (they all came before the player's tick 0)."""
+        if self.steps_csv is None:
+            return
+        if self.rows is None:
+            self.rows = StepsCsv(self.steps_csv, self.host.kin.motors, self.reader.f_cpu)
+            home = self.reader.homing_steps()
+            self.rows.write(home.cycle, home.motor, home.dir, PHASE_HOME)
+        self.rows.write(sim.cycle, sim.motor, sim.dir, PHASE_RUN)
 
     def finish(self, end: SimTrace) -> Compared:
         """`end`: the run's state, cycles and homing fault as its simulation ended."""
         comparison, reader = self.comparison, self.reader
         trace = reader.trace(end)
+        if self.steps_csv is not None:
+            self._rows(Steps.empty())  # homing's rows, where no chapter came
+            self.rows.close()
         verdict = comparison.finish(trace, self.switches)
         span = comparison.span_cycles[1] - comparison.span_cycles[0] if comparison.span_cycles else 0
         return Compared(verdict, trace, self.chapters.timeline(), comparison.twin_final, comparison.position,
@@ -106,9 +126,9 @@ def give_back_freed_memory() -> None:
 
 def compare_run(host: HostBuild, strict: bool, link, edges: Path, ended: Callable[[], bool],
                 end_trace: Callable[[], SimTrace], switches: dict, streamed: bool,
-                chapter_pulses: int = CHAPTER_PULSES) -> Compared:
+                chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None) -> Compared:
     """BoundedComparison's run and finish (`end_trace()`: the run's end, once it has ended)."""
-    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses)
+    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses, steps_csv)
     comparison.run(edges, ended)
     return comparison.finish(end_trace())
 
@@ -118,11 +138,12 @@ class ComparingProcess:
     waits for what it found. The process is a fresh interpreter (spawned, the host build pickled: a few KB): a fork
     would start with this process's memory mapped, and the simulator's pipes open."""
 
-    def __init__(self, host: HostBuild, strict: bool, link, edges: Path, switches: dict, streamed: bool):
+    def __init__(self, host: HostBuild, strict: bool, link, edges: Path, switches: dict, streamed: bool,
+                 steps_csv: Path | None = None):
         context = multiprocessing.get_context("spawn")
         self._here, there = context.Pipe()
         self._process = context.Process(target=_compare_there,
-                                        args=(there, host, strict, link, edges, switches, streamed))
+                                        args=(there, host, strict, link, edges, switches, streamed, steps_csv))
         self._process.start()
 
     def result(self, end_trace: SimTrace) -> Compared:
@@ -146,10 +167,11 @@ class ComparingProcess:
             self._process.join()
 
 
-def _compare_there(conn, host, strict, link, edges, switches, streamed) -> None:
+def _compare_there(conn, host, strict, link, edges, switches, streamed, steps_csv) -> None:
     progress.enable(False)  # the simulation's bar is this process's parent's
     try:
-        compared = compare_run(host, strict, link, edges, conn.poll, conn.recv, switches, streamed)
+        compared = compare_run(host, strict, link, edges, conn.poll, conn.recv, switches, streamed,
+                               steps_csv=steps_csv)
         conn.send(("result", compared))
     except BaseException:  # noqa: BLE001 -- whatever it was, the parent reports it
         conn.send(("error", traceback.format_exc()))
@@ -171,13 +193,13 @@ def heater_verdict(host: HostBuild, run: HeaterRun, compared: Compared, image, f
     return result
 
 
-def verify_flash(host: HostBuild, image, faults, strict: bool) -> tuple[dict, SimTrace]:
+def verify_flash(host: HostBuild, image, faults, strict: bool, steps_csv: Path | None = None) -> tuple[dict, SimTrace]:
     """verify of a flash image in bounded memory: `host` keeps its tables only (host_build keep="tables"); the
     simulator runs as its own process, the comparison in this one beside it. The trace returned has the homing
     pulses, the clock and the slow pins."""
     config = host.firmware_config()
     switches = simulated_switches(host)
-    comparison = BoundedComparison(host, strict, None, switches, streamed=False)
+    comparison = BoundedComparison(host, strict, None, switches, streamed=False, steps_csv=steps_csv)
     if host.heaters:
         homing_s = homing_ticks_bound(config, switch_thresholds(config, switches), host.target.tick_hz) \
             / host.target.tick_hz

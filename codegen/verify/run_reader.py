@@ -125,6 +125,10 @@ class RunReader:
         self.have -= np.bincount(out.motor, minlength=self.motors)
         return out
 
+    def homing_steps(self) -> Steps:
+        """The pulses before the player's first start (homing's), read so far."""
+        return _cat(self.home) if self.home else Steps.empty()
+
     def rest(self) -> Steps:
         """Every pulse after the last handed out, to the run's end."""
         while self._more():
@@ -137,7 +141,7 @@ class RunReader:
     def trace(self, base: SimTrace) -> SimTrace:
         """`base` (a run's state, cycles and homing fault, as its simulation ends) with what the reader kept: the
         homing pulses, the clock, the pulse widths and DIR setup times, the slow pins."""
-        home = _cat(self.home) if self.home else Steps.empty()
+        home = self.homing_steps()
         return replace(base, timer_start_cycle=self.timer_start_cycle, resumes=self.resumes,
                        step_cycle=home.cycle, step_motor=home.motor, step_dir=home.dir,
                        step_phase=np.full(len(home.cycle), PHASE_HOME, dtype="<U4"),

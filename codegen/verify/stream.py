@@ -4,6 +4,7 @@ code (codegen/link/host.py), and verify's result with the link's checks and figu
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
@@ -65,7 +66,8 @@ def new_link(host: HostBuild, setup: StreamSetup) -> HostLink:
     """The host's side of a simulated session: the job's table stream, as `stream` sends it."""
     data = tables.encode(host.schedule).data
     return HostLink(stream_chunks(data, len(host.kin.motors)), len(host.kin.motors), setup.identity,
-                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload, ping_s=setup.budget.ping_s,
+                    10 / setup.layout.baud, host.link_plan.prefill_bytes, payload=setup.budget.payload,
+                    ping_s=setup.budget.ping_s,
                     stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in setup.config.heaters))
 
 
@@ -110,7 +112,7 @@ def made_positions(trace, motors: int) -> np.ndarray:
 
 
 def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table: BinaryIO, strict: bool,
-                            comparing=ComparingProcess) -> tuple[dict, object]:
+                            comparing=ComparingProcess, steps_csv: Path | None = None) -> tuple[dict, object]:
     """simulate_stream in bounded memory (codegen/verify/bounded.py): `host` is the first pass's (not kept), its
     table stream in `table`; the comparison runs beside the simulation (`comparing`: in a second process, while this
     one drives the link). The trace returned has the homing pulses, the clock and the slow pins, not the table's
@@ -124,7 +126,7 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
     plants = job_plants(host.job, config) if config.heaters else None
     with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
-        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True)
+        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, steps_csv)
         try:
             with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
                 summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)

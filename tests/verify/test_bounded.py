@@ -18,6 +18,8 @@ import pytest
 from codegen.cli.stream import _firmware, streamed_host
 from codegen.job import load_job
 from codegen.pipeline.streaming import stream_setup
+from codegen.report.summaries import write_trace
+from codegen.sim.avr import decode_edges
 from codegen.sim.avr_edges import EDGE_RECORD, read_edges
 from codegen.verify.bounded import compare_run
 from codegen.verify.compare import simulated_switches
@@ -38,7 +40,7 @@ class KeptRun:
     kept: dict = {}
     folder: Path | None = None  # where the copy goes (the fixture's temporary folder)
 
-    def __init__(self, host, strict, link, edges, switches, streamed):
+    def __init__(self, host, strict, link, edges, switches, streamed, steps_csv=None):
         self.args, self.edges = (host, strict, link, switches, streamed), edges
 
     def result(self, end_trace):
@@ -115,3 +117,20 @@ def test_a_lost_pulse_in_the_records_is_named(session, tmp_path):
     assert any(p.startswith("motor x: the simulator made") for p in verdict.problems), verdict.problems
     assert any(r.startswith("path error") for r in verdict.not_compared)
     assert not verdict.ok
+
+
+@needs_avr
+def test_the_trace_file_written_chapter_by_chapter_is_the_whole_runs(session, tmp_path):
+    """verify --trace in bounded memory: the rows the comparison writes as it goes are those write_trace makes of
+    the whole run (homing's first, then the table's, in time order)."""
+    _, _, kept = session
+    host, strict, link, switches, streamed = kept["args"]
+    compare_run(host, strict, link, kept["edges"], lambda: True, lambda: kept["end"], switches, streamed,
+                chapter_pulses=3_000, steps_csv=tmp_path / "chapters.csv")
+    end = kept["end"]
+    whole = decode_edges(read_edges(kept["edges"]), host.firmware_config(), end.state, end.cycles,
+                         end.timer_start_cycle, None)
+    write_trace(tmp_path / "whole.csv", host, whole)
+    rows = (tmp_path / "chapters.csv").read_text()
+    assert rows == (tmp_path / "whole.csv").read_text()
+    assert rows.count(",run\n") == len(whole.run_only().step_cycle) > 10_000
