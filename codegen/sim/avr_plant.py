@@ -8,6 +8,7 @@ firmware took and every duty change; the firmware's own status bytes say whether
 
 from __future__ import annotations
 
+import array
 import subprocess
 import tempfile
 from dataclasses import dataclass, replace
@@ -133,27 +134,31 @@ def _logged_s(log: Path, f_cpu: int) -> float | None:
 
 
 def read_trace(path: Path, n: int, f_cpu: int) -> tuple[dict, dict]:
-    rows: dict[str, list] = {"A": [], "D": [], "S": [], "F": []}
+    """The plant trace: per heater its samples, readings and duties, and the end's records. Read a line at a time
+    into packed columns (an 11-hour print has millions of rows: as Python lists they took hundreds of MB)."""
+    widths = {"A": 3, "D": 3, "S": 4, "F": 2}
+    columns = {kind: array.array("d") for kind in widths}
     end: dict = {"P": {}, "H": {}}
-    for line in path.read_text().splitlines():
-        kind, *v = line.split()
-        if kind in rows:
-            rows[kind].append([float(x) for x in v])
-        elif kind in ("P", "H"):
-            end[kind][v[0] if kind == "P" else int(v[0])] = int(v[1])
-        else:
-            end[kind] = [int(x) for x in v]
+    with path.open(encoding="ascii") as lines:
+        for line in lines:
+            kind, *v = line.split()
+            if kind in columns:
+                columns[kind].extend(map(float, v))
+            elif kind in ("P", "H"):
+                end[kind][v[0] if kind == "P" else int(v[0])] = int(v[1])
+            else:
+                end[kind] = [int(x) for x in v]
+    rows = {kind: np.frombuffer(columns[kind], dtype=float).reshape(-1, width) for kind, width in widths.items()}
     per = {}
     for k in range(n):
-        s = np.array([r for r in rows["S"] if r[1] == k]).reshape(-1, 4)
-        a = np.array([r for r in rows["A"] if r[1] == k]).reshape(-1, 3)
-        d = np.array([[0, k, 0]] + [r for r in rows["D"] if r[1] == k]).reshape(-1, 3)  # off at power-up
+        s, a = (rows[kind][rows[kind][:, 1] == k] for kind in ("S", "A"))
+        d = np.concatenate([[[0, k, 0]], rows["D"][rows["D"][:, 1] == k]])  # off at power-up
         # The duty of each period: the last change before the next reading (the 8-bit duty: 256 is 255).
         nxt = np.append(a[1:, 0], np.inf)
         duty256 = d[np.searchsorted(d[:, 0], nxt, side="left") - 1, 2]
         per[k] = HeaterTrace(s[:, 0] / f_cpu, s[:, 2], s[:, 3] / 256, a[:, 0] / f_cpu, a[:, 2].astype(np.int64),
                              np.minimum(duty256, 255).astype(np.int64))
-    end["F"] = np.array([[0.0, 0.0]] + [[c / f_cpu, d / 256] for c, d in rows["F"]]).reshape(-1, 2)
+    end["F"] = np.concatenate([[[0.0, 0.0]], rows["F"] / [f_cpu, 256]])
     return per, end
 
 
