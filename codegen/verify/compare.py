@@ -21,7 +21,7 @@ from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
-from codegen.verify.pins import pin_problems
+from codegen.verify.pins import homing_pace_problems, pin_problems
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -258,7 +258,13 @@ class Comparison:
         host, names, f_cpu = self.host, self.host.kin.motors, self.f_cpu
         homing, homing_problems = homing_report(host, trace, switches)
         problems: list[str] = []
-        if trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
+        pace = homing_pace_problems(host, trace, switches)
+        if trace.state == "budget":  # what went wrong on the way comes first: running out of time follows from it
+            homing_problems = pace + self.problems + [
+                f"the firmware did not finish within {trace.cycles} cycles ({trace.cycles / f_cpu:.3f} s simulated; "
+                f"the plan takes {self.planned_s():.3f} s)"] + homing_problems
+            pace, self.problems = [], []
+        elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
         not_compared, timing = [], {}
         for m, name in enumerate(names):
@@ -294,8 +300,9 @@ class Comparison:
         edges = np.array(trace.tool_edges, dtype=np.int64).reshape(-1, 2)
         if len(edges) and edges[-1, 1]:
             problems.append("the tool pin is still on when the program ends")
-        problems.extend(pin_problems(host, trace, switches, self.step_span(trace)))  # enables, held pins, DIR hold,
-        problems.extend(display_problems(host, trace, self.twin_final, self.streamed))  # homing's pace
+        problems.extend(pin_problems(host, trace, switches, self.step_span(trace)))  # enables, held pins, DIR hold
+        problems.extend(pace)
+        problems.extend(display_problems(host, trace, self.twin_final, self.streamed))
         laser = merge_laser(self.laser_parts, trace.laser_duty, trace.laser_top, host.laser.top) \
             if host.laser is not None else None
         problems.extend(laser.problems if laser else [])

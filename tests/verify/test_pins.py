@@ -12,10 +12,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from codegen.firmware.avr.image import build_image, render_sources
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.sim.avr import PinWave
 from codegen.tables.format import stream_bytes
+from codegen.verify.bounded import verify_flash
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.pins import (DirCarry, HomingCarry, HomingPhase, dir_hold_chunk, first_off_level, homing_pace_chunk,
                                  level_at, level_problems, tool_off_problems)
@@ -216,3 +218,20 @@ def test_avr_laser_pwm_period_not_the_plans(tmp_path):
     result = verify_patched(tmp_path, "laser-end", lambda s: replace_once(
         s, "laser.h", r"ICR5 = LASER_TOP;", "ICR5 = LASER_TOP + LASER_TOP / 16;"))
     assert failed_with(result, "laser: the PWM's TOP is", "counts, where the plan's period takes")
+
+
+def test_a_run_out_of_time_names_what_went_wrong_first(tmp_path):
+    """Timer1 at an eighth of its clock: homing (which Timer1 paces too) cannot end within the run's budget, and
+    verify (comparing beside the simulator) says first where the pulses left the settings, then that the firmware
+    did not finish."""
+    if any(shutil.which(tool) is None for tool in TOOLS["avr"]):
+        pytest.skip("needs avr-gcc and simavr (scripts/setup.sh installs them)")
+    host = host_build(load_job(DATA / "mutants" / "avr-home.yaml"), keep="tables")
+    sources = render_sources(host.schedule, host.firmware_config())
+    replace_once(sources, "config.h", r"^#define TIMER1_CLOCK_BITS \((_BV\(\w+\))\)",
+                 r"#define TIMER1_CLOCK_BITS (\1 | _BV(CS10))")
+    image = build_image(sources, tmp_path / "out", stream_bytes(host.schedule))
+    result, _ = verify_flash(host, image, (), False)
+    assert result["pass"] is False
+    assert "after the one before, where the homing settings give" in result["problems"][0], result["problems"]
+    assert any(p.startswith("the firmware did not finish within") for p in result["problems"])
