@@ -257,6 +257,7 @@ class Stages:
         with watch("checks"):
             corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
             checker = copy.deepcopy(before.checker)
+            checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position

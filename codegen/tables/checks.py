@@ -173,6 +173,8 @@ class Checker:
         self.net = np.zeros(len(kin.motors), dtype=np.int64)
         self.path_limit = step_length_mm(kin) + tolerance
         self.worst_path, self.worst_at = 0.0, None
+        self.blocks = 0  # blocks whose tool add_tool has compared
+        self.tool_problem: str | None = None  # the first block whose tool differs from the program's
 
     def add(self, trains: list[MotorTrain], positions: np.ndarray, position_segment: np.ndarray,
             segments: Segments, corners_t: np.ndarray, jumps: np.ndarray, last: bool = False) -> list:
@@ -199,6 +201,17 @@ class Checker:
             hits.append((rate, accel))
         return hits
 
+    def add_tool(self, tables: np.ndarray, program: np.ndarray) -> None:
+        """The tool of the next blocks as the tables have it against the program's (its segments' flags): the
+        compressor carries a block's tool over from its segment, and nothing after it checks that it did."""
+        wrong = np.flatnonzero(np.asarray(tables, dtype=bool) != np.asarray(program, dtype=bool))
+        if len(wrong) and self.tool_problem is None:
+            k = int(wrong[0])
+            self.tool_problem = (f"the tables have the tool {'on' if tables[k] else 'off'} in block {self.blocks + k} "
+                                 f"where the program has it {'on' if program[k] else 'off'} ({len(wrong)} blocks "
+                                 f"of {len(tables)} in this window differ)")
+        self.blocks += len(tables)
+
     def findings(self, expected_final: np.ndarray) -> Findings:
         names = self.kin.motors
         final = self.net + self.start_steps
@@ -218,6 +231,8 @@ class Checker:
             findings.problems.append(
                 f"the tool strays {self.worst_path:.4f} mm from the path (limit {self.path_limit:.4f} mm: "
                 f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in self.worst_at)})")
+        if self.tool_problem is not None:
+            findings.problems.append(self.tool_problem)
         for name in names:
             rate, accel = findings.rate_ratio[name], findings.accel_ratio[name]
             if rate > 1.0:

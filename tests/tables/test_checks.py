@@ -4,7 +4,7 @@
 import numpy as np
 
 from codegen.pipeline.host import trains_from
-from codegen.tables.checks import MotorTrain, check
+from codegen.tables.checks import Checker, MotorTrain, check
 
 
 def judge(h, trains=None, positions=None):
@@ -53,3 +53,15 @@ def test_a_velocity_jump_off_the_corners_exceeds_the_acceleration(star_host):
     time = np.where(time > 1.0, 1.0 + (time - 1.0) * 0.8, time)  # suddenly 25 % faster after one second
     found = judge(h, trains=trains_from(time, h.pulses.motor, h.pulses.dir, 2))
     assert any("exceeds its acceleration" in p for p in found.problems)
+
+
+def test_a_block_whose_tool_differs_from_the_programs_is_named(star_host):
+    """The tables' tool against the program's, block by block across windows (a compressor that inverted it
+    passed every other check: the twin and the simulator both follow the tables)."""
+    h = star_host
+    checker = Checker(h.kin, h.start_steps, 0.0)
+    checker.add_tool(np.array([True, False, True]), np.array([True, True, True]))
+    checker.add_tool(np.array([False]), np.array([True]))
+    assert checker.findings(h.start_steps).problems == [
+        "the tables have the tool off in block 1 where the program has it on (1 blocks of 3 in this window differ)"]
+    assert star_host.findings.ok  # the real plan's tables agree with its program
