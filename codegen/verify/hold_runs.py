@@ -62,8 +62,8 @@ class FlashRun:
 
 
 class S51FlashRun(FlashRun):
-    """An 8051 flash image in s51, its matrix keys pressed (codegen/sim/mcs51_keys.py): main polls them between its
-    display's updates, so each press reaches the firmware at the first poll that sees it."""
+    """An 8051 flash image in s51, its matrix keys pressed (codegen/sim/mcs51_keys.py): main polls them every 2 ms
+    (hold.c's hold_due), so each press reaches the firmware at the first poll that sees it."""
 
     def tick0(self, pauses: bool) -> int:
         held = [("resume", 1, MAX_CLOCK)] if pauses else []  # down all along: every M0/M1 goes on at once

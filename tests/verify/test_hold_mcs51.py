@@ -80,8 +80,8 @@ def test_the_feed_keys_override_the_plotter_to_half_speed(plotter):
 
 
 def test_a_bouncing_feed_key_steps_the_override_once(plotter):
-    """Two closings of feed- 10 ms apart (its contacts bouncing; main polls every 3.4 ms between its display's
-    updates, so it sees both) take the override to 90 %, not 80 %."""
+    """Two closings of feed- 10 ms apart (its contacts bouncing; main looks at the keys every 2 ms, so it
+    sees both) take the override to 90 %, not 80 %."""
     host, image = plotter
     config, ms = host.firmware_config(), F_CPU // 1000
     tick0 = simulate(image.hex_path, config, 4 * F_CPU).timer_start_cycle
