@@ -84,11 +84,31 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
         verdict.problems.append(f"laser: at simulated event {k} the power is {100 * played[k] / laser.top:.2f} % of "
                                 f"full scale, the plan's {100 * ideal[k]:.2f} % (more than "
                                 f"{100 * MAX_POWER_ERROR:.0f} % apart)")
+    verdict.problems += steady_power_problems(host, twin_event, played, records, factor)
     seconds = (event_cycle - (trace.timer_start_cycle or 0)) / trace.f_cpu
     twin_s = host.events.time if dilation is None else dilation.tick / host.target.tick_hz
     verdict.cuts, verdict.max_energy_error = _energy(host, twin_event, seconds, played / laser.top, ideal, twin_s,
                                                      cut_open)
     return verdict
+
+
+def steady_power_problems(host, twin_event: np.ndarray, played: np.ndarray, records: np.ndarray,
+                          factor: np.ndarray | int) -> list[str]:
+    """M3's power against the program's own S (its segments' power, 0..1): at every tool-on event of a constant
+    power cut the PWM holds round(power x TOP) counts, within one. (The ideal above is the tables' maker's
+    reckoning: were it wrong, the tables and the simulator would agree on the wrong power.)"""
+    events, laser = host.events, host.laser
+    per_block = np.diff(events.block_first)
+    segment = np.repeat(events.block_segment, per_block)[twin_event]
+    on = np.repeat(events.block_tool, per_block)[twin_event].astype(bool) & (host.segments.dwell[segment] <= 0)
+    steady = on & ~host.segments.dynamic[segment] & (np.asarray(factor) >= 0) & ((records & DYNAMIC_FLAG) == 0)
+    want = np.round(np.clip(host.segments.power[segment], 0.0, 1.0) * laser.top).astype(np.int64)
+    wrong = np.flatnonzero(steady & (np.abs(played - want) > 1))
+    if not len(wrong):
+        return []
+    k = int(wrong[0])
+    return [f"laser: at simulated event {k} the power is {played[k]} PWM counts where the program's S gives "
+            f"{want[k]} of {laser.top} ({len(wrong)} events of M3 cuts differ)"]
 
 
 def merge_laser(parts: list[LaserVerdict], duty: np.ndarray, top: np.ndarray, planned_top: int) -> LaserVerdict | None:
