@@ -137,8 +137,8 @@ def cmd_verify(args) -> int:
         result, trace = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
                                      args.strict, steps_csv=Path(args.trace) if args.trace else None)
         args.trace = None  # written as the run was compared
-        return _conclude_verify(args, host, _shipped(host, image, result), trace,
-                                _verify_headline(host, result, out_dir))
+        result = _shipped(host, image, result)
+        return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
     if args.hold is not None or args.override is not None or pauses(host):
@@ -151,7 +151,8 @@ def cmd_verify(args) -> int:
         switches = simulated_switches(host)
         trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
         result = verify_json(host, compare(host, trace, switches), image)
-    return _conclude_verify(args, host, _shipped(host, image, result), trace, _verify_headline(host, result, out_dir))
+    result = _shipped(host, image, result)
+    return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
 
 
 def _shipped(host: HostBuild, image, result: dict) -> dict:
