@@ -27,6 +27,8 @@ AT89_JOB = "tests/data/mutants/at89-home.yaml"  # a bare AT89C52: enables active
 LASER_JOB = "examples/laser/power.yaml"  # M3 and M4 cuts, their power changed mid-cut
 LASER_END_JOB = "tests/data/mutants/laser-end.yaml"  # its G-code ends in a cut, the laser still on
 GCODE_JOB = "examples/gcode/mixed.yaml"  # IJK and R arcs, G20, G92, F words
+OFFSETS_JOB = "tests/data/mutants/gcode-offsets.yaml"  # F on arc lines (read in Python), G92 to non-zero values
+DELTA_JOB = "tests/data/mutants/delta-gcode.yaml"  # a Kossel mini's G-code moves: the reference reads them again
 LIMITS_JOB = "examples/ellipse.yaml"  # runs at 98 % of its motors' rate and 97 % of their acceleration
 HOLD_JOB = "examples/star.yaml"  # corexy with feed hold and override keys
 
@@ -134,9 +136,9 @@ HOST = [
     Mutant("G20 = 25.0 mm", "codegen/gcode/interpreter.py", "            self.unit = 25.4",
            "            self.unit = 25.0", GCODE_JOB, names=("G20", "inch")),
     Mutant("G92 sign", "codegen/gcode/moves.py", "self.off[i] = self.pos[i] - params[",
-           "self.off[i] = self.pos[i] + params[", GCODE_JOB, names=("G92",)),
+           "self.off[i] = self.pos[i] + params[", OFFSETS_JOB, names=("G92",)),
     Mutant("F words per 50 s", "codegen/gcode/interpreter.py", "        self.feed = value * self.unit / 60.0",
-           "        self.feed = value * self.unit / 50.0", GCODE_JOB, names=("feed",)),
+           "        self.feed = value * self.unit / 50.0", OFFSETS_JOB, names=("feed",)),
     Mutant("steps floored, not rounded", "codegen/kinematics/base.py",
            "        return np.round(self.to_motor(axes) * self.limits.steps_per_mm)",
            "        return np.floor(self.to_motor(axes) * self.limits.steps_per_mm)", "examples/arc.yaml",
@@ -163,7 +165,7 @@ HOST = [
            "backoff_steps=max(1, round(settings.backoff * spm))",
            "backoff_steps=max(1, round(2 * settings.backoff * spm))", AVR_JOB, names=("homing", "back off")),
     Mutant("delta rods 0.5 mm long", "codegen/kinematics/delta.py", "        self.rod2 = float(diagonal_rod) ** 2",
-           "        self.rod2 = float(diagonal_rod + 0.5) ** 2", "examples/kossel-mini.yaml", names=("path", "rod")),
+           "        self.rod2 = float(diagonal_rod + 0.5) ** 2", DELTA_JOB, names=("path", "rod", "G-code line")),
     Mutant("the tool of the blocks inverted", "codegen/tables/compress.py",
            "        block_tool=events.block_tool.astype(bool),", "        block_tool=~events.block_tool.astype(bool),",
            AVR_JOB, names=("tool",)),

@@ -13,10 +13,11 @@ per-shape feeds), or G-code: G0/G1 with feeds, G2/G3 in G17/G18/G19 with IJK or 
 full circles, helical arcs, G90/G91, G20/G21, G92 offsets, G4, M3/M5, E words (M82/M83), and a little of Grbl
 (G10 L20, G54/G55, G53, G28.1 + G28, G92.1).
 
-The invariant (`outcome`): a job the loader accepts either builds with every check passing (findings.ok and
-final == expected_final), or is refused with a positioned error (JobError, exit 2: every diagnostic has
-file:line:col) or a size error (exit 1: the tables do not fit the chip, as `build` refuses them). Anything else
-(a failed check, a BuildError not about size, any other exception) raises `Bug`.
+The invariant (`outcome`): a job the loader accepts either builds with every check passing (findings.ok,
+final == expected_final, and verify's second reading of its G-code finds the tables doing what it says), or is
+refused with a positioned error (JobError, exit 2: every diagnostic has file:line:col) or a size error (exit 1:
+the tables do not fit the chip, as `build` refuses them). Anything else (a failed check, a BuildError not about
+size, any other exception) raises `Bug`.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ from codegen.errors import BuildError, JobError
 from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.tables.format import stream_bytes
+from codegen.verify.chapters import whole_chapter
+from codegen.verify.program_check import ProgramCheck
 
 TARGETS = ("avr", "mcs51")
 KINEMATICS = ("cartesian", "corexy", "delta")
@@ -499,6 +502,11 @@ def outcome(text: str, folder: Path) -> str:
         raise Bug("a check failed: " + "; ".join(f.problems), [message_class(p) for p in f.problems])
     if f.final != f.expected_final:
         raise Bug(f"final {f.final} != expected {f.expected_final}", ["final != expected_final"])
+    against = ProgramCheck(host)  # the tables against verify's own reading of the G-code
+    against.add(whole_chapter(host))
+    problems = against.finish()
+    if problems:
+        raise Bug("the tables against the G-code: " + "; ".join(problems[:3]), [message_class(p) for p in problems])
     if stream_bytes(host.schedule) >= host.target.flash_bytes:  # build refuses it before compiling
         return "too big"
     return "built"

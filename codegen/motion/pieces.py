@@ -68,7 +68,7 @@ def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
             break
         with watch("segments"):
             if flattener is None:
-                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime)
+                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file)
             first = flattener.items
             segments = drop_empty(flattener(batch))
             program.settings += flattener.settings

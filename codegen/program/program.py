@@ -75,6 +75,11 @@ class Program:
          self.handed_on) = state
 
     @property
+    def gcode_file(self) -> str | None:
+        """The file its G-code lines are written in (the job file's for inline G-code), if it has any."""
+        return None if self.gcode is None else self.gcode.origin.file
+
+    @property
     def read_share(self) -> float:
         """The share of the program's text read into the batches so far (shapes: all of it, in one batch)."""
         return 1.0 if self.gcode is None else self.gcode.read_share

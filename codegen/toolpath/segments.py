@@ -30,6 +30,7 @@ class Segments:
     dynamic: np.ndarray  # (n,) bool: M4, the power follows the actual speed over the programmed one
     dwell: np.ndarray  # (n,) s; > 0 marks a dwell (start == end)
     item: np.ndarray  # (n,) index of the toolpath item the piece comes from
+    line: np.ndarray  # (n,) the G-code line the item is written on (0: not written in the G-code)
     accel: np.ndarray  # (n,) mm/s^2, the program's cap on the path acceleration (inf: none)
     axis_velocity: np.ndarray  # (n, 4) mm/s per axis the program allows (inf: no limit of its own)
     axis_accel: np.ndarray  # (n, 4) mm/s^2 per axis the program allows
@@ -111,8 +112,9 @@ class Flattener:
     that plays heater and fan settings at their place), `settings` gathers them with their item index, and a
     temperature wait becomes a dwell of WAIT_REST_S at its index: the plan comes to rest there."""
 
-    def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False):
-        self.tolerance = tolerance
+    def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False, gcode_file: str | None = None):
+        """`gcode_file`: the pieces of items written there keep their line (verify reads the G-code again)."""
+        self.tolerance, self.gcode_file = tolerance, gcode_file
         self.limits = _LimitState()
         self.position = np.asarray(start, dtype=float)
         self.items = 0
@@ -127,7 +129,7 @@ class Flattener:
         for item in batch:
             if isinstance(item, Lines):
                 groups += single.take()
-                groups.append(_lines_group(item, index, len(limits.rows) - 1))
+                groups.append(_lines_group(item, index, len(limits.rows) - 1, item.file == self.gcode_file))
                 self.position = item.end
                 index += len(item)
                 continue
@@ -136,13 +138,17 @@ class Flattener:
             elif isinstance(item, Output) and self.runtime and item.name in RUNTIME_OUTPUTS:
                 self.settings.append((index, item))
                 if item.wait and (item.value > 0 or item.name == "pause"):
-                    single.add(self._pieces(Dwell(WAIT_REST_S, item.source), fines), index, len(limits.rows) - 1)
+                    single.add(self._pieces(Dwell(WAIT_REST_S, item.source), fines), index, len(limits.rows) - 1,
+                               self._line(item))
             elif isinstance(item, (Line, Arc, Curve, Dwell)):  # not Output, Home: nothing to move along
-                single.add(self._pieces(item, fines), index, len(limits.rows) - 1)
+                single.add(self._pieces(item, fines), index, len(limits.rows) - 1, self._line(item))
             index += 1
         groups += single.take()
         self.items = index
         return _segments(groups, limits, fines)
+
+    def _line(self, item) -> int:
+        return item.source.line if item.source.file == self.gcode_file else 0
 
     def _pieces(self, item, fines: list) -> tuple:
         """The item's points and what its pieces share (a curve's samples go to `fines`)."""
@@ -170,7 +176,8 @@ class Flattener:
 COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ()), ("tool", bool, ()),
            ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()),
            ("kind", np.int64, ()), ("center", float, (2,)),
-           ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()))
+           ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()),
+           ("line", np.int64, ()))
 
 
 class _Single:
@@ -179,12 +186,12 @@ class _Single:
     def __init__(self):
         self.points, self.rows, self.fine_count = [], [], 0
 
-    def add(self, pieces: tuple, index: int, state: int) -> None:
+    def add(self, pieces: tuple, index: int, state: int, line: int) -> None:
         pts, feed, tool, accel, power, dynamic, dwell, (kind, center, radius, plane) = pieces
         count = len(pts) - 1
         self.points.append(pts)
         self.rows.append((count, index, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
-                          self.fine_count if kind == REF_CURVE else -1))
+                          self.fine_count if kind == REF_CURVE else -1, line))
         self.fine_count += count if kind == REF_CURVE else 0
 
     def take(self) -> list[tuple]:
@@ -196,13 +203,14 @@ class _Single:
         return [(np.concatenate([p[:-1] for p in stacked]), np.concatenate([p[1:] for p in stacked]), *columns)]
 
 
-def _lines_group(lines: Lines, index: int, state: int) -> tuple:
-    """The group of a Lines item: a piece per move."""
+def _lines_group(lines: Lines, index: int, state: int, in_gcode: bool) -> tuple:
+    """The group of a Lines item: a piece per move (their lines kept `in_gcode`)."""
     n = len(lines)
     return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
             lines.feed, lines.tool, lines.accel, lines.power, lines.dynamic, np.zeros(n), np.full(n, REF_LINE),
             np.zeros((n, 2)), np.zeros(n),
-            np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1))
+            np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1),
+            lines.line if in_gcode else np.zeros(n, dtype=np.int64))
 
 
 def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments:
@@ -210,7 +218,7 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     if not groups:
         groups = [(np.zeros((0, 4)), np.zeros((0, 4)), *(np.zeros((0, *shape), dtype=t) for _, t, shape in COLUMNS))]
     (starts, ends, counts, owners, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
-     fine_rows) = (np.concatenate(c) for c in zip(*groups))
+     fine_rows, line) = (np.concatenate(c) for c in zip(*groups))
     each = lambda values: np.repeat(values, counts, axis=0)  # noqa: E731
     rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
     first_fine = each(fine_rows)
@@ -218,7 +226,7 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
     return Segments(
         start=starts, end=ends, feed=each(feed), tool=each(tool), power=each(power), dynamic=each(dynamic),
-        dwell=each(dwell), item=each(owners),
+        dwell=each(dwell), item=each(owners), line=each(line),
         accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
         jerk=jerk.reshape(-1, 4), junction_deviation=jd, ref_kind=each(kind), ref_center=each(center).reshape(-1, 2),
         ref_radius=each(radius), ref_plane=each(plane).reshape(-1, 2),

@@ -22,6 +22,7 @@ from codegen.toolpath.segments import concat
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
+from codegen.verify.program_check import ProgramCheck
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -105,6 +106,7 @@ class Comparison:
         self.streamed, self.warp, self.dilation = streamed, warp, dilation
         motors = len(host.kin.motors)
         self.checker = Checker(host.kin, host.start_steps, host.settings.stages.tolerance_mm)
+        self.program = ProgramCheck(host)  # the tables against a second reading of the G-code
         self.made = np.zeros(motors, dtype=np.int64)
         self.predicted = np.zeros(motors, dtype=np.int64)
         self.timing = np.zeros(motors)
@@ -157,6 +159,7 @@ class Comparison:
             self.span_s = [self.span_s[0] if self.span_s else float(sim_s[0]), float(sim_s[-1])]
             self.span_cycles = [self.span_cycles[0] if self.span_cycles else int(sim.cycle[0]), int(sim.cycle[-1])]
         self._motion(chapter, sim, sim_s, matched)
+        self.program.add(chapter)
 
     def _pair(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
               twin_dir: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -278,7 +281,7 @@ class Comparison:
             if self.wrong_dir[m] is not None:
                 first, count = self.wrong_dir[m]
                 problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
-        problems += self.problems
+        problems += self.problems + self.program.finish()
         if not self.paired:
             not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
                                 "placed on the path's segments")

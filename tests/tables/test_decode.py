@@ -4,6 +4,8 @@ their schedule, and each kind of wrong byte is named with the record and the byt
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from codegen.tables.decode import TableError, decode, differences
 from codegen.tables.format import encode
@@ -60,3 +62,21 @@ def test_bytes_that_are_no_table_stream(planned_example):
         decode(data[:len(data) // 2], len(schedule.motors))
     with pytest.raises(TableError, match="3 bytes after the end marker"):
         decode(data + b"\0\0\0", len(schedule.motors))
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(data=st.data())
+def test_any_corrupted_table_is_named_never_a_traceback(planned_example, data):
+    """Bytes changed anywhere (counts, runs, flags, the end marker): decode either reads a table whose differences
+    from the plan it names, or refuses it with a TableError; no other exception (numpy's included)."""
+    schedule = planned_example("star.yaml").schedule
+    table = bytearray(encode(schedule).data)
+    for _ in range(data.draw(st.integers(1, 4))):
+        table[data.draw(st.integers(0, len(table) - 1))] = data.draw(st.integers(0, 255))
+    try:
+        decoded = decode(bytes(table), len(schedule.motors))
+    except TableError as err:
+        assert str(err)
+        return
+    if bytes(table) != encode(schedule).data:
+        assert differences(decoded, schedule)
