@@ -200,6 +200,10 @@ def _print_verdict(result: dict) -> None:
               f", accel {100 * m['max_accel_ratio']:.1f} % of limit, pulse {m['min_pulse_us']:.2f} us")
     if result["max_path_error_mm"] is not None:
         print(f"  path error {result['max_path_error_mm']:.4f} mm (limit {result['path_limit_mm']:.4f} mm)")
+    if "gcode_checked" in result:
+        done = result["gcode_checked"]
+        print(f"  G-code read again: {done['ends']} line ends, {done['feeds']} feeds, {done['arcs']} arcs and "
+              f"{done['dwells']} dwells as written")
     for reason in result["not_compared"]:
         print(f"  not compared: {reason}")
     if result.get("display") is not None:

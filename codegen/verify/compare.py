@@ -79,6 +79,7 @@ class Verdict:
     display: list[str] | None = None  # the status display's text at the end (None: the board has none)
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
+    gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
 
     @property
     def path_measured(self) -> bool:
@@ -311,7 +312,8 @@ class Comparison:
         problems.extend(laser.problems if laser else [])
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
-                       homing_problems + problems, homing, display, not_compared, laser)
+                       homing_problems + problems, homing, display, not_compared, laser,
+                       self.program.checked if self.program.active else None)
 
     def step_span(self, trace) -> tuple[int, int] | None:
         """The first and the last STEP rise of the run, homing's (in `trace`) included."""
