@@ -172,7 +172,7 @@ class Checker:
         self.steps = np.zeros(len(kin.motors), dtype=np.int64)
         self.net = np.zeros(len(kin.motors), dtype=np.int64)
         self.path_limit = step_length_mm(kin) + tolerance
-        self.worst_path, self.worst_at = 0.0, None
+        self.worst_path, self.worst_at, self.worst_line = 0.0, None, 0  # and its G-code line (0: none)
         self.blocks = 0  # blocks whose tool add_tool has compared
         self.tool_problem: str | None = None  # the first block whose tool differs from the program's
 
@@ -192,6 +192,7 @@ class Checker:
                 one = slice(worst, worst + 1)
                 at = self.kin.to_axes((steps[one] + self.start_steps) / spm, segments.start[seg[one]])
                 self.worst_path, self.worst_at = float(errors[worst]), at[0, :3]
+                self.worst_line = int(segments.line[seg[worst]])
         hits = []
         for m, train in enumerate(trains):
             self.steps[m] += len(train.time)
@@ -230,7 +231,8 @@ class Checker:
         if self.worst_at is not None and self.worst_path > self.path_limit + 1e-9:
             findings.problems.append(
                 f"the tool strays {self.worst_path:.4f} mm from the path (limit {self.path_limit:.4f} mm: "
-                f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in self.worst_at)})")
+                f"1 step + tolerance) at ({', '.join(f'{c:.3f}' for c in self.worst_at)})"
+                + (f" on G-code line {self.worst_line}" if self.worst_line else ""))
         if self.tool_problem is not None:
             findings.problems.append(self.tool_problem)
         for name in names:
