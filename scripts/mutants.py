@@ -31,6 +31,7 @@ OFFSETS_JOB = "tests/data/mutants/gcode-offsets.yaml"  # F on arc lines (read in
 DELTA_JOB = "tests/data/mutants/delta-gcode.yaml"  # a Kossel mini's G-code moves: the reference reads them again
 LIMITS_JOB = "examples/ellipse.yaml"  # runs at 98 % of its motors' rate and 97 % of their acceleration
 HOLD_JOB = "examples/star.yaml"  # corexy with feed hold and override keys
+NEAR_RATE_JOB = "tests/data/mutants/override-near-rate.yaml"  # feed hold; x cruises at 92.5 % of its rate: no headroom
 
 AVR_PLAYER, AVR_HOMING, AVR_BLOCK = "templates/avr/player.c.j2", "templates/avr/homing.c.j2", \
     "templates/avr/player_isr/block.S.j2"
@@ -146,7 +147,7 @@ HOST = [
     Mutant("hold ramp twice as steep", "codegen/tables/hold.py", "    ramp_k = int(RAMP_SHARE * per_second",
            "    ramp_k = int(2 * RAMP_SHARE * per_second", HOLD_JOB, ("--hold", "1.0"), names=("ramp", "hold")),
     Mutant("override ceiling from 105 % of headroom", "codegen/tables/headroom.py",
-           "    allow = 1.0 / _rate_ratio(", "    allow = 1.05 / _rate_ratio(", HOLD_JOB, ("--override", "150"),
+           "    allow = 1.0 / _rate_ratio(", "    allow = 1.05 / _rate_ratio(", NEAR_RATE_JOB, ("--override", "150"),
            names=("rate", "ceiling")),
     Mutant("laser power x 0.95", "codegen/tables/laser.py", "    power = np.where(on, segments.power[segment], 0.0)",
            "    power = np.where(on, 0.95 * segments.power[segment], 0.0)", LASER_JOB, names=("power",)),

@@ -10,7 +10,8 @@ SECONDS into the job; resume once the twin says the machine is at rest (REST_S a
 by main's poll after a step interrupt, and that event's next interrupt dilates the event after it: which event that
 is depends on cycles the twin does not count, so each request's first dilated event is chosen among a few
 (CANDIDATES) as the one the simulated pulses agree with, and reported. Everything after follows from it: the
-times of every pulse, where the machine comes to rest, and the limits over the whole run (checks.py)."""
+times of every pulse, where the machine comes to rest, and the limits over the whole run (checks.py); the ramp and
+the ceilings are held to their own rules, from the job's settings (hold_limits.py)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from codegen.errors import BuildError
 from codegen.pipeline.host import HostBuild
 from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
 from codegen.verify.compare import compare
+from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems
 from codegen.verify.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
 
 OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from the job's start
@@ -181,7 +183,11 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
                       dilation=final)
     result = runner.result(verdict, trace)
-    result["hold"] = _report(host, actions, final, tick0, resume_arrived, override)
+    shares = ceiling_shares(host)
+    result["hold"] = _report(host, actions, final, tick0, resume_arrived, override, shares)
+    limits = ramp_problems(host, final) + ceiling_problems(shares)  # the dilated twin shares these: first
+    result["problems"][:0] = limits
+    result["pass"] = result["pass"] and not limits
     if len(final.parks) != len(resume_presses):
         result["problems"].append(f"the machine came to rest {len(final.parks)} times, "
                                   f"{len(resume_presses)} expected (the hold and every M0/M1)")
@@ -221,8 +227,10 @@ def hold_lines(hold: dict) -> list[str]:
     lines = [f"  {k['key']} at {k['pressed_s']:.4f} s: the player dilated from event {k['first_dilated_event']}"
              for k in hold["keys"]]
     if (hold.get("override_pct") or 0) > 100:
+        at_ceilings = (f" (at them a motor would run at {100 * hold['ceiling_rate_ratio']:.1f} % of its rate at most)"
+                       if hold["ceiling_rate_ratio"] else "")
         lines.append(f"  override {hold['override_pct']} %: the factor went up to {hold['highest_factor_pct']:.1f} %, "
-                     f"under {hold['ceiling_records']} ceiling records")
+                     f"under {hold['ceiling_records']} ceiling records{at_ceilings}")
     if "at_rest_s" in hold:
         lines.append(f"  hold: at rest {hold['stopping_s']:.4f} s after the key (at {hold['at_rest_s']:.4f} s, "
                      f"before event {hold['parked_event']}), resumed at {hold['resume_s']:.4f} s")
@@ -235,7 +243,8 @@ def hold_lines(hold: dict) -> list[str]:
 
 
 def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: int, resume_presses: list[int],
-            override: int | None) -> dict:
+            override: int | None, shares: dict) -> dict:
+    """The hold's figures; `shares`: ceiling_shares."""
     f_cpu, tick_hz = host.target.f_cpu, host.target.tick_hz
 
     def seconds(cycles: int) -> float:  # from the job's tick 0
@@ -248,6 +257,7 @@ def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: i
     out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests,
                  "highest_factor_pct": round(100 * int(played.max(initial=0)) / F_ONE, 1),
                  "ceiling_records": host.schedule.n_ceiling,
+                 "ceiling_rate_ratio": round(max((s[0] for s in shares.values()), default=0.0), 4),
                  "ramp_s": round(host.hold_plan.ramp_seconds(tick_hz), 6), "keys": [
         {"key": a.function, "pressed_s": seconds(a.press), "first_dilated_event": a.event} for a in actions]}
     hold = next((a for a in actions if a.function == "hold"), None)

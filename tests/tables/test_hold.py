@@ -25,6 +25,7 @@ from codegen.sim.avr import simulate
 from codegen.tables.checks import check
 from codegen.tables.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
 from codegen.verify.hold import hold_verify
+from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems
 from codegen.verify.hold_runs import FlashRun
 from tests.helpers import ROOT
 from tests.jobgen import jobs
@@ -218,7 +219,7 @@ HOST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
 def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_factory, text, where, override):
     """The host model of a hold (and an override before it: 70, 40 or 10 %, or 150 or 200 % under the ceiling
     records) over random machines and programs: the dilated pulse trains keep every motor within its rate and
-    acceleration, as the planned ones do."""
+    acceleration, as the planned ones do; the ramp and the ceilings keep to verify's rules (hold_limits.py)."""
     path = tmp_path_factory.mktemp("hold") / "job.yaml"
     path.write_text(_with_hold(text))
     try:
@@ -235,6 +236,7 @@ def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_fa
         resume = held.parks[0][1] + host.target.tick_hz // 50 + RESUME_TICKS
         held = dilate(host.schedule, host.hold_plan, changes, [resume], F_ONE)
     assert np.all(np.diff(held.tick) >= 0)
+    assert ramp_problems(host, held) == [] and ceiling_problems(ceiling_shares(host)) == []
     delay = (held.tick - twin.event_tick) / host.target.tick_hz
     trains = trains_from(held.tick[twin.event] / host.target.tick_hz, twin.motor, twin.dir, len(host.kin.motors))
     findings = check(trains, np.zeros((0, len(host.kin.motors)), dtype=np.int64), np.zeros(0, dtype=np.int64),

@@ -1,0 +1,102 @@
+"""The feed hold's and the override's own limits, checked against the job's settings (`verify --hold/--override`,
+codegen/verify/hold.py). The dilated twin that the simulated pulses are compared with is made from the same ramp and
+ceilings as the tables, so a ramp or a ceiling that breaks its rule agrees with it; the rules are stated here, apart
+from the code that builds the ramp and the ceilings (codegen/tables/hold.py, codegen/tables/headroom.py):
+
+- The ramp (hold, resume, override): the feed factor f (1 = 100 %) changes by at most RAMP_ACCEL_SHARE x
+  max_accel / max_velocity per second of the job's stepper with the least of that, so that no motor's extra
+  acceleration v x df/dt, at its top speed, takes more than that share of its acceleration. Measured on the run's
+  dilation: the factor every event's interrupt leaves against the time of the event after it, over every pair of
+  events between two rests (a resume starts again from rest), within RAMP_ROUNDING.
+- The ceilings (override above 100 %): a steady factor at its ceiling takes no motor past CEILING_RATE_SHARE of its
+  rate (max_velocity x steps_per_mm): over every 8 consecutive steps of the (undilated) twin, their rate x the
+  highest ceiling in force at their events. Stretches whose ceiling is 100 % are the plan's (the checks' rate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codegen.motion.planner import RATE_WINDOW
+from codegen.pipeline.host import HostBuild
+from codegen.tables.hold import F_ONE, PARKED, Dilation, event_ceilings
+
+RAMP_ACCEL_SHARE = 0.2  # of each motor's acceleration, at its top speed, that the factor's ramp may take
+CEILING_RATE_SHARE = 1.0  # of each motor's rate that a steady factor at its ceiling may take
+RAMP_ROUNDING = 1.0  # F: the dilation reports the factor's whole part (the player keeps F.frac16)
+
+
+def ramp_limit(host: HostBuild) -> tuple[float, str]:
+    """The fastest the factor may change (1 = 100 %, per second) and the stepper whose limits set it."""
+    steppers = host.job.machine.steppers
+    name = min(steppers, key=lambda n: steppers[n].max_accel / steppers[n].max_velocity)
+    return RAMP_ACCEL_SHARE * steppers[name].max_accel / steppers[name].max_velocity, name
+
+
+def ramp_excess(dilation: Dilation, per_tick: float) -> tuple[float, int, int]:
+    """The most the factor moved beyond `per_tick` (F per tick) between two events of one stretch between rests:
+    (|F_j - F_i| - per_tick x (t_j - t_i), i, j), F_i the factor event i's interrupt left and t_i the tick of
+    the event after it; (0, 0, 0) where nothing moved."""
+    factor, tick = dilation.factor[:-1], dilation.tick[1:]
+    played = (factor != PARKED) & (tick >= 0)
+    best = (0.0, 0, 0)
+    for stretch in np.split(np.arange(len(factor)), np.flatnonzero(~played)):
+        stretch = stretch[played[stretch]]
+        if len(stretch) < 2:
+            continue
+        f, t = factor[stretch].astype(np.float64), tick[stretch].astype(np.float64)
+        for gain in (f - per_tick * t, -(f + per_tick * t)):  # a rise, then a fall: beyond the limit's ...
+            lowest = np.minimum.accumulate(gain)  # ... how far each event got from the lowest before it
+            j = int(np.argmax(gain - lowest))
+            excess = float(gain[j] - lowest[j])
+            if excess > best[0]:
+                best = (excess, int(stretch[np.argmin(gain[:j + 1])]), int(stretch[j]))
+    return best
+
+
+def ramp_problems(host: HostBuild, dilation: Dilation) -> list[str]:
+    """The run's factor changed faster than the ramp's rule lets it."""
+    tick_hz = host.target.tick_hz
+    limit, name = ramp_limit(host)
+    excess, i, j = ramp_excess(dilation, limit * F_ONE / tick_hz)
+    if excess <= RAMP_ROUNDING:
+        return []
+    f = dilation.factor
+    seconds = (dilation.tick[j + 1] - dilation.tick[i + 1]) / tick_hz
+    return [f"the feed factor ramps from {100 * f[i] / F_ONE:.1f} % to {100 * f[j] / F_ONE:.1f} % in "
+            f"{1e3 * seconds:.1f} ms (after events {i} to {j}): faster than the hold's ramp may, "
+            f"{100 * limit:.1f} % per second ({100 * RAMP_ACCEL_SHARE:.0f} % of stepper {name}'s acceleration at its "
+            f"top speed)"]
+
+
+def ceiling_shares(host: HostBuild) -> dict[str, tuple[float, int, int, int]]:
+    """Per motor, where a steady factor at the ceilings would run it fastest against its rate, over stretches whose
+    ceiling is above 100 %: (share of its rate, ceiling F, first and last event of its 8 steps). Empty where the
+    tables have no ceiling above 100 %."""
+    ceiling = event_ceilings(host.schedule)
+    if not len(ceiling) or ceiling.max() <= F_ONE:
+        return {}
+    twin, tick_hz, steppers = host.pulses, host.target.tick_hz, host.job.machine.steppers
+    out = {}
+    for m, name in enumerate(host.kin.motors):
+        mine = twin.motor == m
+        tick, event = twin.tick[mine], twin.event[mine]
+        if len(tick) <= RATE_WINDOW:
+            continue
+        between = np.maximum(np.maximum.reduceat(ceiling, event)[:-1], ceiling[event[1:]])  # steps k to k + 1
+        highest = between[:len(between) - RATE_WINDOW + 1].copy()  # over the 8 steps from k
+        for k in range(1, RATE_WINDOW):
+            np.maximum(highest, between[k:k + len(highest)], out=highest)
+        rate = RATE_WINDOW * tick_hz / np.maximum(tick[RATE_WINDOW:] - tick[:-RATE_WINDOW], 1)
+        share = np.where(highest > F_ONE, rate * highest / F_ONE, 0.0) / (
+            steppers[name].max_velocity * steppers[name].steps_per_mm)
+        k = int(np.argmax(share))
+        out[name] = (float(share[k]), int(highest[k]), int(event[k]), int(event[k + RATE_WINDOW]))
+    return out
+
+
+def ceiling_problems(shares: dict[str, tuple[float, int, int, int]]) -> list[str]:
+    """The ceilings that would take a motor past its rate (ceiling_shares)."""
+    return [f"motor {name}: the override's ceiling of {100 * ceiling / F_ONE:.1f} % in force at events {first} to "
+            f"{last} would take it to {100 * share:.1f} % of its rate over 8 steps (max_velocity x steps_per_mm)"
+            for name, (share, ceiling, first, last) in shares.items() if share > CEILING_RATE_SHARE]
