@@ -32,6 +32,8 @@ DELTA_JOB = "tests/data/mutants/delta-gcode.yaml"  # a Kossel mini's G-code move
 LIMITS_JOB = "examples/ellipse.yaml"  # runs at 98 % of its motors' rate and 97 % of their acceleration
 HOLD_JOB = "examples/star.yaml"  # corexy with feed hold and override keys
 NEAR_RATE_JOB = "tests/data/mutants/override-near-rate.yaml"  # feed hold; x cruises at 92.5 % of its rate: no headroom
+CORNERS_JOB = "tests/data/mutants/corners.yaml"  # polygons whose corners bind on the junction deviation
+WINDOWS_JOB = "tests/data/mutants/windows.yaml"  # x moves and y moves in lookahead windows of their own
 
 AVR_PLAYER, AVR_HOMING, AVR_BLOCK = "templates/avr/player.c.j2", "templates/avr/homing.c.j2", \
     "templates/avr/player_isr/block.S.j2"
@@ -129,7 +131,7 @@ HOST = [
            "    amax = motor.max_accel * keep * limits.accel_share",
            "    amax = 1.05 * motor.max_accel * keep * limits.accel_share", LIMITS_JOB, names=("acceleration",)),
     Mutant("junction speed v^2 doubled", "codegen/motion/planner.py", "a_normal * deviation * sin_half /",
-           "2.0 * a_normal * deviation * sin_half /", HOLD_JOB, names=("acceleration",)),
+           "2.0 * a_normal * deviation * sin_half /", CORNERS_JOB, names=("junction", "corner")),
     Mutant("R arc centre on the wrong side", "codegen/gcode/arcs.py", "    if not clockwise:\n        h_x2_div_d",
            "    if clockwise:\n        h_x2_div_d", GCODE_JOB, names=("arc",)),
     Mutant("R arc centre +0.05 mm", "codegen/gcode/arcs.py", "    center = (start[0] + 0.5 * (x - y * h_x2_div_d),",
@@ -155,7 +157,7 @@ HOST = [
            "    share: float = 0.5", LIMITS_JOB, names=("window", "timing")),
     Mutant("each window's twin from clock 0", "codegen/pipeline/windows.py",
            "pulses = predict(compressed.schedule, before.origin_fx, before.position)",
-           "pulses = predict(compressed.schedule, 0, before.position)", GCODE_JOB, names=("twin",)),
+           "pulses = predict(compressed.schedule, 0, before.position)", WINDOWS_JOB, names=("twin",)),
     Mutant("short runs' add +1/256 tick in the bytes", "codegen/tables/format.py",
            "    runs[rs, 4:6] = _le(add[rs] & 0xFFFF, 2)", "    runs[rs, 4:6] = _le((add[rs] + 1) & 0xFFFF, 2)",
            LIMITS_JOB, names=("predicted time", "the image's table")),

@@ -22,6 +22,7 @@ from codegen.toolpath.segments import concat
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
+from codegen.verify.plan_checks import PlanChecks
 from codegen.verify.program_check import ProgramCheck
 
 MAX_TIMING_ERROR_US = 5.0
@@ -125,11 +126,13 @@ class Comparison:
         self.tool_on = False  # at the last chapter's last event
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
+        self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
         levels are read there); `clock`: the same pulses' cycles on the twin's clock (a held run's moved by its
         holds, codegen/verify/heaters.py)."""
+        self.problems += self.plan_checks.add(chapter)
         host, twin, names = self.host, chapter.pulses, self.host.kin.motors
         sim_s = (clock - self.tick0) / self.f_cpu
         twin_s = twin.tick / host.target.tick_hz
@@ -270,7 +273,7 @@ class Comparison:
             pace, self.problems = [], []
         elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
-        not_compared, timing = [], {}
+        not_compared, timing = list(self.plan_checks.not_compared), {}
         for m, name in enumerate(names):
             got, want = int(self.made[m]), int(self.predicted[m])
             if got != want:
