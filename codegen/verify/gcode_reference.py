@@ -40,6 +40,7 @@ class Move:
     end: tuple[float, float, float]
     speed: float | None  # mm/s the move may not beat (None: G0, inverse time, or no F yet)
     arc: tuple | None = None  # (centre (u, v), radius, plane (u, v) axes, clockwise, sweep rad)
+    offsets: tuple[float, float, float] = (0.0, 0.0, 0.0)  # mm where coordinate 0 is (G92, G54-G59, G43.1)
 
     def length(self) -> float:
         """mm along the path (nan with an unknown axis)."""
@@ -197,7 +198,8 @@ class Reading:
         speed = None if self.motion == "G0" or self.inverse_time else max(self.feed * self.factor, self.least)
         arc = _arc(self.motion, self.plane, start, end, params, self.unit) if self.motion in ("G2", "G3") else None
         self.pos = end
-        return Move(self.number, self.text, start, tuple(end), speed, arc)
+        offsets = tuple(self._base(i) + self.g92[i] for i in range(3))
+        return Move(self.number, self.text, start, tuple(end), speed, arc, offsets)
 
 
 def _number(text: str) -> str:

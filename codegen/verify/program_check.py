@@ -137,7 +137,7 @@ class ProgramCheck:
         if np.any(np.abs(position - want) > STEP_SLACK):
             self.problems.append(
                 f"{_at(move)}: the tables end the move at steps {_steps(self.geometry, position)} where the "
-                f"program's {_mm(move.end)} gives {_steps(self.geometry, want)}")
+                f"program's end, {_mm(move.end)} in machine mm, gives {_steps(self.geometry, want)}" + _offsets(move))
 
     def _feed(self, move: Move, time: float) -> None:
         length = move.length()
@@ -196,6 +196,13 @@ class ProgramCheck:
 
 def _at(record: Move | Dwell) -> str:
     return f"G-code line {record.line} ({record.text})"
+
+
+def _offsets(move: Move) -> str:
+    """Where coordinate 0 is, when a G92 or a coordinate system moved it."""
+    if not any(move.offsets):
+        return ""
+    return f" (with G92 and coordinate system offsets {_mm(move.offsets)})"
 
 
 def _steps(geometry: MachineGeometry, steps: np.ndarray) -> str:

@@ -111,7 +111,8 @@ def test_a_move_ending_a_step_off_fails(offsets_build):
     wrong = dataclasses.replace(chapter, pulses=dataclasses.replace(chapter.pulses, event_position=position))
     problems, _ = checked(host, wrong)
     assert problems == ["G-code line 24 (G0 X0 Y0): the tables end the move at steps x 5634, y 1416 where the "
-                        "program's X70.400 Y17.700 Z0.000 gives x 5632, y 1416"]
+                        "program's end, X70.400 Y17.700 Z0.000 in machine mm, gives x 5632, y 1416 (with G92 and "
+                        "coordinate system offsets X70.400 Y17.700 Z0.000)"]
 
 
 def test_moves_faster_than_their_feed_fail(offsets_build):
