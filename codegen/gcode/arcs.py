@@ -22,6 +22,7 @@ from typing import NamedTuple
 RADIUS_SLACK = 0.005  # mm: radii differing by no more than this always pass
 RADIUS_ERROR = 0.5  # mm
 RADIUS_SHARE = 0.001  # of the radius (0.1 %)
+LARGEST_RADIUS_MM = 1e5  # 100 m: beyond any machine (ArcWelder writes 9,999 mm at most)
 ANGLE_EPSILON = 5e-7  # rad, Grbl's ARC_ANGULAR_TRAVEL_EPSILON
 
 
@@ -60,6 +61,12 @@ def sweep_between(center: tuple[float, float], start: tuple[float, float], end: 
     return angle
 
 
+def _within_largest(radius: float, letter: str) -> None:
+    if not radius <= LARGEST_RADIUS_MM:
+        raise ArcError(f"arc radius {radius:.6g} mm is beyond the largest an arc may have, {LARGEST_RADIUS_MM:g} mm "
+                       f"(so large an arc is a straight line to the planner's precision: write G1)", letter)
+
+
 def from_offsets(start: tuple[float, float], end: tuple[float, float], offset: tuple[float, float],
                  clockwise: bool, letters: tuple[str, str]) -> Circle:
     """I/J/K form: `offset` is the centre relative to the start (in mm); `letters` the offset words."""
@@ -68,6 +75,7 @@ def from_offsets(start: tuple[float, float], end: tuple[float, float], offset: t
     r_end = math.hypot(end[0] - center[0], end[1] - center[1])
     if r_start == 0.0:
         raise ArcError(f"arc radius is 0: {letters[0]} and {letters[1]} put the centre at the start", letters[0])
+    _within_largest(r_start, letters[0])
     delta = abs(r_end - r_start)
     if delta > RADIUS_SLACK and (delta > RADIUS_ERROR or delta > RADIUS_SHARE * r_start):
         raise ArcError(f"arc end is not on the circle: radius {mm(r_start)} mm at the start, {mm(r_end)} mm "
@@ -83,6 +91,7 @@ def from_radius(start: tuple[float, float], end: tuple[float, float], r: float, 
     if x == 0.0 and y == 0.0:
         raise ArcError("an R arc cannot end where it starts; give the centre with I/J/K for a full circle", "R")
     chord = math.hypot(x, y)
+    _within_largest(abs(r), "R")
     h_x2_div_d = 4.0 * r * r - x * x - y * y
     if h_x2_div_d < 0.0:
         if chord / 2.0 - abs(r) > RADIUS_SLACK:

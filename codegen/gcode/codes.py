@@ -109,6 +109,9 @@ PROBES = frozenset({"G38.2", "G38.3", "G38.4", "G38.5"})
 _names: dict[tuple[str, str], str | None] = {}
 
 
+LARGEST_CODE = 1e6  # a code number beyond names no code
+
+
 def code_name(letter: str, number: str) -> str | None:
     """`G`, `01` -> `G1`; `G`, `38.2` -> `G38.2`; None for a number that names no code (`G1.25`, `G-1`)."""
     key = (letter, number)
@@ -117,6 +120,8 @@ def code_name(letter: str, number: str) -> str | None:
     except KeyError:
         pass
     value = float(number)
+    if not value < LARGEST_CODE:  # nan and inf too: G followed by 400 nines
+        return None
     tenths = round(value * 10.0)
     name = None
     if value >= 0.0 and abs(value * 10.0 - tenths) < 1e-6:

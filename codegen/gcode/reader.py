@@ -23,7 +23,7 @@ from typing import Iterable, Iterator, NamedTuple
 from codegen.errors import Diagnostic, SourceRef
 from codegen.gcode.codes import TEXT_CODES, code_name, family
 
-_NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
+_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)"  # one way to match each number: no backtracking over a line's words
 _FLAGS = re.ASCII | re.IGNORECASE
 LINE_OF_WORDS = re.compile(rf"\s*(?:[A-Z]\s*{_NUMBER}\s*)*", _FLAGS)  # fullmatch: a line of words only
 WORD = re.compile(rf"([A-Z])\s*({_NUMBER})", re.ASCII)  # on upper-cased text that LINE_OF_WORDS accepted

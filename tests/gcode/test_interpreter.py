@@ -357,3 +357,12 @@ def test_pressure_advance_only_off():
     assert errors("M900 K0.05\nM572 S0.04\n") == [
         (8, 10, "'M900 K0.05': pressure (linear) advance is not modelled; only K0 (off)"),
         (9, 10, "'M572 S0.04': pressure (linear) advance is not modelled; only S0 (off)")]
+
+
+def test_an_arc_larger_than_any_machine_is_refused_at_its_word():
+    """Issue 28: a radius of 1e150 divided by zero in the chord count; R1e6 on a 0.2 mm chord ran for minutes."""
+    message = ("arc radius {} mm is beyond the largest an arc may have, 100000 mm (so large an arc is a straight line "
+               "to the planner's precision: write G1)")
+    assert errors("G2 X5 Y0 I1" + "0" * 150 + " J0\nG1 X2 Y7\nG2 X2.2 Y6.9 R1000000\n") == [
+        (8, 14, message.format("1e+150")), (10, 18, message.format("1e+06"))]
+    assert len(items("G1 X2 Y7\nG2 X2.2 Y6.9 R99999\n")) == 2  # within the limit: an arc

@@ -182,3 +182,15 @@ def test_two_printer_mcodes_on_one_line():
 def test_codes_of_different_groups_share_a_line():
     toolpath, warnings = toolpath_from_gcode(job("G17 G21 G90 G94 G1 X2 F600\n"))
     assert len(toolpath.items) == 1 and warnings == []
+
+
+def test_a_line_of_many_words_that_fails_at_its_end_is_read_in_linear_time():
+    """Issue 28: each number matched two ways (`11` as 1+1), so a failing line of 24 words took 31 s; of 60 words
+    (here) it would never end."""
+    diagnostics = [d for d in read(["G1" + " X11" * 60 + " #"], Origin("p.gcode")) if isinstance(d, Diagnostic)]
+    assert [(d.where.col, d.message) for d in diagnostics] == [(244, "unexpected '#'")]  # 1-based
+
+
+def test_a_code_number_beyond_any_code_names_none():
+    """Issue 28: G followed by 400 nines overflowed float -> int in code_name (exit 1, a traceback)."""
+    assert code_name("G", "9" * 400) is None and code_name("G", "1000000") is None and code_name("G", "28") == "G28"
