@@ -2,7 +2,9 @@
 another, the job (and verify flags) that exercises it, and the words of a message that names the fault.
 
 The kinds follow /work/shared/VERIFY-MUTANTS.md (its 49 of today's main): 29 in the firmware templates, 20 in the
-host code. tests/test_mutants_apply.py checks that every `old` text is found exactly once in today's sources.
+host code; and one more, the table encoder's bug of a flash image's mutant in a stream's bytes (50). Where a job
+did not reach its mutant (its output unchanged), the mutant runs on a job that does. tests/test_mutants_apply.py
+checks that every `old` text is found exactly once in today's sources.
 """
 
 from __future__ import annotations
@@ -161,6 +163,9 @@ HOST = [
     Mutant("short runs' add +1/256 tick in the bytes", "codegen/tables/format.py",
            "    runs[rs, 4:6] = _le(add[rs] & 0xFFFF, 2)", "    runs[rs, 4:6] = _le((add[rs] + 1) & 0xFFFF, 2)",
            LIMITS_JOB, names=("predicted time", "the image's table")),
+    Mutant("short runs' add +1/256 tick in the streamed bytes", "codegen/tables/format.py",
+           "    runs[rs, 4:6] = _le(add[rs] & 0xFFFF, 2)", "    runs[rs, 4:6] = _le((add[rs] + 1) & 0xFFFF, 2)",
+           "examples/gcode/plotter-svg.yaml", ("--stream",), names=("streamed table",)),
     Mutant("homing fast interval from the slow speed", "codegen/program/homing.py",
            "fast_interval=max(1, round(tick_hz / (settings.speed * spm)))",
            "fast_interval=max(1, round(tick_hz / (settings.slow_speed * spm)))", AVR_JOB, names=("homing",)),

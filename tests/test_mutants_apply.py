@@ -22,8 +22,9 @@ def test_mutant_applies_to_todays_sources(mutant):
 
 
 def test_the_set_has_verify_mutants_kinds():
-    """VERIFY-MUTANTS.md's 49: 29 in the firmware templates, 20 in the host code, each name once."""
-    assert len(FIRMWARE) == 29 and len(HOST) == 20
+    """VERIFY-MUTANTS.md's 49: 29 in the firmware templates, 20 in the host code, each name once; and the table
+    encoder's bug in a stream's bytes."""
+    assert len(FIRMWARE) == 29 and len(HOST) == 21
     assert all(m.path.startswith("templates/") for m in FIRMWARE)
     assert not any(m.path.startswith("templates/") for m in HOST)
     assert len({m.name for m in MUTANTS}) == len(MUTANTS)

@@ -87,7 +87,7 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
     if bounded(args, setup.target.target, job):
-        with tempfile.TemporaryFile() as table:
+        with tempfile.NamedTemporaryFile(prefix="table-", suffix=".bin") as table:  # the comparison reads it too
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
             result, trace = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
                                                     steps_csv=Path(args.trace) if args.trace else None)

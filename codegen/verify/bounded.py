@@ -35,6 +35,7 @@ from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 from codegen.verify.steps_csv import StepsCsv
+from codegen.verify.stream_tables import StreamTableCheck
 
 
 @dataclass
@@ -58,8 +59,10 @@ class BoundedComparison:
     the verdict (`finish`)."""
 
     def __init__(self, host: HostBuild, strict: bool, link, switches: dict, streamed: bool,
-                 chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None):
+                 chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None, sent_table: Path | None = None):
+        """`sent_table`: the table stream the host link sends (a stream's), decoded and held against the plan."""
         self.host, self.strict, self.link, self.switches = host, strict, link, switches
+        self.sent = None if sent_table is None else StreamTableCheck(sent_table, len(host.kin.motors))
         self.streamed, self.chapter_pulses = streamed, chapter_pulses
         self.began = time.perf_counter()
         self.reader = self.comparison = self.chapters = None
@@ -80,7 +83,13 @@ class BoundedComparison:
             give_back_freed_memory()
 
         self.chapters = chapters = Chapters(chapter, self.chapter_pulses)
-        host_build(host.job, self.strict, keep=False, link=self.link, observe=chapters)
+
+        def observe(played) -> None:
+            if self.sent is not None:
+                self.sent.window(played.table_schedule, played.events_count)
+            chapters(played)
+
+        host_build(host.job, self.strict, keep=False, link=self.link, observe=observe)
         chapters.close()
         rest = reader.rest()
         self._rows(rest)
@@ -104,6 +113,8 @@ class BoundedComparison:
             self._rows(Steps.empty())  # homing's rows, where no chapter came
             self.rows.close()
         verdict = comparison.finish(trace, self.switches)
+        if self.sent is not None:  # the bytes first: a wrong byte explains any pulse it puts out of place
+            verdict.problems[:0] = self.sent.close()
         span = comparison.span_cycles[1] - comparison.span_cycles[0] if comparison.span_cycles else 0
         return Compared(verdict, trace, self.chapters.timeline(), comparison.twin_final, comparison.position,
                         comparison.trip_figures(), span, comparison.planned_s(), reader.first_run_cycle,
@@ -126,9 +137,10 @@ def give_back_freed_memory() -> None:
 
 def compare_run(host: HostBuild, strict: bool, link, edges: Path, ended: Callable[[], bool],
                 end_trace: Callable[[], SimTrace], switches: dict, streamed: bool,
-                chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None) -> Compared:
+                chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None,
+                sent_table: Path | None = None) -> Compared:
     """BoundedComparison's run and finish (`end_trace()`: the run's end, once it has ended)."""
-    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses, steps_csv)
+    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses, steps_csv, sent_table)
     comparison.run(edges, ended)
     return comparison.finish(end_trace())
 
@@ -139,11 +151,11 @@ class ComparingProcess:
     would start with this process's memory mapped, and the simulator's pipes open."""
 
     def __init__(self, host: HostBuild, strict: bool, link, edges: Path, switches: dict, streamed: bool,
-                 steps_csv: Path | None = None):
+                 steps_csv: Path | None = None, sent_table: Path | None = None):
         context = multiprocessing.get_context("spawn")
         self._here, there = context.Pipe()
-        self._process = context.Process(target=_compare_there,
-                                        args=(there, host, strict, link, edges, switches, streamed, steps_csv))
+        self._process = context.Process(target=_compare_there, args=(there, host, strict, link, edges, switches,
+                                                                     streamed, steps_csv, sent_table))
         self._process.start()
 
     def result(self, end_trace: SimTrace) -> Compared:
@@ -167,11 +179,11 @@ class ComparingProcess:
             self._process.join()
 
 
-def _compare_there(conn, host, strict, link, edges, switches, streamed, steps_csv) -> None:
+def _compare_there(conn, host, strict, link, edges, switches, streamed, steps_csv, sent_table) -> None:
     progress.enable(False)  # the simulation's bar is this process's parent's
     try:
         compared = compare_run(host, strict, link, edges, conn.poll, conn.recv, switches, streamed,
-                               steps_csv=steps_csv)
+                               steps_csv=steps_csv, sent_table=sent_table)
         conn.send(("result", compared))
     except BaseException:  # noqa: BLE001 -- whatever it was, the parent reports it
         conn.send(("error", traceback.format_exc()))

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 
@@ -111,12 +110,13 @@ def made_positions(trace, motors: int) -> np.ndarray:
     return np.array([int(run.step_dir[run.step_motor == m].sum()) for m in range(motors)], dtype=np.int64)
 
 
-def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table: BinaryIO, strict: bool,
+def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table, strict: bool,
                             comparing=ComparingProcess, steps_csv: Path | None = None) -> tuple[dict, object]:
     """simulate_stream in bounded memory (codegen/verify/bounded.py): `host` is the first pass's (not kept), its
-    table stream in `table`; the comparison runs beside the simulation (`comparing`: in a second process, while this
-    one drives the link). The trace returned has the homing pulses, the clock and the slow pins, not the table's
-    pulses."""
+    table stream in `table` (a named file: the comparison decodes the bytes the link sends and holds them against
+    the plan); the comparison runs beside the simulation (`comparing`: in a second process, while this one drives
+    the link). The trace returned has the homing pulses, the clock and the slow pins, not the table's pulses."""
+    table.flush()
     config = setup.config
     motors = len(host.kin.motors)
     link = HostLink(file_chunks(table, motors), motors, setup.identity, 10 / setup.layout.baud,
@@ -126,7 +126,8 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
     plants = job_plants(host.job, config) if config.heaters else None
     with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
-        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, steps_csv)
+        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, steps_csv,
+                              sent_table=Path(table.name))
         try:
             with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
                 summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)

@@ -40,15 +40,16 @@ class KeptRun:
     kept: dict = {}
     folder: Path | None = None  # where the copy goes (the fixture's temporary folder)
 
-    def __init__(self, host, strict, link, edges, switches, streamed, steps_csv=None):
-        self.args, self.edges = (host, strict, link, switches, streamed), edges
+    def __init__(self, host, strict, link, edges, switches, streamed, steps_csv=None, sent_table=None):
+        self.args, self.edges, self.sent_table = (host, strict, link, switches, streamed), edges, sent_table
 
     def result(self, end_trace):
         host, strict, link, switches, streamed = self.args
         copy = KeptRun.folder / "edges.bin"
         shutil.copy(self.edges, copy)
         KeptRun.kept.update(args=self.args, edges=copy, end=end_trace)
-        return compare_run(host, strict, link, copy, lambda: True, lambda: end_trace, switches, streamed)
+        return compare_run(host, strict, link, copy, lambda: True, lambda: end_trace, switches, streamed,
+                           sent_table=self.sent_table)
 
     def stop(self):
         pass
@@ -68,7 +69,7 @@ def session(tmp_path_factory):
     job = load_job(folder / "one-layer.yaml")
     setup = stream_setup(job)
     image, _ = _firmware(job, setup, str(folder / "out"))
-    with tempfile.TemporaryFile() as table:
+    with tempfile.NamedTemporaryFile() as table:
         host = streamed_host(job, setup, False, keep=False, tables_out=table)
         result, _ = simulate_stream_bounded(host, setup, image, (), table, False, comparing=KeptRun)
     whole, _ = simulate_stream(streamed_host(job, setup, False, keep=True), setup, image, ())
