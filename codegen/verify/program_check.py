@@ -66,6 +66,16 @@ class MachineGeometry:
         return (10.0 if self.kind == "delta" else 2.0) / float(self.spm.min())
 
 
+def gcode_start(host) -> np.ndarray:
+    """Where the G-code begins: the job's explicit `start` (a machine that homes at power-up travels there from its
+    home first), else where the program starts (its home, or the origin)."""
+    start = np.array(host.start[:3], dtype=float)
+    if host.job.program.start_source is not None:
+        given = [float(v) for v in host.job.program.start]
+        start[:len(given)] = given
+    return start
+
+
 class ProgramCheck:
     """Fed a chapter at a time (codegen/verify/compare.py); `problems` once the last has come."""
 
@@ -73,7 +83,7 @@ class ProgramCheck:
         job = host.job
         self.active = bool(job.program.gcode) and not job.program.shapes
         self.geometry = MachineGeometry(job.machine, host.kin.motors)
-        self.reading = Reading(job, host.start) if self.active else None
+        self.reading = Reading(job, gcode_start(host)) if self.active else None
         self.start_steps = np.asarray(host.start_steps)[self.geometry.index]
         self.tolerance = host.settings.stages.tolerance_mm
         self.moves: dict[int, Move] = {}
