@@ -22,14 +22,15 @@ from codegen.firmware.config import Image
 from codegen.job import load_job
 from codegen.pipeline.host import HostBuild, host_build
 from codegen.report.summaries import build_report, human_plan, motion, plan_summary, write_json, write_trace
-from codegen.report.waveform import write_vcd
 from codegen.tables.format import stream_bytes
 from codegen.verify.bounded import verify_flash
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify.hold import hold_lines, hold_verify, pauses
+from codegen.verify.report_samples import whole_run_samples
 from codegen.verify.results import verify_json
 from codegen.verify.shipped import shipped_problems
+from codegen.verify.waveform import write_vcd
 
 IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
@@ -129,16 +130,16 @@ def cmd_verify(args) -> int:
         return cli_batch.cmd_verify_many(args)
     args.job = args.job[0]  # one job file: the single verify below
     if args.stream:
-        host, result, trace, headline = cli_stream.verify_stream(args)
-        return _conclude_verify(args, host, result, trace, headline)
+        host, result, trace, samples, headline = cli_stream.verify_stream(args)
+        return _conclude_verify(args, host, result, trace, headline, samples)
     job = load_job(Path(args.job), args.target)
     if cli_stream.bounded(args, job.target, job):  # codegen/verify/bounded.py: a chapter at a time, on two cores
         host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables")
-        result, trace = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
-                                     args.strict, steps_csv=Path(args.trace) if args.trace else None)
-        args.trace = None  # written as the run was compared
+        result, compared = verify_flash(host, image, job_faults(args.fault, tuple(h.name for h in host.heaters)),
+                                        args.strict, cli_stream.run_outputs(args))
         result = _shipped(host, image, result)
-        return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
+        return _conclude_verify(args, host, result, compared.trace, _verify_headline(host, result, out_dir),
+                                compared.samples)
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
     if args.hold is not None or args.override is not None or pauses(host):
@@ -169,15 +170,16 @@ def _verify_headline(host: HostBuild, result: dict, out_dir: Path) -> list[str]:
             f"{result['planned_duration_s']:.4f} s planned"]
 
 
-def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[str]) -> int:
-    """verify's output: the trace file, then the JSON, or `headline` and the verdict's lines."""
+def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[str], samples=None) -> int:
+    """verify's output: the files not written as the run was compared, then the JSON, or `headline` and the
+    verdict's lines. `samples`: what --report draws, where it was gathered as the run was compared."""
     if args.trace:
         write_trace(Path(args.trace), host, trace)
     if args.vcd:
         write_vcd(Path(args.vcd), host.job.name, trace)
     if args.report:  # codegen/report/html.py, with matplotlib: imported only here
         from codegen.report.html import write_verify_report
-        write_verify_report(Path(args.report), host, result, trace)
+        write_verify_report(Path(args.report), host, result, trace, samples or whole_run_samples(host, trace))
     if args.json:
         print(json.dumps(result, indent=2))
         return 0 if result["pass"] else 1

@@ -16,8 +16,10 @@ from codegen.pipeline.host import HostBuild, host_build
 from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_chunks, stream_setup
 from codegen.report.summaries import human_plan, plan_summary, write_json
+from codegen.verify.bounded import RunOutputs
 from codegen.verify.heaters import job_faults
 from codegen.verify.hold import hold_verify, pauses
+from codegen.verify.report_samples import RunSamples
 from codegen.verify.stream import simulate_stream, simulate_stream_bounded
 
 
@@ -79,19 +81,21 @@ def cmd_plan_stream(args) -> int:
     return 0 if summary["pass"] else 1
 
 
-def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
+def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, list[str]]:
     """verify --stream: the job's streaming firmware built and the job streamed to it in the simulator; the host
-    build, verify's result (with `link`), the trace, and the text's first lines (the CLI prints the rest)."""
+    build, verify's result (with `link`), the trace, what --report draws where it was gathered as the run was
+    compared (else None), and the text's first lines (the CLI prints the rest)."""
     job = load_job(Path(args.job), args.target)
     setup = stream_setup(job, args.baud)
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
+    samples = None
     if bounded(args, setup.target.target, job):
         with tempfile.NamedTemporaryFile(prefix="table-", suffix=".bin") as table:  # the comparison reads it too
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
-            result, trace = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
-                                                    steps_csv=Path(args.trace) if args.trace else None)
-            args.trace = None  # written
+            result, compared = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
+                                                       outputs=run_outputs(args))
+            trace, samples = compared.trace, compared.samples
     else:
         host = _checked(streamed_host(job, setup, args.strict, keep=True))
         if args.hold is not None or args.override is not None or pauses(host):
@@ -105,15 +109,22 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, list[str]]:
                 f"  link: {lk['bytes']} bytes in {lk['frames']} frames, {lk['retransmits']} retransmitted, lowest "
                 f"ring fill {lk['min_ring_fill_bytes']} bytes (planned {lk['planned_min_ring_fill_bytes']}), "
                 f"{lk['underruns']} underruns"]
-    return host, result, trace, headline
+    return host, result, trace, samples, headline
 
 
 def bounded(args, target: str, job) -> bool:
-    """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold, and
-    without the outputs that draw every pulse (--vcd, --report: those keep the whole run; --trace's rows are written
-    as they are compared)."""
-    return (target == "avr" and job.machine.feed_hold is None and args.hold is None and args.override is None
-            and not (args.vcd or args.report))
+    """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold (its
+    outputs written or gathered as it is compared: run_outputs)."""
+    return target == "avr" and job.machine.feed_hold is None and args.hold is None and args.override is None
+
+
+def run_outputs(args) -> RunOutputs:
+    """--trace's and --vcd's files, written as the run is compared (and taken off `args`: they are done), and
+    whether --report's samples are gathered."""
+    outputs = RunOutputs(Path(args.trace) if args.trace else None, Path(args.vcd) if args.vcd else None,
+                         args.report is not None)
+    args.trace = args.vcd = None
+    return outputs
 
 
 def _checked(host: HostBuild) -> HostBuild:

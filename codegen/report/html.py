@@ -18,7 +18,7 @@ from codegen import __version__
 from codegen.report import plots
 from codegen.report.plan_samples import PlanSamples
 from codegen.verify.compare import MAX_TIMING_ERROR_US
-from codegen.verify.heaters import host_timeline, on_twin_clock
+from codegen.verify.report_samples import PathSamples, RunSamples
 
 STYLE = """
 body { font-family: sans-serif; margin: 1.5em auto; max-width: 1100px; color: #222; }
@@ -121,15 +121,13 @@ def _write(path: Path, page: str) -> None:
         partial.unlink(missing_ok=True)
 
 
-def _path_section(host, simulated, plan=None, segments=None) -> Section:
-    """The tool path, planned (the host's whole plan, or `plan` and `segments`) and simulated."""
-    plan, segments = (host.plan, host.segments) if segments is None else (plan, segments)
+def _path_section(host, planned: PathSamples | None, simulated: PathSamples | None) -> Section:
+    """The tool path, planned and simulated."""
     power = host.laser is not None
     colour = "power" if power else "speed"
     title = f"tool path, coloured by {'laser power' if power else 'speed'}"
-    if segments is None or not len(segments):
+    if planned is None or not len(planned.axes):
         return Section("path", title, missing="the job does not move")
-    planned = plots.planned_path(plan, segments, power)
     return Section("path", title, plots.path_figure(planned, simulated, power), colour=colour)
 
 
@@ -151,7 +149,9 @@ def write_plan_report(path: Path, host, summary: dict, samples: PlanSamples) -> 
     fill over time or temperatures), from what `samples` gathered a window at a time."""
     duration = samples.duration_s
     motion = samples.motion(host.kin.limits.steps_per_mm) if duration > 0 else None
-    sections = [_path_section(host, None, samples.plan(), samples.segments()),
+    segments = samples.segments()
+    planned = plots.planned_path(samples.plan(), segments, host.laser is not None) if segments is not None else None
+    sections = [_path_section(host, planned, None),
                 Section("simulated-path", "simulated tool path", missing="plan runs no simulator (verify does)"),
                 _motion_section(host, motion, duration, "the twin's pulses: what the tables play"),
                 Section("timing", "timing against the twin", missing="plan runs no simulator (verify does)")]
@@ -194,42 +194,38 @@ def _verify_header(host, result: dict) -> str:
         ("min_dir_setup_us", "min DIR setup (µs)")))
 
 
-def _timing_section(host, result: dict, trace) -> Section:
+def _timing_section(host, result: dict, samples: RunSamples) -> Section:
     title = "timing: the simulator against the twin"
     if "hold" in result:
         return Section("timing", title, missing="a held or overridden run is compared with the dilated twin (its "
                                                 "figures are in the table above)")
-    if result.get("holds"):  # the heaters' holds: each part of the trace onto the twin's clock
-        timeline = host_timeline(host)
-        trace = on_twin_clock(trace, timeline.tick[timeline.waits()],
-                              trace.f_cpu // host.target.tick_hz)
-    errors = plots.timing_errors(host, trace)
+    errors = samples.timing_us()  # on the twin's clock: the heaters' holds taken out
     if not errors:
         return Section("timing", title, missing="no motor's simulated pulses pair with the twin's")
     return Section("timing", title, plots.timing_figure(errors, MAX_TIMING_ERROR_US + host.target.isr_latency_us))
 
 
-def _ring_section(host, result: dict, trace) -> Section:
+def _ring_section(host, result: dict, trace, end_s: float) -> Section:
+    """`end_s`: the run's last pulse, from the player's tick 0."""
     title = "ring fill over time"
     fill = trace.ring_fill
     if not len(fill):
         return Section("ring-fill", title, missing="the simulated session recorded no fill of the ring")
     start = trace.timer_start_cycle or 0
     ring = host.link_plan.summary().get("ring_bytes") or int(fill[:, 1].max())
-    end_s = (int(trace.step_cycle.max(initial=start)) - start) / trace.f_cpu
     return Section("ring-fill", title, plots.ring_fill_figure((fill[:, 0] - start) / trace.f_cpu, fill[:, 1], ring,
                                                               result["link"].get("planned_min_ring_fill_bytes"), end_s,
                                                               RING_FILL_WHEN[host.target.target]))
 
 
-def _heater_section(host, result: dict, trace) -> Section:
+def _heater_section(host, result: dict, trace, timeline) -> Section:
     title = "heaters: temperature against target"
     plants = getattr(trace, "plants", None)
     if not plants:
         return Section("heaters", title, missing="this run kept no plant trace (a held or overridden run)")
     curves = {}
     for name, plant in plants.items():
-        target_t, target_c = plots.heater_targets(host, trace, name)
+        target_t, target_c = plots.heater_targets(timeline, host.target.tick_hz, trace, name)
         if len(target_t):  # a heater the program never sets stays at ambient: not drawn
             curves[name] = (plant.time_s, plant.temp_c, target_t, target_c)
     if not curves:
@@ -238,25 +234,22 @@ def _heater_section(host, result: dict, trace) -> Section:
                                                          result.get("table_start_s")))
 
 
-def write_verify_report(path: Path, host, result: dict, trace) -> None:
+def write_verify_report(path: Path, host, result: dict, trace, samples: RunSamples) -> None:
     """verify --report: the planned and simulated paths, the simulated motors' motion, the timing against the twin,
-    and for a stream its ring fill, for heaters their temperatures. `trace`: the run's (SimTrace; with heaters,
-    codegen/verify/heaters.py's HeatedTrace), on the simulated clock."""
-    run = trace.run_only()
-    start = run.timer_start_cycle if run.timer_start_cycle is not None else (
-        int(run.step_cycle[0]) if len(run.step_cycle) else 0)
-    seconds = (run.step_cycle - start) / run.f_cpu
-    trains = [(seconds[run.step_motor == m], run.step_dir[run.step_motor == m]) for m in range(len(host.kin.motors))]
+    and for a stream its ring fill, for heaters their temperatures, drawn from `samples` (gathered as the run was
+    compared) and `trace` (the run's slow pins, a stream's ring fill; with heaters, codegen/verify/heaters.py's
+    HeatedTrace), on the simulated clock."""
     power = host.laser is not None
-    simulated = plots.simulated_path(host, trace, power) if len(run.step_cycle) > 1 else None
-    duration = float(seconds.max()) if len(seconds) else 0.0
-    motion = plots.motor_motion(trains, host.kin.limits.steps_per_mm, duration) if duration > 0 else None
-    sections = [_path_section(host, simulated),
+    simulated = plots.simulated_path(host, samples, trace, power) if samples.count > 1 else None
+    duration = samples.duration_s
+    motion = plots.motion_from_grid(*samples.positions(), duration, host.kin.limits.steps_per_mm) \
+        if duration > 0 else None
+    sections = [_path_section(host, samples.planned.result(), simulated),
                 _motion_section(host, motion, duration, "simulated pulses"),
-                _timing_section(host, result, trace)]
+                _timing_section(host, result, samples)]
     if "link" in result:
-        sections.append(_ring_section(host, result, trace))
+        sections.append(_ring_section(host, result, trace, duration))
     if "heaters" in result:
-        sections.append(_heater_section(host, result, trace))
+        sections.append(_heater_section(host, result, trace, samples.timeline))
     _write(path, _page(f"verify {host.job.name}", result["pass"], _verify_header(host, result), sections,
                        result.get("problems", [])))

@@ -9,7 +9,7 @@ import numpy as np
 
 from codegen.motion.planner import Plan
 from codegen.pipeline.windows import Played
-from codegen.report.plots import WINDOW_S, motion_edges, motion_of
+from codegen.report.plots import WINDOW_S, motion_from_grid
 from codegen.toolpath.segments import Segments, concat
 
 FINE_S = WINDOW_S / 2  # the grid the motors' positions are kept on: finer than any plot's
@@ -57,6 +57,4 @@ class PlanSamples:
         """plots.motor_motion's series over the whole job."""
         fine = np.concatenate(self.chunks + [self.last[:, None]], axis=1)  # and the final positions at the end
         fine_edges = np.append(FINE_S * np.arange(fine.shape[1] - 1), self.duration_s)
-        edges = motion_edges(self.duration_s)
-        position = np.stack([np.interp(edges, fine_edges, fine[m]) / steps_per_mm[m] for m in range(len(fine))])
-        return motion_of(edges, position)
+        return motion_from_grid(fine_edges, fine, self.duration_s, steps_per_mm)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import io
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from matplotlib import colormaps
@@ -18,11 +17,9 @@ from matplotlib.colors import ListedColormap, Normalize
 from matplotlib.figure import Figure
 
 from codegen.motion.planner import ACCEL_WINDOW_S
-from codegen.tables.laser import planned_speed
 from codegen.tables.schedule import HEATER_COMMANDS
-from codegen.verify.heaters import host_timeline
+from codegen.verify.report_samples import MAX_POINTS, PathSamples, PlannedPath, RunSamples
 
-MAX_POINTS = 20_000  # per curve
 DPI = 90
 WINDOW_S = 0.01  # the motors' velocity windows, at the least
 SPEED_SPAN_STEPS = 64  # the simulated tool's speed is measured over about this many pulses
@@ -33,65 +30,17 @@ SPEED_COLOURS = ListedColormap(colormaps["viridis"](np.linspace(0.0, 0.85, 256))
 POWER_COLOURS = ListedColormap(colormaps["inferno_r"](np.linspace(0.2, 0.95, 256)))
 
 
-@dataclass
-class PathSamples:
-    """A tool path as a polyline: (N, 3) mm, and per piece between neighbouring points its colour value (speed in
-    mm/s, or laser power in % of full scale) and whether it works: the tool on, or a printer's extruder pushing
-    (else a travel move)."""
-
-    axes: np.ndarray
-    value: np.ndarray  # (N - 1,)
-    working: np.ndarray  # (N - 1,) bool
-
-
 def png(fig: Figure) -> bytes:
     out = io.BytesIO()
     fig.savefig(out, format="png", dpi=DPI, metadata={"Software": None})
     return out.getvalue()
 
 
-def _segment_at(plan, t: np.ndarray) -> np.ndarray:
-    return np.clip(np.searchsorted(plan.t_start, t, side="right") - 1, 0, len(plan.t_start) - 1)
-
-
-def _planned_power(segments, k: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """The ideal laser power (0..1) on segments `k` at `speed`: S over s_max, M4's times speed over feed
-    (codegen/tables/laser.py event_power)."""
-    feed = segments.feed[k]
-    ratio = np.divide(speed, feed, out=np.ones_like(speed), where=np.isfinite(feed) & (feed > 0))
-    return segments.power[k] * np.where(segments.dynamic[k], np.minimum(ratio, 1.0), 1.0)
-
-
 def planned_path(plan, segments, power: bool) -> PathSamples:
-    """The job's path as planned: the plan's trapezoids sampled on a time grid and at (a share of) the segments'
-    starts, coloured by the planned speed or the ideal laser power."""
-    every = np.linspace(0, len(segments) - 1, min(len(segments), MAX_POINTS // 2)).astype(np.int64)
-    t = np.union1d(np.linspace(0.0, plan.total, MAX_POINTS // 2), plan.t_start[every])
-    k = _segment_at(plan, t)
-    tau, accel, peak = t - plan.t_start[k], plan.accel[k], plan.v_peak[k]
-    t_dec = np.maximum(plan.duration[k] - plan.t_acc[k] - plan.t_cruise[k] - segments.dwell[k], 0.0)
-    ta = np.minimum(tau, plan.t_acc[k])
-    tc = np.clip(tau - plan.t_acc[k], 0.0, plan.t_cruise[k])
-    td = np.clip(tau - plan.t_acc[k] - plan.t_cruise[k], 0.0, t_dec)
-    s = plan.v_entry[k] * ta + 0.5 * accel * ta ** 2 + peak * (tc + td) - 0.5 * accel * td ** 2
-    share = np.clip(np.divide(s, plan.length[k], out=np.zeros_like(s), where=plan.length[k] > 0), 0.0, 1.0)
-    axes = segments.start[k, :3] + share[:, None] * (segments.end[k, :3] - segments.start[k, :3])
-    middle = 0.5 * (t[1:] + t[:-1])
-    k = _segment_at(plan, middle)
-    speed = planned_speed(plan, k, middle)
-    value = 100 * _planned_power(segments, k, speed) if power else speed
-    extruding = segments.end[k, 3] > segments.start[k, 3]
-    return PathSamples(axes, value, (segments.tool[k] | extruding) & (segments.dwell[k] <= 0))
-
-
-def _positions_at(motor: np.ndarray, direction: np.ndarray, m: int, pick: np.ndarray) -> np.ndarray:
-    """Motor m's net steps after each pulse of `pick` (indices into the whole train)."""
-    mine = np.flatnonzero(motor == m)
-    if not len(mine):
-        return np.zeros(len(pick), dtype=np.int64)
-    net = np.cumsum(direction[mine], dtype=np.int64)
-    last = np.searchsorted(mine, pick, side="right") - 1
-    return np.where(last >= 0, net[np.maximum(last, 0)], 0)
+    """The job's path as planned (codegen/verify/report_samples.py PlannedPath, the whole plan at once)."""
+    path = PlannedPath(plan.total, len(segments), power)
+    path.add(plan, segments, last=True)
+    return path.result()
 
 
 def _level_at(edges: np.ndarray, cycles: np.ndarray) -> np.ndarray:
@@ -102,25 +51,21 @@ def _level_at(edges: np.ndarray, cycles: np.ndarray) -> np.ndarray:
     return np.where(at >= 0, edges[np.maximum(at, 0), 1], 0)
 
 
-def simulated_path(host, trace, power: bool) -> PathSamples:
-    """The tool's path from the simulated pulses (the table's, homing left out), sampled every few pulses; coloured
-    by its speed over about SPEED_SPAN_STEPS pulses, or by the power the simulated PWM held."""
-    run = trace.run_only()
-    count = len(run.step_cycle)
-    pick = np.unique(np.linspace(0, max(count - 1, 0), min(count, MAX_POINTS)).astype(np.int64))
-    if len(pick) < 2:
-        return PathSamples(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=bool))
+def simulated_path(host, samples: RunSamples, trace, power: bool) -> PathSamples:
+    """The tool's path from the simulated pulses (the table's, homing left out), as `samples` sampled them every few
+    pulses; coloured by its speed over about SPEED_SPAN_STEPS pulses, or by the power the simulated PWM held
+    (`trace`: the tool's edges and the laser's duty)."""
+    cycle, steps = samples.simulated()
+    count = samples.count
     kin = host.kin
-    steps = np.stack([_positions_at(run.step_motor, run.step_dir, m, pick) for m in range(len(kin.motors))], axis=1)
-    like = np.broadcast_to(np.asarray(host.start, dtype=float), (len(pick), 4))
+    like = np.broadcast_to(np.asarray(host.start, dtype=float), (len(cycle), 4))
     axes = kin.to_axes((steps + host.start_steps) / kin.limits.steps_per_mm, like)
     extruding = np.diff(axes[:, 3]) > 0
     axes = axes[:, :3]
-    cycle = run.step_cycle[pick]
-    span = max(1, math.ceil(SPEED_SPAN_STEPS * len(pick) / count))
-    piece = np.arange(len(pick) - 1)
-    lo, hi = np.maximum(piece - span + 1, 0), np.minimum(piece + span, len(pick) - 1)
-    seconds = (cycle[hi] - cycle[lo]) / run.f_cpu
+    span = max(1, math.ceil(SPEED_SPAN_STEPS * len(cycle) / count))
+    piece = np.arange(len(cycle) - 1)
+    lo, hi = np.maximum(piece - span + 1, 0), np.minimum(piece + span, len(cycle) - 1)
+    seconds = (cycle[hi] - cycle[lo]) / samples.f_cpu
     distance = np.linalg.norm(axes[hi] - axes[lo], axis=1)
     speed = np.divide(distance, seconds, out=np.zeros_like(distance), where=seconds > 0)
     middle = (cycle[1:] + cycle[:-1]) // 2
@@ -188,6 +133,14 @@ def motor_motion(trains: list[tuple[np.ndarray, np.ndarray]], steps_per_mm: np.n
     return motion_of(edges, position)
 
 
+def motion_from_grid(times: np.ndarray, steps: np.ndarray, duration: float,
+                     steps_per_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """motor_motion's series from every motor's net steps (M, K) at `times` (s), a grid finer than the plot's."""
+    edges = motion_edges(duration)
+    position = np.stack([np.interp(edges, times, steps[m]) / steps_per_mm[m] for m in range(len(steps))])
+    return motion_of(edges, position)
+
+
 def motion_edges(duration: float) -> np.ndarray:
     """The motion plots' grid from 0 to `duration` (s): WINDOW_S or more, at most MAX_POINTS windows."""
     grid = max(WINDOW_S, duration / MAX_POINTS)
@@ -223,30 +176,18 @@ def motion_figure(names, series, max_velocity: np.ndarray, max_accel: np.ndarray
     return png(fig)
 
 
-def timing_errors(host, trace) -> dict[str, np.ndarray]:
-    """Per motor, every simulated pulse's time minus the twin's (us), paired in order as verify pairs them (the
-    trace on the twin's clock); a motor whose counts differ is left out."""
-    run = trace.run_only()
-    seconds = (run.step_cycle - (run.timer_start_cycle or 0)) / run.f_cpu
-    out = {}
-    for m, name in enumerate(host.kin.motors):
-        tick, _ = host.pulses.of_motor(m)
-        mine = run.step_motor == m
-        if int(mine.sum()) == len(tick) and len(tick):
-            out[name] = (seconds[mine] - tick / host.target.tick_hz) * 1e6
-    return out
-
-
-def timing_figure(errors: dict[str, np.ndarray], limit_us: float) -> bytes:
-    """A histogram per motor of the simulator's timing against the twin's (log counts)."""
-    lo = min(0.0, *(float(e.min()) for e in errors.values()))  # 0 in view: how far off, not just how spread
-    hi = max(0.0, *(float(e.max()) for e in errors.values()))
+def timing_figure(errors: dict[str, tuple[np.ndarray, np.ndarray]], limit_us: float) -> bytes:
+    """A histogram per motor of the simulator's timing against the twin's (log counts). `errors`: per motor, each
+    error (us) and how many pulses had it."""
+    lo = min(0.0, *(float(e.min()) for e, _ in errors.values()))  # 0 in view: how far off, not just how spread
+    hi = max(0.0, *(float(e.max()) for e, _ in errors.values()))
     pad = max(0.1, 0.03 * (hi - lo))
     bins = np.linspace(lo - pad, hi + pad, 61)
     fig = Figure(figsize=(8.0, 3.2), layout="constrained")
     ax = fig.subplots()
-    for name, e in errors.items():
-        ax.stairs(np.histogram(e, bins)[0], bins, fill=True, alpha=0.45, label=f"{name} ({len(e)} pulses)")
+    for name, (e, count) in errors.items():
+        ax.stairs(np.histogram(e, bins, weights=count)[0], bins, fill=True, alpha=0.45,
+                  label=f"{name} ({int(count.sum())} pulses)")
     ax.set_yscale("log")
     ax.set_ylim(bottom=0.5)
     ax.set_xlabel("simulated time - twin's time (µs)")
@@ -286,22 +227,19 @@ def ring_fill_figure(t: np.ndarray, fill: np.ndarray, ring_bytes: int, planned_m
     return png(fig)
 
 
-def heater_targets(host, trace, heater: str) -> tuple[np.ndarray, np.ndarray]:
-    """Where the tables set `heater`'s target: simulated s from power-up (the player's holds counted in, as
-    codegen/verify/heaters.py places a record) and degC."""
-    schedule = host.schedule
-    mine = np.flatnonzero(schedule.runtime_command == HEATER_COMMANDS[heater])
+def heater_targets(timeline, tick_hz: int, trace, heater: str) -> tuple[np.ndarray, np.ndarray]:
+    """Where the tables set `heater`'s target (`timeline`: their runtime records on the twin's clock): simulated s
+    from power-up (the player's holds counted in, as codegen/verify/heaters.py places a record) and degC."""
+    mine = np.flatnonzero(timeline.command == HEATER_COMMANDS[heater])
     if trace.timer_start_cycle is None or not len(mine):
         return np.zeros(0), np.zeros(0)
-    first = np.concatenate([[0], np.cumsum(schedule.events_per_block())])[schedule.runtime_block[mine]]
-    tick = np.where(first > 0, host.pulses.event_tick[np.maximum(first - 1, 0)], 0)
-    timeline = host_timeline(host)
+    tick = timeline.tick[mine]
     waits = timeline.tick[timeline.waits()][:len(trace.resumes)]
     part = np.searchsorted(waits, tick, side="left")  # the player's run (between resumes) that reads the record
     base_cycle = np.array([trace.timer_start_cycle, *trace.resumes], dtype=np.int64)[part]
     base_tick = np.concatenate([[0], waits]).astype(np.int64)[part]
-    cycles = base_cycle + (tick - base_tick) * (trace.f_cpu // host.target.tick_hz)
-    return cycles / trace.f_cpu, schedule.runtime_value[mine] / 10
+    cycles = base_cycle + (tick - base_tick) * (trace.f_cpu // tick_hz)
+    return cycles / trace.f_cpu, timeline.value[mine] / 10
 
 
 def heater_figure(curves: dict[str, tuple], holds: list[dict], table_start_s: float | None) -> bytes:

@@ -69,7 +69,7 @@ class SimTrace:
     laser_top: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) its TOP's writes
     ring_fill: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (K, 2) cycle, bytes held
     # Every recorded pin as it was, by signal name: "x.step", "x.dir", "tool", and where recorded "x.enable",
-    # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/report/waveform.py writes them for GTKWave).
+    # "endstop.x_min", an 8051's "x.coil1".. and "lcd.e".. (codegen/verify/waveform.py writes them for GTKWave).
     pins: dict[str, PinWave] = field(default_factory=dict)
     dir_watches: tuple = ()  # a run read a chunk at a time: its DIR timing, watched as it came (codegen/verify/pins.py)
 

@@ -6,7 +6,8 @@ simulator runs, the program is planned again window by window (the same windows:
 each chapter of the twin (codegen/verify/chapters.py) paired with the pulses the simulator has written by then
 (codegen/verify/run_reader.py), compared (codegen/verify/compare.py Comparison) and dropped. A streamed run's
 comparison runs in a second process (the first drives the link in lockstep with simavr); a flash image's in this
-process, beside the simulator's. Memory holds a chapter of each, whatever the print's length.
+process, beside the simulator's. Memory holds a chapter of each, whatever the print's length; so do the outputs
+written as the run is compared (RunOutputs: --trace's rows, --vcd's waveform, what --report draws).
 """
 
 from __future__ import annotations
@@ -30,12 +31,25 @@ from codegen.sim.avr_edges import Steps
 from codegen.sim.avr_plant import HeaterRun, simulate_heaters
 from codegen.verify.chapters import CHAPTER_PULSES, Chapter, Chapters, RuntimeTimeline
 from codegen.verify.compare import Comparison, Verdict, simulated_switches
-from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, job_plants,
-                                    table_start_s, trip_result, with_holds)
+from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, HeatedTrace, heater_figures,
+                                    job_plants, table_start_s, trip_result, with_holds)
+from codegen.verify.report_samples import RunSamples
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 from codegen.verify.steps_csv import StepsCsv
 from codegen.verify.stream_tables import StreamTableCheck
+from codegen.verify.waveform import EdgeWaveform
+
+
+@dataclass(frozen=True)
+class RunOutputs:
+    """What verify writes of the run as it is compared: --trace's CSV, --vcd's waveform, and whether to gather what
+    --report draws (codegen/verify/report_samples.py)."""
+
+    steps_csv: Path | None = None
+    vcd: Path | None = None
+    report: bool = False
+    sent_table: Path | None = None  # a stream's table bytes as the link sends them: decoded, held against the plan
 
 
 @dataclass
@@ -52,6 +66,7 @@ class Compared:
     planned_s: float
     first_run_cycle: int | None
     seconds: dict = field(default_factory=dict)  # wall time: planning again, waiting for the simulator, in all
+    samples: RunSamples | None = None  # what --report draws
 
 
 class BoundedComparison:
@@ -59,27 +74,40 @@ class BoundedComparison:
     the verdict (`finish`)."""
 
     def __init__(self, host: HostBuild, strict: bool, link, switches: dict, streamed: bool,
-                 chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None, sent_table: Path | None = None):
-        """`sent_table`: the table stream the host link sends (a stream's), decoded and held against the plan."""
+                 chapter_pulses: int = CHAPTER_PULSES, outputs: RunOutputs = RunOutputs()):
         self.host, self.strict, self.link, self.switches = host, strict, link, switches
-        self.sent = None if sent_table is None else StreamTableCheck(sent_table, len(host.kin.motors))
+        self.sent = None if outputs.sent_table is None else StreamTableCheck(outputs.sent_table, len(host.kin.motors))
         self.streamed, self.chapter_pulses = streamed, chapter_pulses
         self.began = time.perf_counter()
         self.reader = self.comparison = self.chapters = None
-        self.steps_csv = steps_csv  # verify --trace: the pulses written as they are compared
+        self.steps_csv = outputs.steps_csv  # verify --trace: the pulses written as they are compared
         self.rows: StepsCsv | None = None
+        self.waveform = None if outputs.vcd is None else EdgeWaveform(outputs.vcd, host.job.name,
+                                                                      host.firmware_config())
+        self.samples = RunSamples(host, host.target.f_cpu) if outputs.report else None
 
     def run(self, edges: Path, ended: Callable[[], bool]) -> None:
         """`ended()`: the harness has written its last record."""
+        try:
+            self._run(edges, ended)
+        except BaseException:
+            self.discard()
+            raise
+
+    def _run(self, edges: Path, ended: Callable[[], bool]) -> None:
         host = self.host
-        self.reader = reader = RunReader(edges, host.firmware_config(), ended)
+        self.reader = reader = RunReader(edges, host.firmware_config(), ended,
+                                         records=self.waveform.feed if self.waveform else None)
         self.comparison = comparison = Comparison(host, reader, self.streamed)
 
         def chapter(ch: Chapter) -> None:
             sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), self.chapter_pulses)
             self._rows(sim)
             timeline = chapters.timeline()
-            comparison.add(ch, sim, reader.clock(sim.cycle, timeline.tick[timeline.waits()]))
+            clock = reader.clock(sim.cycle, timeline.tick[timeline.waits()])
+            comparison.add(ch, sim, clock)
+            if self.samples is not None:
+                self.samples.add(ch, sim, clock, reader.timer_start_cycle)
             give_back_freed_memory()
 
         self.chapters = chapters = Chapters(chapter, self.chapter_pulses)
@@ -94,6 +122,8 @@ class BoundedComparison:
         rest = reader.rest()
         self._rows(rest)
         comparison.extra(rest)
+        if self.samples is not None:
+            self.samples.extra(rest)
 
     def _rows(self, sim) -> None:
         """--trace's rows of the table's pulses `sim`; homing's first (they all came before the player's tick 0)."""
@@ -112,13 +142,23 @@ class BoundedComparison:
         if self.steps_csv is not None:
             self._rows(Steps.empty())  # homing's rows, where no chapter came
             self.rows.close()
+        if self.waveform is not None:
+            self.waveform.close()
         verdict = comparison.finish(trace, self.switches)
         if self.sent is not None:  # the bytes first: a wrong byte explains any pulse it puts out of place
             verdict.problems[:0] = self.sent.close()
         span = comparison.span_cycles[1] - comparison.span_cycles[0] if comparison.span_cycles else 0
-        return Compared(verdict, trace, self.chapters.timeline(), comparison.twin_final, comparison.position,
+        timeline = self.chapters.timeline()
+        if self.samples is not None:
+            self.samples.timeline = timeline
+        return Compared(verdict, trace, timeline, comparison.twin_final, comparison.position,
                         comparison.trip_figures(), span, comparison.planned_s(), reader.first_run_cycle,
-                        {"wait_s": reader.wait_s, "compare_s": time.perf_counter() - self.began})
+                        {"wait_s": reader.wait_s, "compare_s": time.perf_counter() - self.began}, self.samples)
+
+    def discard(self) -> None:
+        """No waveform file where the run was not compared to its end."""
+        if self.waveform is not None:
+            self.waveform.discard()
 
 
 _LIBC = None
@@ -137,12 +177,15 @@ def give_back_freed_memory() -> None:
 
 def compare_run(host: HostBuild, strict: bool, link, edges: Path, ended: Callable[[], bool],
                 end_trace: Callable[[], SimTrace], switches: dict, streamed: bool,
-                chapter_pulses: int = CHAPTER_PULSES, steps_csv: Path | None = None,
-                sent_table: Path | None = None) -> Compared:
+                chapter_pulses: int = CHAPTER_PULSES, outputs: RunOutputs = RunOutputs()) -> Compared:
     """BoundedComparison's run and finish (`end_trace()`: the run's end, once it has ended)."""
-    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses, steps_csv, sent_table)
+    comparison = BoundedComparison(host, strict, link, switches, streamed, chapter_pulses, outputs)
     comparison.run(edges, ended)
-    return comparison.finish(end_trace())
+    try:
+        return comparison.finish(end_trace())
+    except BaseException:
+        comparison.discard()
+        raise
 
 
 class ComparingProcess:
@@ -151,11 +194,11 @@ class ComparingProcess:
     would start with this process's memory mapped, and the simulator's pipes open."""
 
     def __init__(self, host: HostBuild, strict: bool, link, edges: Path, switches: dict, streamed: bool,
-                 steps_csv: Path | None = None, sent_table: Path | None = None):
+                 outputs: RunOutputs = RunOutputs()):
         context = multiprocessing.get_context("spawn")
         self._here, there = context.Pipe()
-        self._process = context.Process(target=_compare_there, args=(there, host, strict, link, edges, switches,
-                                                                     streamed, steps_csv, sent_table))
+        self._process = context.Process(target=_compare_there,
+                                        args=(there, host, strict, link, edges, switches, streamed, outputs))
         self._process.start()
 
     def result(self, end_trace: SimTrace) -> Compared:
@@ -170,7 +213,8 @@ class ComparingProcess:
 
         self._process.join()
         if kind == "error":
-            raise BuildError(f"verify's comparing process failed (a bug of printer-codegen: please report it):\n{value}")
+            raise BuildError("verify's comparing process failed (a bug of printer-codegen: please report it):\n"
+                             + value)
         return value
 
     def stop(self) -> None:
@@ -179,11 +223,10 @@ class ComparingProcess:
             self._process.join()
 
 
-def _compare_there(conn, host, strict, link, edges, switches, streamed, steps_csv, sent_table) -> None:
+def _compare_there(conn, host, strict, link, edges, switches, streamed, outputs) -> None:
     progress.enable(False)  # the simulation's bar is this process's parent's
     try:
-        compared = compare_run(host, strict, link, edges, conn.poll, conn.recv, switches, streamed,
-                               steps_csv=steps_csv, sent_table=sent_table)
+        compared = compare_run(host, strict, link, edges, conn.poll, conn.recv, switches, streamed, outputs=outputs)
         conn.send(("result", compared))
     except BaseException:  # noqa: BLE001 -- whatever it was, the parent reports it
         conn.send(("error", traceback.format_exc()))
@@ -192,8 +235,9 @@ def _compare_there(conn, host, strict, link, edges, switches, streamed, steps_cs
 def heater_verdict(host: HostBuild, run: HeaterRun, compared: Compared, image, faults) -> dict:
     """verify's result of a run with heaters compared chunk by chunk (run.steps: its end, without its pulses): a
     trip's (codegen/verify/heaters.py trip_result), or the comparison's with the holds' problems; the heaters'
-    figures."""
+    figures. compared.trace becomes a HeatedTrace, with the plants' (what --report draws)."""
     run.steps = compared.trace
+    compared.trace = HeatedTrace(**vars(compared.trace), plants=run.heaters)
     if run.trip is not None:
         result = trip_result(host, run, image, *compared.trip, compared.span_cycles, compared.planned_s)
     else:
@@ -205,13 +249,20 @@ def heater_verdict(host: HostBuild, run: HeaterRun, compared: Compared, image, f
     return result
 
 
-def verify_flash(host: HostBuild, image, faults, strict: bool, steps_csv: Path | None = None) -> tuple[dict, SimTrace]:
+def verify_flash(host: HostBuild, image, faults, strict: bool,
+                 outputs: RunOutputs = RunOutputs()) -> tuple[dict, Compared]:
     """verify of a flash image in bounded memory: `host` keeps its tables only (host_build keep="tables"); the
-    simulator runs as its own process, the comparison in this one beside it. The trace returned has the homing
-    pulses, the clock and the slow pins."""
-    config = host.firmware_config()
-    switches = simulated_switches(host)
-    comparison = BoundedComparison(host, strict, None, switches, streamed=False, steps_csv=steps_csv)
+    simulator runs as its own process, the comparison in this one beside it. What the comparison found has the
+    trace with the homing pulses, the clock and the slow pins (and --report's samples)."""
+    comparison = BoundedComparison(host, strict, None, simulated_switches(host), streamed=False, outputs=outputs)
+    try:
+        return _verify_flash(host, image, faults, comparison)
+    finally:
+        comparison.discard()  # a waveform finished stands: this removes only a partial one
+
+
+def _verify_flash(host: HostBuild, image, faults, comparison: BoundedComparison) -> tuple[dict, Compared]:
+    config, switches = host.firmware_config(), comparison.switches
     if host.heaters:
         homing_s = homing_ticks_bound(config, switch_thresholds(config, switches), host.target.tick_hz) \
             / host.target.tick_hz
@@ -219,8 +270,8 @@ def verify_flash(host: HostBuild, image, faults, strict: bool, steps_csv: Path |
         run = simulate_heaters(image.hex_path, config, HEAT_LIMIT_S + homing_s + held_after_s,
                                job_plants(host.job, config), faults, switches, held_after_s, beside=comparison.run)
         compared = comparison.finish(run.steps)
-        return heater_verdict(host, run, compared, image, faults), compared.trace
+        return heater_verdict(host, run, compared, image, faults), compared
     budget = int((host.totals.duration_s * 1.2 + 1.0) * host.target.f_cpu)
     trace = simulate(image.hex_path, config, budget, switches=switches, beside=comparison.run)
     compared = comparison.finish(trace)
-    return verify_json(host, compared.verdict, image), compared.trace
+    return verify_json(host, compared.verdict, image), compared

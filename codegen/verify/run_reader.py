@@ -30,9 +30,11 @@ def _cat(parts: list[Steps]) -> Steps:
 
 
 class RunReader:
-    """`ended()` says the harness has written its last record (the reader then reads what is left and stops)."""
+    """`ended()` says the harness has written its last record (the reader then reads what is left and stops);
+    `records`, if given, is handed every record as it is read (verify --vcd: codegen/verify/waveform.py)."""
 
-    def __init__(self, edges: Path, config: FirmwareConfig, ended: Callable[[], bool], since: int = 0):
+    def __init__(self, edges: Path, config: FirmwareConfig, ended: Callable[[], bool], since: int = 0,
+                 records: Callable[[np.ndarray], None] | None = None):
         pins = board_pins(config)
         mcu = load_target(pins.mcu)
         self.f_cpu = int(mcu["f_cpu"])
@@ -42,6 +44,7 @@ class RunReader:
         self.decoder = EdgeDecoder([w.invert_dir for w in pins.motors], names[2 * self.motors:], since)
         self.tool_on_level = 1 if pins.tool_active_high else 0
         self.file, self.ended, self.done = EdgeFile(edges), ended, False
+        self.records = records
         self.buffer = Steps.empty()  # the run's pulses read, not yet handed out
         self.have = np.zeros(self.motors, dtype=np.int64)  # the buffer's, per motor
         self.home: list[Steps] = []  # pulses before the player's first start: homing's
@@ -91,6 +94,8 @@ class RunReader:
                 return True
         elif not len(rec):
             return False
+        if self.records is not None:
+            self.records(rec)
         steps = self.decoder.feed(rec)
         for watch, edges in zip(self.dir_watches, self.decoder.motor_edges):
             watch.add(*edges)

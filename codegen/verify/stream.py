@@ -3,8 +3,8 @@ code (codegen/link/host.py), and verify's result with the link's checks and figu
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
-from pathlib import Path
 
 import numpy as np
 
@@ -14,7 +14,7 @@ from codegen.link.host import HostLink
 from codegen.pipeline.host import HostBuild
 from codegen.pipeline.streaming import SIM_MODULES, StreamSetup, file_chunks, stream_chunks
 from codegen.sim.avr_link import StreamSim, heater_run
-from codegen.verify.bounded import ComparingProcess, heater_verdict
+from codegen.verify.bounded import Compared, ComparingProcess, RunOutputs, heater_verdict
 from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import HEAT_LIMIT_S, heater_result, job_plants
 from codegen.verify.results import verify_json
@@ -111,12 +111,14 @@ def made_positions(trace, motors: int) -> np.ndarray:
 
 
 def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, table, strict: bool,
-                            comparing=ComparingProcess, steps_csv: Path | None = None) -> tuple[dict, object]:
+                            comparing=ComparingProcess, outputs: RunOutputs = RunOutputs()) -> tuple[dict, Compared]:
     """simulate_stream in bounded memory (codegen/verify/bounded.py): `host` is the first pass's (not kept), its
     table stream in `table` (a named file: the comparison decodes the bytes the link sends and holds them against
     the plan); the comparison runs beside the simulation (`comparing`: in a second process, while this one drives
-    the link). The trace returned has the homing pulses, the clock and the slow pins, not the table's pulses."""
+    the link, writing `outputs`). What the comparison found has the trace with the homing pulses, the
+    clock, the slow pins and the ring's fill, not the table's pulses (and --report's samples)."""
     table.flush()
+    outputs = dataclasses.replace(outputs, sent_table=Path(table.name))
     config = setup.config
     motors = len(host.kin.motors)
     link = HostLink(file_chunks(table, motors), motors, setup.identity, 10 / setup.layout.baud,
@@ -126,8 +128,7 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
     plants = job_plants(host.job, config) if config.heaters else None
     with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
-        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, steps_csv,
-                              sent_table=Path(table.name))
+        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, outputs)
         try:
             with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
                 summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)
@@ -140,4 +141,4 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
     else:
         result = heater_verdict(host, run, compared, image, faults)
     result = stream_result(host, link, figures, result, compared.twin_final, compared.made_position)
-    return result, compared.trace
+    return result, compared

@@ -1,5 +1,5 @@
-"""verify --vcd (codegen/report/waveform.py): the simulated pins as a VCD waveform, read back with pyvcd's tokenizer and held
-against verify's JSON and its --trace CSV: each motor's rising STEP edges are its steps, the first and last at the
+"""verify --vcd (codegen/verify/waveform.py): the simulated pins as a VCD waveform, read back with pyvcd's tokenizer and
+held against verify's JSON and its --trace CSV: each motor's rising STEP edges are its steps, the first and last at the
 CSV's times, DIR at every pulse as the CSV says; flash images and streamed jobs, on the ATmega2560 and the 8051.
 No file where the job's input is bad."""
 
@@ -15,10 +15,11 @@ import pytest
 from vcd.reader import TokenKind, tokenize
 
 from codegen.cli.main import main
-from codegen.report.waveform import nanoseconds
+from codegen.verify.waveform import nanoseconds
 from tests.helpers import ROOT
 
 STAR, ARC = ROOT / "examples" / "star.yaml", ROOT / "examples" / "arc.yaml"
+LASER = ROOT / "examples" / "laser" / "power.yaml"
 
 needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
                                   reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
@@ -153,3 +154,35 @@ def test_times_are_whole_nanoseconds_exactly_for_long_runs():
     for f_cpu in (16_000_000, 11_059_200):
         expected = [(int(c) * 10**9 + f_cpu // 2) // f_cpu for c in cycles]
         assert nanoseconds(cycles, f_cpu).tolist() == expected
+
+
+@needs_simavr
+def test_the_page_and_the_waveform_are_written_as_the_run_is_compared(capsys, tmp_path, monkeypatch):
+    """verify --report --vcd of an ATmega2560's image (a laser's: its PWM's duty too) takes the bounded path
+    (codegen/verify/bounded.py): neither the whole run's waveform nor the whole run's samples are made; the page has
+    its plots and the waveform every motor's STEP rises, as many as the result's steps (homing's before the player's
+    start)."""
+    import codegen.cli.main as cli
+
+    def whole(*_):
+        raise AssertionError("the whole run was kept")
+
+    monkeypatch.setattr(cli, "write_vcd", whole)
+    monkeypatch.setattr(cli, "whole_run_samples", whole)
+    page, vcd = tmp_path / "laser.html", tmp_path / "laser.vcd"
+    code = main(["verify", str(LASER), "--out", str(tmp_path / "out"), "--json", "--report", str(page), "--vcd",
+                 str(vcd)])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 0 and result["pass"], result["problems"]
+    _, waves = read_vcd(vcd)
+    (run_at, _), = [c for c in waves["laser_power.player.run"] if c[1] == 1]
+    for name, motor in result["motors"].items():
+        step = waves[f"laser_power.{name}.step"]
+        rises = [t for (t, v), (_, before) in zip(step[1:], step) if v == 1 and before == 0 and t >= run_at]
+        assert len(rises) == motor["steps"] > 100
+    assert len(waves["laser_power.laser.duty"]) > 10
+    text = page.read_text(encoding="utf-8")
+    for plot in ("path", "motion", "timing"):
+        assert f"data-plot='{plot}'" in text
+    assert "data-missing=" not in text
+    assert not list(tmp_path.glob(".*.partial"))

@@ -21,7 +21,7 @@ from codegen.pipeline.streaming import stream_setup
 from codegen.report.summaries import write_trace
 from codegen.sim.avr import decode_edges
 from codegen.sim.avr_edges import EDGE_RECORD, read_edges
-from codegen.verify.bounded import compare_run
+from codegen.verify.bounded import RunOutputs, compare_run
 from codegen.verify.compare import simulated_switches
 from codegen.verify.stream import simulate_stream, simulate_stream_bounded
 from tests.helpers import ROOT
@@ -40,8 +40,8 @@ class KeptRun:
     kept: dict = {}
     folder: Path | None = None  # where the copy goes (the fixture's temporary folder)
 
-    def __init__(self, host, strict, link, edges, switches, streamed, steps_csv=None, sent_table=None):
-        self.args, self.edges, self.sent_table = (host, strict, link, switches, streamed), edges, sent_table
+    def __init__(self, host, strict, link, edges, switches, streamed, outputs=None):
+        self.args, self.edges, self.outputs = (host, strict, link, switches, streamed), edges, outputs
 
     def result(self, end_trace):
         host, strict, link, switches, streamed = self.args
@@ -49,7 +49,7 @@ class KeptRun:
         shutil.copy(self.edges, copy)
         KeptRun.kept.update(args=self.args, edges=copy, end=end_trace)
         return compare_run(host, strict, link, copy, lambda: True, lambda: end_trace, switches, streamed,
-                           sent_table=self.sent_table)
+                           outputs=self.outputs)
 
     def stop(self):
         pass
@@ -127,7 +127,7 @@ def test_the_trace_file_written_chapter_by_chapter_is_the_whole_runs(session, tm
     _, _, kept = session
     host, strict, link, switches, streamed = kept["args"]
     compare_run(host, strict, link, kept["edges"], lambda: True, lambda: kept["end"], switches, streamed,
-                chapter_pulses=3_000, steps_csv=tmp_path / "chapters.csv")
+                chapter_pulses=3_000, outputs=RunOutputs(steps_csv=tmp_path / "chapters.csv"))
     end = kept["end"]
     whole = decode_edges(read_edges(kept["edges"]), host.firmware_config(), end.state, end.cycles,
                          end.timer_start_cycle, None)
@@ -135,3 +135,24 @@ def test_the_trace_file_written_chapter_by_chapter_is_the_whole_runs(session, tm
     rows = (tmp_path / "chapters.csv").read_text()
     assert rows == (tmp_path / "whole.csv").read_text()
     assert rows.count(",run\n") == len(whole.run_only().step_cycle) > 10_000
+
+
+@needs_avr
+def test_the_waveform_written_chapter_by_chapter_is_the_whole_runs(session, tmp_path):
+    """verify --vcd in bounded memory: the waveform written from the records as they are read has every signal's
+    changes that write_vcd makes of the whole run, at the same times; --report's samples come back with the run."""
+    from codegen.verify.waveform import write_vcd
+    from tests.report.test_vcd import read_vcd
+
+    _, _, kept = session
+    host, strict, link, switches, streamed = kept["args"]
+    compared = compare_run(host, strict, link, kept["edges"], lambda: True, lambda: kept["end"], switches, streamed,
+                           chapter_pulses=3_000, outputs=RunOutputs(vcd=tmp_path / "chapters.vcd", report=True))
+    end = kept["end"]
+    whole = decode_edges(read_edges(kept["edges"]), host.firmware_config(), end.state, end.cycles,
+                         end.timer_start_cycle, None)
+    write_vcd(tmp_path / "whole.vcd", host.job.name, whole)
+    assert read_vcd(tmp_path / "chapters.vcd") == read_vcd(tmp_path / "whole.vcd")
+    samples = compared.samples
+    assert samples.count == len(whole.run_only().step_cycle) > 10_000
+    assert np.array_equal(samples.net, compared.made_position)
