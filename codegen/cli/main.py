@@ -140,10 +140,18 @@ def cmd_verify(args) -> int:
         result = _shipped(host, image, result)
         return _conclude_verify(args, host, result, compared.trace, _verify_headline(host, result, out_dir),
                                 compared.samples)
-    host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict)
+    # an ATmega2560's held run is compared a chapter at a time (codegen/verify/hold_bounded.py) unless --report or
+    # --vcd want it whole
+    tables_only = job.target == "avr" and job.machine.feed_hold is not None and not (args.report or args.vcd)
+    host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables" if tables_only else True)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
-    if args.hold is not None or args.override is not None or pauses(host):
-        result, trace = hold_verify(host, image, args.hold, args.override)
+    held = args.hold is not None or args.override is not None or pauses(host)
+    if tables_only and not held:  # no request, no M0/M1: the whole twin after all
+        host = _checked_host(job, args.strict)
+    if held:
+        steps_csv = Path(args.trace) if tables_only and args.trace else None  # written as the run is compared
+        args.trace = None if steps_csv else args.trace
+        result, trace = hold_verify(host, image, args.hold, args.override, steps_csv=steps_csv)
     elif host.heaters:
         result, trace = verify_heaters(host, image, faults)
     else:

@@ -73,11 +73,15 @@ class EdgeDecoder:
         self._duty: list[np.ndarray] = []
         self._top: list[np.ndarray] = []
         self._starts: list[np.ndarray] = []
+        self._held = np.zeros(0, EDGE_RECORD)  # a register write's low record, its high one not yet read
         self.last_cycle = 0
         self.motor_edges: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # the last piece's, per motor:
         #                                                                  STEP rises, STEP falls, DIR changes
 
     def feed(self, rec: np.ndarray) -> Steps:
+        rec = np.concatenate([self._held, rec]) if len(self._held) else rec
+        split = len(rec) and int(rec["pin"][-1]) in (DUTY_LOW_PIN, TOP_LOW_PIN)  # a register write's high record
+        self._held, rec = (rec[-1:].copy(), rec[:-1]) if split else (rec[:0], rec)  # is in the next piece: it waits
         if not len(rec):
             return Steps.empty()
         self.last_cycle = int(rec["cycle"][-1])

@@ -202,7 +202,8 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
     run_first = np.cumsum(schedule.run_count) - schedule.run_count
     ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
     table, k = plan.table, plan.ramp_k
-    deltas, adds, ceilings = delta.tolist(), add.tolist(), ceiling.tolist()  # the loop's scalars, fast
+    # the loop's scalars, fast, without a Python int per event: views of the arrays
+    deltas, adds, ceilings = (memoryview(np.ascontiguousarray(a, dtype=np.int64)) for a in (delta, add, ceiling))
     e = marks[0]
     here = int(pos[e])  # 24.8: where event e - 1 played
     ffx, target, paused = F_ONE << 16, F_ONE, False

@@ -98,9 +98,10 @@ class BoundedComparison:
         host = self.host
         self.reader = reader = RunReader(edges, host.firmware_config(), ended,
                                          records=self.waveform.feed if self.waveform else None)
-        self.comparison = comparison = Comparison(host, reader, self.streamed)
+        self.comparison = comparison = self._comparison(reader)
 
         def chapter(ch: Chapter) -> None:
+            ch = self._twin(ch)
             sim = reader.take(np.bincount(ch.pulses.motor, minlength=len(host.kin.motors)), self.chapter_pulses)
             self._rows(sim)
             timeline = chapters.timeline()
@@ -124,6 +125,14 @@ class BoundedComparison:
         comparison.extra(rest)
         if self.samples is not None:
             self.samples.extra(rest)
+
+    def _comparison(self, reader: RunReader) -> Comparison:
+        """The run's comparison (a held run's, with its dilated clock: codegen/verify/hold_bounded.py)."""
+        return Comparison(self.host, reader, self.streamed)
+
+    def _twin(self, chapter: Chapter) -> Chapter:
+        """The twin's chapter the run is compared with (a held run's on its dilated clock)."""
+        return chapter
 
     def _rows(self, sim) -> None:
         """--trace's rows of the table's pulses `sim`; homing's first (they all came before the player's tick 0)."""

@@ -17,6 +17,7 @@ from codegen.pipeline.host import HostBuild, trains_from
 from codegen.pipeline.windows import corners_after
 from codegen.sim.avr_edges import Steps
 from codegen.tables.checks import Checker, Findings
+from codegen.tables.hold import Dilation
 from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
 from codegen.verify.chapters import Chapter, whole_chapter
@@ -236,8 +237,8 @@ class Comparison:
         event_cycle = sim.cycle[new_event]
         view = chapter_view(host, chapter)
         self.tool_events(view, event_cycle, twin_event)
-        laser = laser_verdict(view, self.levels, event_cycle, twin_event, self.dilation, chapter.laser_before,
-                              self.tool_on)
+        laser = laser_verdict(view, self.levels, event_cycle, twin_event, _chapter_dilation(self.dilation, chapter),
+                              chapter.laser_before, self.tool_on, chapter.last)
         pulses = chapter.pulses
         if len(pulses.event_block):  # the tool at the chapter's last event: a cut may go on into the next
             self.tool_on = bool(chapter.schedule.block_tool[pulses.event_block[-1]])
@@ -341,6 +342,15 @@ def chapter_view(host: HostBuild, chapter: Chapter) -> HostBuild:
     read)."""
     return replace(host, segments=chapter.segments, plan=chapter.plan, events=chapter.events,
                    compressed=chapter.compressed, pulses=chapter.pulses)
+
+
+def _chapter_dilation(dilation: Dilation | None, chapter: Chapter) -> Dilation | None:
+    """A held run's dilation over the chapter's events and the one after it (a laser's power lasts until then),
+    counted from the chapter's first."""
+    if dilation is None:
+        return None
+    span = slice(chapter.first_event, chapter.first_event + len(chapter.pulses.event_tick) + 1)
+    return Dilation(dilation.tick[span], dilation.factor[span], [])
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,

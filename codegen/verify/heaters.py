@@ -38,6 +38,7 @@ from codegen.program.heater_settings import heater_settings
 from codegen.sim.avr import SimTrace, switch_thresholds
 from codegen.sim.avr_plant import FAULTS, Fault, HeaterPlant, HeaterRun, heater_summary, simulate_heaters
 from codegen.tables.schedule import HEATER_COMMANDS, WAIT_MASKS
+from codegen.tables.twin import event_ticks
 from codegen.verify.chapters import RuntimeTimeline
 from codegen.verify.compare import MAX_TIMING_ERROR_US, compare, planned_stepping_s, simulated_switches
 from codegen.verify.results import verify_json
@@ -135,8 +136,8 @@ def heater_result(host: HostBuild, run: HeaterRun, image, faults: tuple[Fault, .
 
 
 def host_timeline(host: HostBuild) -> RuntimeTimeline:
-    """A kept host build's runtime records on the twin's clock."""
-    return RuntimeTimeline.of(host.schedule, host.pulses.event_tick)
+    """A host build's runtime records on the twin's clock (its tables' alone: the events' ticks are theirs)."""
+    return RuntimeTimeline.of(host.schedule, event_ticks(host.schedule))
 
 
 def with_holds(result: dict, run: HeaterRun, waits: np.ndarray) -> dict:

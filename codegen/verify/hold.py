@@ -4,68 +4,28 @@ and FEED_UP frames (a streaming firmware: codegen/verify/hold_runs.py), and ever
 dilated clock that codegen/tables/hold.py models (the same integers as the player). A job with M0/M1 comes here too: its
 resume key or frame comes once the machine rests at each.
 
-The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the requests.
-The override requests (feed- or feed+, one per 10 %) come from 10 ms into the job, one every 100 ms; the hold at
-SECONDS into the job; resume once the twin says the machine is at rest (REST_S after its park). A request is seen
-by main's poll after a step interrupt, and that event's next interrupt dilates the event after it: which event that
-is depends on cycles the twin does not count, so each request's first dilated event is chosen among a few
-(CANDIDATES) as the one the simulated pulses agree with, and reported. Everything after follows from it: the
-times of every pulse, where the machine comes to rest, and the limits over the whole run (checks.py); the ramp and
-the ceilings are held to their own rules, from the job's settings (hold_limits.py)."""
+The run is simulated twice: first as it is (where the job's first event falls: tick 0), then with the requests,
+pressed and placed as codegen/verify/hold_search.py says: each request's first dilated event is the candidate the
+simulated pulses agree with, and reported. Everything after follows from it: the times of every pulse, where the
+machine comes to rest, and the limits over the whole run (checks.py); the ramp and the ceilings are held to their own
+rules, from the job's settings (hold_limits.py). An ATmega2560's flash image is compared a chapter at a time, in
+memory that does not grow with the print (codegen/verify/hold_bounded.py), where its host keeps only its tables."""
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from codegen.errors import BuildError
 from codegen.pipeline.host import HostBuild
-from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target, pause_events
+from codegen.tables.hold import F_ONE, Dilation, override_target, pause_events
 from codegen.verify.compare import compare
+from codegen.verify.hold_bounded import held_bounded
 from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems
 from codegen.verify.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
-
-OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from the job's start
-REST_S = 0.02  # from the park the twin predicts to the resume key
-POLL_CYCLES = 400  # a step interrupt and main's poll: a key pressed this long before an event may be seen after it
-CANDIDATES = 5  # events, after the first one within POLL_CYCLES of the press, that may be the key's first
-# (a runner may need more: its `candidates`)
-RESUME_FIT = 32  # events after a resume whose earliest pulse places it (some may come late behind a link interrupt)
-
-
-@dataclasses.dataclass
-class KeyAction:
-    function: str  # hold, feed-, feed+
-    target: int  # the factor the key sets (F)
-    press: int  # cycles from reset
-    event: int | None = None  # its first dilated event, once known
-
-
-def _actions(host: HostBuild, tick0: int, hold_s: float | None, override: int | None) -> list[KeyAction]:
-    f_cpu, start = host.target.f_cpu, host.job.machine.feed_hold.override // 10
-    actions = []
-    if override is not None:
-        goal = override // 10
-        for i, step in enumerate(range(start, goal, 1 if goal > start else -1)):
-            press = tick0 + int((OVERRIDE_FIRST_S + i * OVERRIDE_EVERY_S) * f_cpu)
-            nxt = step + (1 if goal > start else -1)
-            actions.append(KeyAction("feed+" if goal > start else "feed-", override_target(nxt), press))
-    if hold_s is not None:
-        last = (actions[-1].press - tick0) / f_cpu + OVERRIDE_EVERY_S if actions else 0.0
-        if hold_s < last:
-            raise BuildError(f"verify --hold {hold_s:g}: the override's requests go on until {last:g} s into the "
-                             "job; hold after them")
-        actions.append(KeyAction("hold", 0, tick0 + int(hold_s * f_cpu)))
-    return actions
-
-
-def _predict(host: HostBuild, actions: list[KeyAction], events: list[int], resumes: list[int],
-             resume_target: int) -> Dilation:
-    """The twin on the dilated clock; an image that starts below 100 % dilates from its first event on."""
-    start = override_target(host.job.machine.feed_hold.override // 10)
-    changes = ([(0, start)] if start != F_ONE else []) + [(e, a.target) for a, e in zip(actions, events)]
-    return dilate(host.schedule, host.hold_plan, changes, resumes, resume_target)
+from codegen.verify.hold_search import CANDIDATES, KeyAction, Requests, dilated_clock, key_actions
 
 
 def _event_cycles(host: HostBuild, trace) -> np.ndarray:
@@ -86,140 +46,71 @@ def _event_cycles(host: HostBuild, trace) -> np.ndarray:
     return out
 
 
-def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | None,
-                setup=None) -> tuple[dict, object]:
+def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | None, setup=None,
+                steps_csv: Path | None = None) -> tuple[dict, object]:
     """The verdict (verify's JSON, with `hold`; a stream's with `link`) and the run's trace. `setup`: the
-    streaming firmware's (codegen/pipeline/streaming.py), else the flash image."""
+    streaming firmware's (codegen/pipeline/streaming.py), else the flash image. A host that keeps only its tables
+    (host_build keep="tables": an ATmega2560's flash image) is compared in bounded memory
+    (codegen/verify/hold_bounded.py): its trace has no table pulses, and `steps_csv` gets --trace's rows as they
+    are compared."""
     if host.hold_plan is None:
         raise BuildError("verify --hold/--override: the job has no machine.feed_hold (the image has no hold keys)")
     top = host.hold_plan.max_step * 10
     if override is not None and (override % 10 or not 10 <= override <= top):
         raise BuildError(f"verify --override {override}: the feed keys step by 10 % from 10 % to {top} % "
                          "(machine.feed_hold.max_override)")
-    if hold_s is not None and not 0 <= hold_s < host.plan.total:
-        raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.plan.total:.4f} s (hold within that)")
+    if hold_s is not None and not 0 <= hold_s < host.totals.duration_s:
+        raise BuildError(f"verify --hold {hold_s:g}: the job plays {host.totals.duration_s:.4f} s (hold within that)")
     if setup is not None:
         runner = StreamRun(host, image, setup)
     elif host.target.target == "mcs51":
         runner = S51FlashRun(host, image)
     else:
         runner = HeatedRun(host, image) if host.heaters else FlashRun(host, image)
-    target, f_cpu = host.target, host.target.f_cpu
-    prescale, latency = f_cpu // target.tick_hz, int(target.mcu_data.get("isr_latency_cycles", 0))
-    least_latency = int(target.mcu_data.get("isr_latency_min_cycles", latency))
-    candidates = runner.candidates or CANDIDATES
     tick0 = runner.tick0(bool(pause_events(host.schedule)))
-    actions = _actions(host, tick0, hold_s, override)
+    actions = key_actions(host, tick0, hold_s, override)
     resume_target = override_target((override or host.job.machine.feed_hold.override) // 10)
-
-    def cycles_of(d: Dilation) -> np.ndarray:
-        """Every event's predicted cycle; one never played (after a park without its resume): the end of time, so
-        that the predictions stay sorted for searchsorted."""
-        return np.where(d.tick >= 0, tick0 + d.tick * prescale + latency, np.iinfo(np.int64).max)
-
-    # Where each request is first seen (the middle candidate, to place those that follow and the resumes), on the
-    # clock of the requests before it and of the M0/M1 pauses before it, each resumed as _resume_presses says.
-    guess: list[int] = []
-    for a in actions:
-        done = actions[:len(guess)]
-        resumes = [(r - tick0) // prescale + RESUME_TICKS
-                   for r in _resume_presses(host, done, guess, resume_target, tick0, prescale, candidates)]
-        pred = cycles_of(_predict(host, done, guess, resumes, resume_target))
-        first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
-        guess.append(first + candidates // 2 + 1)
-    resume_presses = _resume_presses(host, actions, guess, resume_target, tick0, prescale, candidates)
-    presses = [(a.function, a.press) for a in actions] + [("resume", r) for r in resume_presses]
-    trace, arrived = runner.run(presses, 1.0 if override is None else 11.0)
-    for a, when in zip(actions, arrived):
-        a.press = when  # a frame reaches the firmware when its last byte has arrived
-    resume_arrived = arrived[len(actions):]
-
-    # The resumed events' ticks, then each request's first dilated event: the candidate the pulses agree with.
-    sim = _event_cycles(host, trace.run_only())  # homing steps are not the table's
-
-    def resumed(events: list[int]) -> list[int]:
-        """Each park's resumed tick: the one that puts the first pulses after its resume in place (everything
-        after a resume moves with it), at the player's least latency: the earliest of RESUME_FIT pulses (a link
-        interrupt may have delayed the first)."""
-        ticks: list[int] = []
-        for r in resume_arrived:
-            provisional = (r - tick0) // prescale + RESUME_TICKS
-            d = _predict(host, actions[:len(events)], events, ticks + [provisional], resume_target)
-            if r < 0 or len(d.parks) <= len(ticks):
-                break
-            until = d.parks[len(ticks) + 1][0] if len(d.parks) > len(ticks) + 1 else len(sim)
-            index = np.arange(len(sim))
-            after = np.flatnonzero((sim > r) & (index >= d.parks[len(ticks)][0]) & (index < until))[:RESUME_FIT]
-            if not len(after):
-                break
-            late = (sim[after] - tick0 - least_latency) / prescale - d.tick[after]
-            ticks.append(provisional + int(round(float(late.min()))))
-        return ticks
-
-    chosen: list[int] = []
-    for i, a in enumerate(actions):
-        pred = cycles_of(_predict(host, actions[:i], chosen, resumed(chosen), resume_target))
-        first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
-        # the pulses before the next request can tell (it has not come yet)
-        before = (sim >= 0) & (sim < (actions[i + 1].press if i + 1 < len(actions) else np.inf))
-        best, best_err = first + 1, None
-        for n in range(first + 1, first + 1 + candidates):
-            d = _predict(host, actions[:i + 1], chosen + [n], resumed(chosen + [n]), resume_target)
-            err = int(np.abs(cycles_of(d)[before] - sim[before]).max()) if before.any() else 0
-            if best_err is None or err < best_err:
-                best, best_err = n, err
-        chosen.append(best)
-        a.event = best
-    final = _predict(host, actions, chosen, resumed(chosen), resume_target)
-    twin = host.pulses
-    dilated = dataclasses.replace(twin, tick=final.tick[twin.event], event_tick=final.tick, motor_tick=None,
-                                  motor_dir=None, motor_first=None)
-    plan_time = host.events.time
-    delay = (final.tick - twin.event_tick) / target.tick_hz
-
-    def warp(t):
-        return t + np.interp(t, plan_time, delay)
-
-    verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
-                      dilation=final)
+    requests = Requests(host, tick0, actions, resume_target, runner.candidates or CANDIDATES)
+    presses = requests.presses()
+    slower = 1.0 if override is None else 11.0
+    if host.pulses is None:
+        verdict, trace, final, resume_arrived, shares = held_bounded(host, runner, requests, presses, slower,
+                                                                     steps_csv)
+    else:
+        verdict, trace, final, resume_arrived, shares = _held_whole(host, runner, requests, presses, slower)
     result = runner.result(verdict, trace)
-    shares = ceiling_shares(host)
     result["hold"] = _report(host, actions, final, tick0, resume_arrived, override, shares)
     limits = ramp_problems(host, final) + ceiling_problems(shares)  # the dilated twin shares these: first
     result["problems"][:0] = limits
     result["pass"] = result["pass"] and not limits
-    if len(final.parks) != len(resume_presses):
+    expected = sum(function == "resume" for function, _ in presses)
+    if len(final.parks) != expected:
         result["problems"].append(f"the machine came to rest {len(final.parks)} times, "
-                                  f"{len(resume_presses)} expected (the hold and every M0/M1)")
+                                  f"{expected} expected (the hold and every M0/M1)")
         result["pass"] = False
     return result, trace
+
+
+def _held_whole(host: HostBuild, runner, requests: Requests, presses: list[tuple[str, int]], slower: float):
+    """The run simulated into one trace with every pulse, compared with the whole dilated twin at once: the verdict,
+    the trace, the dilation, the resumes' arrivals and the ceilings' shares."""
+    trace, arrived = runner.run(presses, slower)
+    for a, when in zip(requests.actions, arrived):
+        a.press = when  # a frame reaches the firmware when its last byte has arrived
+    resume_arrived = arrived[len(requests.actions):]
+    final = requests.place(_event_cycles(host, trace.run_only()), resume_arrived)  # homing steps are not the table's
+    twin = host.pulses
+    dilated = dataclasses.replace(twin, tick=final.tick[twin.event], event_tick=final.tick, motor_tick=None,
+                                  motor_dir=None, motor_first=None)
+    warp = dilated_clock(host.events.time, twin.event_tick, final, host.target.tick_hz)
+    verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
+                      dilation=final)
+    return verdict, trace, final, resume_arrived, ceiling_shares(host)
 
 
 def pauses(host: HostBuild) -> bool:
     """The job has M0/M1 pauses: its verification presses the resume key (hold_verify)."""
     return host.hold_plan is not None and bool(pause_events(host.schedule))
-
-
-def _resume_presses(host: HostBuild, actions: list[KeyAction], guess: list[int], resume_target: int, tick0: int,
-                    prescale: int, candidates: int = CANDIDATES) -> list[int]:
-    """The resume key's presses: REST_S after each park the twin predicts (a hold's: the latest of its
-    candidates), in order; each predicted resume is RESUME_TICKS after its press."""
-    f_cpu, presses, resumes = host.target.f_cpu, [], []
-    hold = next((i for i, a in enumerate(actions) if a.function == "hold"), None)
-    while True:
-        d = _predict(host, actions, guess, resumes, resume_target)
-        if len(d.parks) <= len(resumes):
-            return presses
-        event, tick, paused = d.parks[len(resumes)]
-        if not paused and hold is not None:  # the hold's park: the latest of its candidates
-            for k in range(candidates):
-                other = guess[:hold] + [guess[hold] - candidates // 2 + k] + guess[hold + 1:]
-                parks = _predict(host, actions, other, resumes, resume_target).parks
-                if len(parks) > len(resumes):
-                    tick = max(tick, parks[len(resumes)][1])
-        press = tick0 + tick * prescale + int(REST_S * f_cpu)
-        presses.append(press)
-        resumes.append((press - tick0) // prescale + RESUME_TICKS)
 
 
 def hold_lines(hold: dict) -> list[str]:

@@ -20,6 +20,7 @@ import numpy as np
 from codegen.motion.planner import RATE_WINDOW
 from codegen.pipeline.host import HostBuild
 from codegen.tables.hold import F_ONE, PARKED, Dilation, event_ceilings
+from codegen.tables.twin import Pulses
 
 RAMP_ACCEL_SHARE = 0.2  # of each motor's acceleration, at its top speed, that the factor's ramp may take
 CEILING_RATE_SHARE = 1.0  # of each motor's rate that a steady factor at its ceiling may take
@@ -72,27 +73,51 @@ def ramp_problems(host: HostBuild, dilation: Dilation) -> list[str]:
 def ceiling_shares(host: HostBuild) -> dict[str, tuple[float, int, int, int]]:
     """Per motor, where a steady factor at the ceilings would run it fastest against its rate, over stretches whose
     ceiling is above 100 %: (share of its rate, ceiling F, first and last event of its 8 steps). Empty where the
-    tables have no ceiling above 100 %."""
-    ceiling = event_ceilings(host.schedule)
-    if not len(ceiling) or ceiling.max() <= F_ONE:
-        return {}
-    twin, tick_hz, steppers = host.pulses, host.target.tick_hz, host.job.machine.steppers
-    out = {}
-    for m, name in enumerate(host.kin.motors):
-        mine = twin.motor == m
-        tick, event = twin.tick[mine], twin.event[mine]
-        if len(tick) <= RATE_WINDOW:
-            continue
-        between = np.maximum(np.maximum.reduceat(ceiling, event)[:-1], ceiling[event[1:]])  # steps k to k + 1
-        highest = between[:len(between) - RATE_WINDOW + 1].copy()  # over the 8 steps from k
-        for k in range(1, RATE_WINDOW):
-            np.maximum(highest, between[k:k + len(highest)], out=highest)
-        rate = RATE_WINDOW * tick_hz / np.maximum(tick[RATE_WINDOW:] - tick[:-RATE_WINDOW], 1)
-        share = np.where(highest > F_ONE, rate * highest / F_ONE, 0.0) / (
-            steppers[name].max_velocity * steppers[name].steps_per_mm)
-        k = int(np.argmax(share))
-        out[name] = (float(share[k]), int(highest[k]), int(event[k]), int(event[k + RATE_WINDOW]))
-    return out
+    tables have no ceiling above 100 %. (A kept host build's twin as one chapter of CeilingShares.)"""
+    shares = CeilingShares(host)
+    if shares.active:
+        shares.add(host.pulses)
+    return shares.shares()
+
+
+class CeilingShares:
+    """ceiling_shares over the twin a chapter at a time (codegen/verify/chapters.py): `add` each chapter's pulses,
+    then `shares`. Each motor's last RATE_WINDOW steps go on to the next chapter: the windows that begin there."""
+
+    def __init__(self, host: HostBuild):
+        self.ceiling = event_ceilings(host.schedule)
+        self.active = bool(len(self.ceiling)) and int(self.ceiling.max()) > F_ONE
+        steppers, self.names, self.tick_hz = host.job.machine.steppers, host.kin.motors, host.target.tick_hz
+        self.rate = [steppers[name].max_velocity * steppers[name].steps_per_mm for name in self.names]
+        empty = np.zeros(0, dtype=np.int64)
+        self.carried = [(empty, empty)] * len(self.names)  # each motor's last steps: ticks, events
+        self.best: dict[str, tuple[float, int, int, int]] = {}
+
+    def add(self, pulses: Pulses, first_event: int = 0) -> None:
+        """A chapter's twin pulses (their events counted from `first_event`, the program's index of its first)."""
+        if not self.active:
+            return
+        ceiling = self.ceiling
+        for m, name in enumerate(self.names):
+            mine = pulses.motor == m
+            tick = np.concatenate([self.carried[m][0], pulses.tick[mine]])
+            event = np.concatenate([self.carried[m][1], pulses.event[mine] + first_event])
+            self.carried[m] = (tick[-RATE_WINDOW:], event[-RATE_WINDOW:])
+            if len(tick) <= RATE_WINDOW:
+                continue
+            between = np.maximum(np.maximum.reduceat(ceiling, event)[:-1], ceiling[event[1:]])  # steps k to k + 1
+            highest = between[:len(between) - RATE_WINDOW + 1].copy()  # over the 8 steps from k
+            for k in range(1, RATE_WINDOW):
+                np.maximum(highest, between[k:k + len(highest)], out=highest)
+            rate = RATE_WINDOW * self.tick_hz / np.maximum(tick[RATE_WINDOW:] - tick[:-RATE_WINDOW], 1)
+            share = np.where(highest > F_ONE, rate * highest / F_ONE, 0.0) / self.rate[m]
+            k = int(np.argmax(share))
+            if name not in self.best or share[k] > self.best[name][0]:  # the first of the highest, as over the whole
+                self.best[name] = (float(share[k]), int(highest[k]), int(event[k]), int(event[k + RATE_WINDOW]))
+
+    def shares(self) -> dict[str, tuple[float, int, int, int]]:
+        """ceiling_shares's answer over the chapters added, motors in their order."""
+        return {name: self.best[name] for name in self.names if name in self.best}
 
 
 def ceiling_problems(shares: dict[str, tuple[float, int, int, int]]) -> list[str]:

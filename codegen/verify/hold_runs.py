@@ -8,6 +8,7 @@ simulator: simavr's (codegen/sim/avr_link.py) or s51's (codegen/sim/mcs51_link.p
 from __future__ import annotations
 
 import importlib
+import time
 
 from codegen import progress
 from codegen.errors import BuildError
@@ -22,6 +23,7 @@ from codegen.verify.compare import simulated_switches
 from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, heater_figures, hold_problems,
                                     host_timeline, job_plants, on_twin_clock)
 from codegen.verify.results import verify_json
+from codegen.verify.run_reader import POLL_S
 from codegen.verify.stream import ShownSession, made_positions, new_link, session_budget_s, stream_result
 
 PRESS_S = 0.05  # a key held down this long (main polls at least every 32 ms: the longest undilated wait)
@@ -40,21 +42,24 @@ class FlashRun:
         self.host, self.image = host, image
         self.config, self.switches = host.firmware_config(), simulated_switches(host)
         self.f_cpu = host.target.f_cpu
-        self.budget = int((host.plan.total * 1.2 + 1.0) * self.f_cpu)
+        self.budget = int((host.totals.duration_s * 1.2 + 1.0) * self.f_cpu)
         self.streamed = False
         self.candidates = None  # verify_hold's CANDIDATES
 
     def tick0(self, pauses: bool) -> int:
         """The job's tick 0 (cycles from reset); with `pauses` the resume key is held down all along."""
         held = [(self.host.hold_plan.keys["resume"], 1, 1 << 62)] if pauses else []
-        return simulate(self.image.hex_path, self.config, self.budget, switches=self.switches,
-                        presses=held).timer_start_cycle
+        return simulate(self.image.hex_path, self.config, self.budget, switches=self.switches, presses=held,
+                        beside=unread).timer_start_cycle
 
-    def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
+    def run(self, presses: list[tuple[str, int]], slower: float, beside=None) -> tuple[object, list[int]]:
+        """The run with `presses` and when each reached the firmware; `beside(edges, ended)` reads its records
+        while the harness writes them (codegen/sim/avr.py simulate's: the trace then has none)."""
         pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
         keys = [(pins[function], cycle, cycle + hold) for function, cycle in presses]
         budget = int(self.budget * slower) + max((c for _, c in presses), default=0) + int(2 * self.f_cpu)
-        trace = simulate(self.image.hex_path, self.config, budget, switches=self.switches, presses=keys)
+        trace = simulate(self.image.hex_path, self.config, budget, switches=self.switches, presses=keys,
+                         beside=beside)
         return trace, [cycle for _, cycle in presses]
 
     def result(self, verdict, trace) -> dict:
@@ -90,20 +95,20 @@ class HeatedRun(FlashRun):
         self.timeline = host_timeline(host)
         self.waits = self.timeline.tick[self.timeline.waits()]
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
-        self.held_after_s = host.plan.total * HELD_AFTER_FACTOR + HELD_AFTER_S  # verify_heaters' own run
+        self.held_after_s = host.totals.duration_s * HELD_AFTER_FACTOR + HELD_AFTER_S  # verify_heaters' own run
         self.seconds = HEAT_LIMIT_S + self.held_after_s
         self.start = 0  # the job's tick 0 (cycles from reset)
         self.shift = 0  # simulated cycles after the last wait's hold, less the twin's
         self.after = 0  # the twin's cycle of the last wait: the presses come after it
         self.heated = None
 
-    def _run(self, keys: list, slower: float):
+    def _run(self, keys: list, slower: float, beside=None):
         return simulate_heaters(self.image.hex_path, self.config, self.seconds * slower, self.plants, (),
-                                self.switches, self.held_after_s * slower, presses=keys)
+                                self.switches, self.held_after_s * slower, presses=keys, beside=beside)
 
     def tick0(self, pauses: bool) -> int:
         held = [(self.host.hold_plan.keys["resume"], 1, 1 << 62)] if pauses else []
-        trace = self._run(held, 1.0).steps
+        trace = self._run(held, 1.0, unread).steps
         if trace.timer_start_cycle is None:
             raise BuildError("verify --hold/--override: the image's heaters did not settle; verify it without them")
         self.start = trace.timer_start_cycle
@@ -111,11 +116,11 @@ class HeatedRun(FlashRun):
             self.after, self.shift = waits_shift(trace, self.waits, self.cycles_per_tick)
         return self.start
 
-    def run(self, presses: list[tuple[str, int, int]], slower: float) -> tuple[object, list[int]]:
+    def run(self, presses: list[tuple[str, int]], slower: float, beside=None) -> tuple[object, list[int]]:
         refuse_before(presses, self.start, self.after, self.f_cpu)
         pins, hold = self.host.hold_plan.keys, int(PRESS_S * self.f_cpu)
         keys = [(pins[function], cycle + self.shift, cycle + self.shift + hold) for function, cycle in presses]
-        self.heated = self._run(keys, slower + max((c for _, c in presses), default=0) / self.f_cpu)
+        self.heated = self._run(keys, slower + max((c for _, c in presses), default=0) / self.f_cpu, beside)
         self.heated.steps = on_twin_clock(self.heated.steps, self.waits, self.cycles_per_tick)
         return self.heated.steps, [cycle for _, cycle in presses]
 
@@ -228,6 +233,12 @@ class StreamRun:
         result = stream_result(self.host, self.link, self.figures, verify_json(self.host, verdict, self.image),
                                self.host.pulses.final_positions(), made_positions(trace, len(self.host.kin.motors)))
         return result if self.heated is None else with_heaters(result, self.host, self.heated, self.timeline)
+
+
+def unread(edges, ended) -> None:
+    """A run's `beside` that reads none of its records (a run for its clock only: tick0): it waits for its end."""
+    while not ended():
+        time.sleep(POLL_S)
 
 
 def waits_shift(trace, waits, cycles_per_tick: int) -> tuple[int, int]:

@@ -43,12 +43,14 @@ class LaserVerdict:
 
 
 def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None,
-                  dilation=None, counts_before: int = 0, cut_open: bool = False) -> LaserVerdict | None:
+                  dilation=None, counts_before: int = 0, cut_open: bool = False,
+                  ends_run: bool = True) -> LaserVerdict | None:
     """The laser's figures from a stretch of a run (a chapter's: codegen/verify/chapters.py) whose simulated events
     (their first STEP edge, `event_cycle`) are paired with the twin's events (`twin_event`; None: they could not be
     paired); `dilation`: a held or overridden run's (codegen/tables/hold.py Dilation); `counts_before`: the PWM
     counts the tables had set before the stretch; `cut_open`: the tool was on at the end of the stretch before (its
-    first cut goes on, and is counted there). `merge_laser` joins the stretches' figures."""
+    first cut goes on, and is counted there); `ends_run`: the stretch is the run's last (a held run's dilation
+    has the event after any other's last). `merge_laser` joins the stretches' figures."""
     laser = host.laser
     if laser is None:
         return None
@@ -61,7 +63,8 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
     if dilation is not None:  # up to the next event the twin plays, with steps or without
         prescale = host.target.f_cpu // host.target.tick_hz
         following = np.minimum(twin_event + 1, len(dilation.tick) - 1)
-        apply[:-1] = ((dilation.tick[following] - dilation.tick[twin_event]) * prescale)[:-1]
+        through = len(apply) - 1 if ends_run else len(apply)  # the run's last event: APPLY_CYCLES
+        apply[:through] = ((dilation.tick[following] - dilation.tick[twin_event]) * prescale)[:through]
     window = np.minimum(event_cycle + apply + 1, np.append(event_cycle[1:], np.iinfo(np.int64).max))
     at = np.searchsorted(duty[:, 0], window, side="left") - 1
     played = np.where(at >= 0, duty[np.maximum(at, 0), 1], 0)
