@@ -172,10 +172,10 @@ def read_edges(path: Path) -> np.ndarray:
 class EdgeFile:
     """EDGES.bin read as the harness writes it: whole records only, `chunk` at most at a time. What has been read
     is given back to the file system (a hole punched where the file system can), so the file holds what is yet to
-    be read, whatever the run's length."""
+    be read, whatever the run's length; with `keep`, it keeps every byte (it is read again)."""
 
-    def __init__(self, path: Path, chunk: int = 1 << 19):
-        self.path, self.chunk = Path(path), chunk
+    def __init__(self, path: Path, chunk: int = 1 << 19, keep: bool = False):
+        self.path, self.chunk, self.keep = Path(path), chunk, keep
         self.offset = 0
         self._file = None
         self._punched = 0
@@ -194,7 +194,7 @@ class EdgeFile:
 
     def _punch(self) -> None:
         upto = self.offset // PAGE * PAGE
-        if upto - self._punched < 64 * PAGE:
+        if self.keep or upto - self._punched < 64 * PAGE:
             return
         try:
             libc = ctypes.CDLL(None, use_errno=True)

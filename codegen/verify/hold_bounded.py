@@ -46,7 +46,7 @@ class FirstPulses:
 
     def run(self, edges: Path, ended: Callable[[], bool]) -> None:
         host, motors = self.host, len(self.host.kin.motors)
-        reader = RunReader(edges, host.firmware_config(), ended)
+        reader = RunReader(edges, host.firmware_config(), ended, keep=True)  # the comparison reads it again
         timeline = host_timeline(host)
         waits = timeline.tick[timeline.waits()]
 
@@ -102,8 +102,7 @@ def held_bounded(host: HostBuild, runner, requests: Requests, presses: list[tupl
     chapter_pulses = chapters.CHAPTER_PULSES
     comparison = DilatedComparison(host, runner.switches, chapter_pulses, steps_csv)
     resume_arrived = [cycle for function, cycle in presses if function == "resume"]
-
-    shares: dict = {}
+    shares: dict = {}  # the first reading's
 
     def beside(edges: Path, ended: Callable[[], bool]) -> None:
         first = FirstPulses(host, chapter_pulses)

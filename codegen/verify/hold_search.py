@@ -157,8 +157,13 @@ class Requests:
 
 
 def dilated_clock(plan_time: np.ndarray, twin_tick: np.ndarray, final: Dilation, tick_hz: int):
-    """The plan's times (s) onto a held run's clock: every event moved by as much as the dilation moved its tick."""
+    """The plan's times (s) onto a held run's clock: every event moved by as much as the dilation moved its tick.
+    Where the delay stays the same (before the first request, after a resume's ramp) only the stretch's ends are
+    kept: interpolating between them gives it as it is."""
     delay = (final.tick - twin_tick) / tick_hz
+    inside = np.zeros(len(delay), dtype=bool)  # within a stretch of the same delay
+    inside[1:-1] = (delay[1:-1] == delay[:-2]) & (delay[1:-1] == delay[2:])
+    plan_time, delay = plan_time[~inside], delay[~inside]
 
     def warp(t):
         return t + np.interp(t, plan_time, delay)

@@ -31,10 +31,11 @@ def _cat(parts: list[Steps]) -> Steps:
 
 class RunReader:
     """`ended()` says the harness has written its last record (the reader then reads what is left and stops);
-    `records`, if given, is handed every record as it is read (verify --vcd: codegen/verify/waveform.py)."""
+    `records`, if given, is handed every record as it is read (verify --vcd: codegen/verify/waveform.py); with
+    `keep`, the file keeps what has been read (it is read again: codegen/verify/hold_bounded.py)."""
 
     def __init__(self, edges: Path, config: FirmwareConfig, ended: Callable[[], bool], since: int = 0,
-                 records: Callable[[np.ndarray], None] | None = None):
+                 records: Callable[[np.ndarray], None] | None = None, keep: bool = False):
         pins = board_pins(config)
         mcu = load_target(pins.mcu)
         self.f_cpu = int(mcu["f_cpu"])
@@ -43,7 +44,7 @@ class RunReader:
         self.motors = len(pins.motors)
         self.decoder = EdgeDecoder([w.invert_dir for w in pins.motors], names[2 * self.motors:], since)
         self.tool_on_level = 1 if pins.tool_active_high else 0
-        self.file, self.ended, self.done = EdgeFile(edges), ended, False
+        self.file, self.ended, self.done = EdgeFile(edges, keep=keep), ended, False
         self.records = records
         self.buffer = Steps.empty()  # the run's pulses read, not yet handed out
         self.have = np.zeros(self.motors, dtype=np.int64)  # the buffer's, per motor

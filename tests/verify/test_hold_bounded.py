@@ -1,0 +1,118 @@
+"""verify --hold/--override of an ATmega2560 flash image in bounded memory (codegen/verify/hold_bounded.py): with a
+host build that keeps only its tables, the run is read beside the simulation a chapter at a time, never as one
+trace of every pulse, and gives the verdict the whole run's comparison gives; the ceilings' shares and the edges'
+register writes come out the same read in pieces."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+import codegen.verify.chapters
+from codegen.cli.main import _build, main
+from codegen.job import load_job
+from codegen.report.summaries import write_trace
+from codegen.sim.avr import PHASE_RUN
+from codegen.sim.avr_edges import DUTY_HIGH_PIN, DUTY_LOW_PIN, EDGE_RECORD, EdgeDecoder
+from codegen.tables.twin import Pulses
+from codegen.verify.compare import Comparison
+from codegen.verify.hold import hold_verify
+from codegen.verify.hold_limits import CeilingShares, ceiling_shares
+from tests.helpers import ROOT
+from tests.verify.test_hold_heaters import PRINTER
+
+needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
+                                  reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
+SMALL_CHAPTERS = 1 << 14  # the star's twin (122852 pulses) in two chapters
+
+
+@pytest.fixture
+def chapters_seen(monkeypatch):
+    """Small chapters, and the twin's pulses of every chapter the held run's comparison was handed."""
+    monkeypatch.setattr(codegen.verify.chapters, "CHAPTER_PULSES", SMALL_CHAPTERS)
+    seen: list[int] = []
+    add = Comparison.add
+
+    def spied(self, chapter, sim, clock):
+        seen.append(len(chapter.pulses.tick))
+        return add(self, chapter, sim, clock)
+
+    monkeypatch.setattr(Comparison, "add", spied)
+    return seen
+
+
+def _tables_only(job_path, out) -> tuple:
+    host, image, _ = _build(load_job(job_path), str(out), reuse=True, strict=False, keep="tables")
+    assert host.pulses is None and host.events is None
+    return host, image
+
+
+@needs_simavr
+@pytest.mark.parametrize("hold_s, override", [(1.0, None), (0.6, 150)])
+def test_the_star_held_a_chapter_at_a_time_has_the_whole_run_s_verdict(star_flash, chapters_seen, hold_s, override):
+    host, image = star_flash
+    whole, whole_trace = hold_verify(host, image, hold_s, override)
+    assert len(chapters_seen) == 1 and whole["pass"]  # the whole run: one chapter of every pulse
+    chapters_seen.clear()
+    tables, _ = _tables_only(ROOT / "examples" / "star.yaml", image.hex_path.parent)
+    bounded, trace = hold_verify(tables, image, hold_s, override)
+    assert bounded == whole
+    assert len(chapters_seen) == 2 and sum(chapters_seen) == len(host.pulses.tick) == 122852
+    assert max(chapters_seen) < len(host.pulses.tick)
+    # the trace holds no pulse of the table: they were read and dropped a chapter at a time
+    assert not (trace.step_phase == PHASE_RUN).any() and (whole_trace.step_phase == PHASE_RUN).sum() == 122852
+    assert trace.timer_start_cycle == whole_trace.timer_start_cycle and trace.resumes == whole_trace.resumes
+
+
+@needs_simavr
+def test_a_heated_printer_paused_by_m0_a_chapter_at_a_time_has_the_whole_run_s_verdict(tmp_path, chapters_seen):
+    path = tmp_path / "hot-pause.yaml"
+    path.write_text(PRINTER.format(name="hot-pause", middle="    M0\n"))
+    host, image, _ = _build(load_job(path), str(tmp_path / "out"), reuse=False, strict=False)
+    whole, _ = hold_verify(host, image, None, None)
+    bounded, _ = hold_verify(_tables_only(path, tmp_path / "out")[0], image, None, None)
+    assert bounded == whole and whole["pass"] and [r["kind"] for r in whole["hold"]["rests"]] == ["pause"]
+    assert whole["holds"][0]["heaters"] == ["hotend"]
+
+
+@needs_simavr
+def test_verify_hold_writes_the_trace_as_it_compares(star_flash, tmp_path, capsys):
+    """The command line compares a held flash image a chapter at a time: --trace's rows are the whole run's."""
+    host, image = star_flash
+    _, whole_trace = hold_verify(host, image, 1.0, None)
+    write_trace(tmp_path / "whole.csv", host, whole_trace)
+    code = main(["verify", str(ROOT / "examples" / "star.yaml"), "--out", str(image.hex_path.parent), "--hold",
+                 "1.0", "--trace", str(tmp_path / "bounded.csv")])
+    assert code == 0 and capsys.readouterr().out.startswith("PASS star")
+    rows = (tmp_path / "bounded.csv").read_text()
+    assert rows == (tmp_path / "whole.csv").read_text() and rows.count(",run\n") == 122852
+
+
+def test_the_ceilings_shares_over_chapters_are_the_whole_twin_s(star_host):
+    """Windows of 8 steps across a chapter's end count once, and the first of the highest stays the answer."""
+    twin = star_host.pulses
+    shares = CeilingShares(star_host)
+    ends = np.searchsorted(twin.event, [0, 9000, 9001, 40000, len(twin.event_tick)])  # a chapter of one event
+    for lo, hi in zip(ends[:-1], ends[1:]):
+        first = int(twin.event[lo]) if lo < len(twin.event) else 0
+        part = Pulses(twin.tick[lo:hi], twin.motor[lo:hi], twin.dir[lo:hi], twin.event[lo:hi] - first,
+                      twin.event_tick, twin.event_block, twin.event_position)
+        shares.add(part, first)
+    assert shares.shares() == ceiling_shares(star_host)
+    assert list(shares.shares()) == ["a", "b"] and shares.shares()["a"][0] > 0.9
+
+
+def test_a_register_write_split_between_two_pieces_decodes_whole():
+    """The harness writes a 16-bit register as a low record, then a high one; a piece of the file read while it
+    writes may end between them: the low one waits for the next piece."""
+    records = np.zeros(4, EDGE_RECORD)
+    records["cycle"] = [100, 100, 200, 200]
+    records["pin"] = [DUTY_LOW_PIN, DUTY_HIGH_PIN, DUTY_LOW_PIN, DUTY_HIGH_PIN]
+    records["level"] = [0x34, 0x12, 0x78, 0x05]
+    whole, pieces = EdgeDecoder([False], []), EdgeDecoder([False], [])
+    whole.feed(records)
+    for piece in (records[:1], records[1:3], records[3:]):
+        pieces.feed(piece)
+    assert pieces.duty().tolist() == whole.duty().tolist() == [[100, 0x1234], [200, 0x578]]
