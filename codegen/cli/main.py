@@ -17,6 +17,7 @@ from codegen.cli import config as cli_config
 from codegen.cli import flash as cli_flash
 from codegen.cli import stream as cli_stream
 from codegen.cli import tune as cli_tune
+from codegen.cli.outputs import IMAGE_FILES, flash_dir, job_name_guess, stream_dir, whole_or_none
 from codegen.errors import BuildError, JobError, render_all
 from codegen.firmware.config import Image
 from codegen.job import load_job
@@ -32,7 +33,6 @@ from codegen.verify.results import verify_json
 from codegen.verify.shipped import shipped_problems
 from codegen.verify.waveform import write_vcd
 
-IMAGE_FILES = ("firmware.hex", "firmware.elf", "report.json")
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
 TARGET_MODULES = {"firmware": "codegen.firmware.{target}.image", "sim": "codegen.sim.{target}"}
 
@@ -45,10 +45,6 @@ def _target_module(kind: str, target: str):
         if error.name != name:
             raise
         raise BuildError(f"the {target} target has no {kind} support yet") from None
-
-
-def _out_dir(job, out: str | None) -> Path:
-    return Path(out) if out else Path("build") / job.name
 
 
 def _fingerprint(sources: dict[str, str]) -> str:
@@ -86,39 +82,43 @@ FIT_HINT = ("what helps: a larger machine.tolerance (fewer chords on curves), fe
 
 
 def _build(job, out: str | None, reuse: bool, strict: bool, keep: bool | str = True) -> tuple[HostBuild, object, Path]:
-    host = _checked_host(job, strict, keep)
-    table = stream_bytes(host.schedule)
-    if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
-        raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
-                         f"{host.target.mcu} has {host.target.flash_bytes}; {FIT_HINT}")
-    firmware = _target_module("firmware", host.target.target)
-    sources = firmware.render_sources(host.schedule, host.firmware_config())
-    fingerprint = _fingerprint(sources)
-    out_dir = _out_dir(job, out)
-    report_path = out_dir / "report.json"
-    if reuse and report_path.is_file() and (out_dir / "firmware.hex").is_file():
-        previous = json.loads(report_path.read_text(encoding="utf-8"))
-        if previous.get("fingerprint") == fingerprint:
-            try:
-                return host, _image_from_report(out_dir, previous["image"]), out_dir
-            except KeyError:  # a report from an older printer-codegen: build again
-                pass
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for name in IMAGE_FILES:  # never leave an older image next to a failed build
-        (out_dir / name).unlink(missing_ok=True)
-    try:
-        image = firmware.build_image(sources, out_dir, stream_bytes(host.schedule))
-    except BuildError as error:
-        raise BuildError(f"job {job.name}: {error}") from None
-    write_json(report_path, build_report(host, image, fingerprint, sources))
+    out_dir = flash_dir(job.name, out)
+    with whole_or_none(lambda: out_dir):
+        host = _checked_host(job, strict, keep)
+        table = stream_bytes(host.schedule)
+        if table >= host.target.flash_bytes:  # refuse before compiling megabytes of table
+            raise BuildError(f"job {job.name} does not fit in flash: its tables alone need {table} bytes, the "
+                             f"{host.target.mcu} has {host.target.flash_bytes}; {FIT_HINT}")
+        firmware = _target_module("firmware", host.target.target)
+        sources = firmware.render_sources(host.schedule, host.firmware_config())
+        fingerprint = _fingerprint(sources)
+        report_path = out_dir / "report.json"
+        if reuse and report_path.is_file() and (out_dir / "firmware.hex").is_file():
+            previous = json.loads(report_path.read_text(encoding="utf-8"))
+            if previous.get("fingerprint") == fingerprint:
+                try:
+                    return host, _image_from_report(out_dir, previous["image"]), out_dir
+                except KeyError:  # a report from an older printer-codegen: build again
+                    pass
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for name in IMAGE_FILES:  # the new image replaces the old one whole or not at all
+            (out_dir / name).unlink(missing_ok=True)
+        try:
+            image = firmware.build_image(sources, out_dir, stream_bytes(host.schedule))
+        except BuildError as error:
+            raise BuildError(f"job {job.name}: {error}") from None
+        write_json(report_path, build_report(host, image, fingerprint, sources))
     return host, image, out_dir
 
 
 def cmd_build(args) -> int:
-    if args.stream:
-        return cli_stream.cmd_build_stream(args)
-    job = load_job(Path(args.job), args.target)
-    host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
+    job_path = Path(args.job)
+    folder = stream_dir if args.stream else flash_dir
+    with whole_or_none(lambda: folder(job_name_guess(job_path), args.out)):  # a failed build leaves no image
+        if args.stream:
+            return cli_stream.cmd_build_stream(args)
+        job = load_job(job_path, args.target)
+        host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
     print(f"built {out_dir / image.hex_path.name}: flash {image.flash_bytes} of {image.flash_capacity} bytes "
           f"(tables {stream_bytes(host.schedule)}), RAM {image.ram_bytes} of {image.ram_capacity} bytes")
     print(human_plan(plan_summary(host)))

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from codegen import __version__, progress
+from codegen.cli.outputs import stream_dir
 from codegen.errors import BuildError, render_all
 from codegen.job import load_job
 from codegen.link.host import HostLink
@@ -21,11 +22,6 @@ from codegen.verify.heaters import job_faults
 from codegen.verify.hold import hold_verify, pauses
 from codegen.verify.report_samples import RunSamples
 from codegen.verify.stream import simulate_stream, simulate_stream_bounded
-
-
-def _out_dir(job, out: str | None) -> Path:
-    """The streaming firmware's folder: beside the job's flash image, never over it."""
-    return Path(out) if out else Path("build") / job.name / "stream"
 
 
 def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
@@ -45,7 +41,7 @@ def _stream_report(setup: StreamSetup, image, sources: dict[str, str]) -> dict:
 
 
 def _firmware(job, setup: StreamSetup, out: str | None):
-    out_dir = _out_dir(job, out)
+    out_dir = stream_dir(job.name, out)
     image, sources = build_stream_firmware(setup, out_dir)
     report = {**_stream_report(setup, image, sources), "job_fingerprint": job_fingerprint(job, setup.config.baud)}
     write_json(out_dir / "report.json", report)
