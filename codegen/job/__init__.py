@@ -78,9 +78,21 @@ def _inline_gcode(gcode: str, marks: Marks) -> bool:
 
 def _check_gcode_file(job: Job, path: Path, marks: Marks) -> list[Diagnostic]:
     gcode = None if job.program is None else job.program.gcode
-    if gcode is None or _inline_gcode(gcode, marks) or (path.parent / gcode).is_file():
+    if gcode is None or _inline_gcode(gcode, marks):
         return []
-    return [Diagnostic(marks.value(("program", "gcode")), f"program.gcode: no such file '{gcode}'")]
+    where = marks.value(("program", "gcode"))
+    try:
+        if (path.parent / gcode).is_file():
+            return []
+    except (OSError, ValueError) as e:  # a name too long for the file system, a NUL in it
+        reason = getattr(e, "strerror", None) or str(e)
+        return [Diagnostic(where, f"program.gcode: cannot read '{_shortened(gcode)}': {reason} (G-code written "
+                                  f"in the job goes in a block scalar, `gcode: |`)")]
+    return [Diagnostic(where, f"program.gcode: no such file '{_shortened(gcode)}'")]
+
+
+def _shortened(text: str, most: int = 60) -> str:
+    return text if len(text) <= most else text[:most] + "..."
 
 
 def _validate(data: dict) -> Job:
@@ -121,6 +133,9 @@ def load_job(path: Path, target_override: str | None = None, program_required: b
     if program_required and "program" not in data:
         diagnostics.append(Diagnostic(marks.mapping(()), "missing key 'program' (only `build --stream` goes "
                                                          "without one)"))
+    elif program_required and data["program"] is None:
+        diagnostics.append(Diagnostic(marks.value(("program",)), "program: expected a mapping with `shapes` or "
+                                                                 "`gcode` (only `build --stream` goes without one)"))
     board_problems = _check_board(data, data.get("target", "avr"), marks) if data.get("target", "avr") in TARGETS \
         else []
     diagnostics += board_problems

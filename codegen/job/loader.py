@@ -25,6 +25,11 @@ YPath = tuple  # of str (mapping keys) and int (list indexes)
 
 _FLOAT_12 = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+")  # YAML 1.2 floats such as 1e-3
 _MAX_NODES = 100_000
+MAX_DEPTH = 50  # a job nests about 6 levels; PyYAML's parser recurses about 3 frames a level
+_NON_PRINTABLE = yaml.reader.Reader.NON_PRINTABLE  # the characters PyYAML refuses to read
+_OPENING = (yaml.BlockMappingStartToken, yaml.BlockSequenceStartToken, yaml.FlowMappingStartToken,
+            yaml.FlowSequenceStartToken)
+_CLOSING = (yaml.BlockEndToken, yaml.FlowMappingEndToken, yaml.FlowSequenceEndToken)
 
 
 def dotted(path: YPath) -> str:
@@ -173,10 +178,14 @@ def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Dia
     except OSError as e:
         raise JobError([Diagnostic(SourceRef(file), f"cannot read: {e.strerror or e}")]) from None
     except UnicodeDecodeError as e:
-        raise JobError([Diagnostic(SourceRef(file), f"not UTF-8 text (byte {e.start})")]) from None
+        raise JobError([_not_utf8(file, e)]) from None
+    unprintable = [_unprintable(file, text, found) for _, found in zip(range(20), _NON_PRINTABLE.finditer(text))]
+    if unprintable:  # the first 20: a binary file would give thousands
+        raise JobError(unprintable)
     marks = Marks(file, text.splitlines())
     loader = yaml.SafeLoader(text)
     try:
+        _check_depth(text, file)
         root = loader.get_single_node()
         if root is None:
             raise JobError([Diagnostic(SourceRef(file, 1, 1), "the job file is empty")])
@@ -195,6 +204,42 @@ def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Dia
     finally:
         loader.dispose()
     return data, marks, builder.diagnostics
+
+
+def _position(text: str, offset: int) -> tuple[int, int]:
+    """1-based line and column of the character at `offset`."""
+    line_start = text.rfind("\n", 0, offset) + 1
+    return text.count("\n", 0, offset) + 1, offset - line_start + 1
+
+
+def _not_utf8(file: str, error: UnicodeDecodeError) -> Diagnostic:
+    data = error.object
+    line_start = data.rfind(b"\n", 0, error.start) + 1
+    col = len(data[line_start:error.start].decode("utf-8", errors="replace")) + 1
+    byte = data[error.start:error.start + 1].hex().upper()
+    return Diagnostic(SourceRef(file, data.count(b"\n", 0, error.start) + 1, col),
+                      f"not UTF-8 text: byte 0x{byte} (save the job file as UTF-8)")
+
+
+def _unprintable(file: str, text: str, found: re.Match) -> Diagnostic:
+    line, col = _position(text, found.start())
+    return Diagnostic(SourceRef(file, line, col), f"control character U+{ord(found.group()):04X} is not allowed in a "
+                                                  f"YAML file (write it as an escape in a double-quoted string)")
+
+
+def _check_depth(text: str, file: str) -> None:
+    """Refuse nesting deeper than MAX_DEPTH before PyYAML's recursive parser meets it (a RecursionError);
+    the scanner alone reads the file without recursion."""
+    depth = 0
+    for token in yaml.scan(text, Loader=yaml.SafeLoader):
+        if isinstance(token, _OPENING):
+            depth += 1
+            if depth > MAX_DEPTH:
+                mark = token.start_mark
+                raise JobError([Diagnostic(SourceRef(file, mark.line + 1, mark.column + 1),
+                                           f"nested deeper than {MAX_DEPTH} levels; a job file needs a few")])
+        elif isinstance(token, _CLOSING):
+            depth -= 1
 
 
 # ---- validation: every problem of the file, as diagnostics ----
@@ -275,7 +320,7 @@ Issue = tuple[tuple, str, tuple, str]
 def machine_issues(m: dict) -> list[Issue]:
     """Motors against the kinematics; heater names; `delta:` exactly when the kinematics is delta."""
     kin = m.get("kinematics")
-    if kin not in MOTORS:
+    if not isinstance(kin, str) or kin not in MOTORS:  # a wrong value or type: the schema reports it
         return []
     issues: list[Issue] = []
     steppers = m.get("steppers")

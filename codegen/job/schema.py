@@ -141,6 +141,9 @@ class Stepper(_Model):
         return v
 
 
+MIN_TOWER_APART_DEG = 10.0  # nearer towers make the delta's inverse ill-conditioned: steps from rounding noise
+
+
 class Delta(_Model):
     radius: Positive
     diagonal_rod: Positive
@@ -153,6 +156,17 @@ class Delta(_Model):
         radius = info.data.get("radius")
         if radius is not None and not v > radius:
             raise _fail("rod", f"must be > radius ({radius:g})")
+        return v
+
+    @field_validator("tower_angles")
+    @classmethod
+    def _three_directions(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            apart = abs((v[i] - v[j] + 180.0) % 360.0 - 180.0)
+            if apart < MIN_TOWER_APART_DEG:  # towers in one direction leave the effector's position undefined
+                raise _fail("number", f"towers {i + 1} and {j + 1} stand {apart:g} deg apart: the three towers must "
+                                      f"stand in three directions at least {MIN_TOWER_APART_DEG:g} deg apart "
+                                      f"(a delta's are usually 120 deg apart)")
         return v
 
 
@@ -573,8 +587,9 @@ class Job(_Model):
     @model_validator(mode="before")
     @classmethod
     def _default_board(cls, data: Any) -> Any:
-        if isinstance(data, dict) and "board" not in data and data.get("target", "avr") in DEFAULT_BOARDS:
-            data = {**data, "board": DEFAULT_BOARDS[data.get("target", "avr")]}
+        target = data.get("target", "avr") if isinstance(data, dict) else None
+        if isinstance(target, str) and "board" not in data and target in DEFAULT_BOARDS:  # else: the target's error
+            data = {**data, "board": DEFAULT_BOARDS[target]}
         return data
 
     @field_validator("name")
