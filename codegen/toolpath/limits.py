@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 REACH_MM = 1e5  # 100 m from the origin: beyond any machine, and far inside the planner's float precision
 POSITION_STEPS = 2**31 - 1  # the firmware's positions in steps are int32
 LONGEST_MOVE_S = 86_400.0  # a day: no real move is slower; the host plans (and the twin plays) every event of it
@@ -71,3 +73,27 @@ def arc_error(length: float) -> str | None:
     if length <= LONGEST_ARC_MM:
         return None
     return f"this arc is {length:.6g} mm long; the longest arc a move may draw is {LONGEST_ARC_MM:g} mm"
+
+
+def items_errors(items: list, reach: list[float]) -> list[str]:
+    """Why a shape's items (Line, Arc, Curve) go beyond these limits: each reason once, in the items' order."""
+    found: dict[str, None] = {}
+    for item in items:
+        points = item.points if hasattr(item, "fine") else np.array([item.start, item.end])
+        extent = np.abs(points).max(axis=0)
+        if hasattr(item, "radius"):  # an arc's bulge: as far as its centre and radius go
+            for axis, centre in zip(item.plane, item.center):
+                extent[axis] = max(extent[axis], abs(centre) + item.radius)
+        beyond = [message for axis in range(4) if (message := reach_error(axis, float(extent[axis]), reach))]
+        found.update(dict.fromkeys(beyond))
+        if beyond:  # its length and duration are then beside the point
+            continue
+        if hasattr(item, "radius"):
+            length = math.hypot(item.radius * abs(item.sweep), float(np.linalg.norm(item.end - item.start)))
+            if (message := arc_error(length)) is not None:
+                found[message] = None
+        else:
+            length = float(np.linalg.norm(np.diff(points[:, :3], axis=0), axis=1).sum())
+        if (message := move_error(length, item.feed)) is not None:
+            found[f"the feed of {item.feed * 60.0:.6g} mm/min {message}"] = None
+    return list(found)
