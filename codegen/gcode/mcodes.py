@@ -169,7 +169,8 @@ def dwell(it, block, params):
     else:
         return None
     if (message := dwell_error(seconds)) is not None:
-        it.fail(block, "S" if "S" in params else "P", f"'{it.word(block, 'S' if 'S' in params else 'P')}': {message}")
+        letter = "S" if "S" in params else "P"
+        it.fail(block, letter, f"'{it.word(block, letter)}': {message}")
         return False
     if seconds > 0.0:
         it.items.append(Dwell(seconds, it.source(block)))

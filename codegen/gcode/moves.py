@@ -7,6 +7,8 @@ the C's runs of lines as rows of its arrays (codegen/gcode/fast.py); `take` turn
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 import codegen.gcode.arcs as arcs
@@ -114,7 +116,7 @@ class Moves:
         if failed:
             return True
         if length is None:
-            length = float(np.linalg.norm(np.subtract(tgt[:3], pos[:3]))) or abs(tgt[3] - pos[3])
+            length = math.dist(tgt[:3], pos[:3]) or abs(tgt[3] - pos[3])
         message = limits.move_error(length, speed)
         if message is None:
             return False
