@@ -10,6 +10,8 @@ Grbl's rules (gcode.c, motion_control.c):
   R < 0. An R smaller than half the chord is an error, and so is an end equal to the start. Unlike Grbl,
   an R short of half the chord by no more than the radius slack (0.005 mm, numbers rounded by the program's
   writer) is taken as the half circle on the chord, as Marlin does for any R.
+- Length: at most LONGEST_ARC_MM (codegen/toolpath/limits.py), whatever the radius: R < 0 on a huge circle is
+  the long way round it.
 - Sweep: atan2 of the start and end directions, taken the long way round when its sign disagrees with the
   direction (within 5e-7 rad, so an end at the start is a whole turn).
 """
@@ -18,6 +20,8 @@ from __future__ import annotations
 
 import math
 from typing import NamedTuple
+
+from codegen.toolpath.limits import arc_error
 
 RADIUS_SLACK = 0.005  # mm: radii differing by no more than this always pass
 RADIUS_ERROR = 0.5  # mm
@@ -65,6 +69,14 @@ def _within_largest(radius: float, letter: str) -> None:
     if not radius <= LARGEST_RADIUS_MM:
         raise ArcError(f"arc radius {radius:.6g} mm is beyond the largest an arc may have, {LARGEST_RADIUS_MM:g} mm "
                        f"(so large an arc is a straight line to the planner's precision: write G1)", letter)
+
+
+def too_long(circle: Circle, length: float, long_way: bool) -> str | None:
+    """Why an arc of `length` mm (its helix's) is longer than a move may draw, or None."""
+    message = arc_error(length)
+    if message is None or not long_way:
+        return message
+    return f"{message} (R < 0 goes the long way round a circle of {mm(circle.radius)} mm radius)"
 
 
 def from_offsets(start: tuple[float, float], end: tuple[float, float], offset: tuple[float, float],

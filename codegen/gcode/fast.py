@@ -14,11 +14,13 @@ import ctypes
 import numpy as np
 
 from codegen.native import library
+from codegen.toolpath.limits import LONGEST_MOVE_S
 
 RUN = 3  # an item kind beside moves.py's LINE, ARC, HOME: moves made here, rows lo..hi of the arrays
 REALS = ("unit", "flow", "e_shift", "feed", "draw_feed", "rapid", "speed_factor", "min_feed", "min_travel_feed",
          "accel_print", "accel_travel", "accel_retract", "s_full", "power")  # after pos and off (gcodelines.c)
 FEED, POWER = 8 + REALS.index("feed"), 8 + REALS.index("power")
+LIMITS = 5  # after the reals: the reach of x, y, z, e and the longest move (codegen/toolpath/limits.py)
 FLAGS = ("relative", "e_relative", "has_feed", "spindle", "fixed", "mode")  # gcodelines.c's order
 HAS_FEED, MODE = FLAGS.index("has_feed"), FLAGS.index("mode")
 
@@ -34,7 +36,7 @@ class NativeLines:
         self.rapid, self.line, self.col = (np.empty(capacity, dtype=np.int64) for _ in range(3))
         self.tool = np.empty(capacity, dtype=bool)
         self.dynamic = np.empty(capacity, dtype=bool)
-        self.state = (ctypes.c_double * (8 + len(REALS)))()
+        self.state = (ctypes.c_double * (8 + len(REALS) + LIMITS))()
         self.flags = (ctypes.c_int64 * len(FLAGS))()
         self.at, self.blocks = ctypes.c_int64(), ctypes.c_int64()
         self.rows = [a.ctypes.data_as(ctypes.c_void_p) for a in (self.end, self.feed, self.accel, self.power,
@@ -62,7 +64,8 @@ class NativeLines:
         """Lines from `at` on, for the interpreter `it`, at most `budget` of them blocks (not comments): the
         first line not taken, and the blocks taken."""
         state, flags = self.state, self.flags
-        state[:] = [*it.pos, *it.off, *[getattr(it, name) or 0.0 for name in REALS]]  # feed None: 0.0
+        state[:] = [*it.pos, *it.off, *[getattr(it, name) or 0.0 for name in REALS],  # feed None: 0.0
+                    *it.reach, LONGEST_MOVE_S]
         flags[:] = [it.relative, it.e_relative, it.feed is not None, it.spindle,
                     sum(1 << i for i in it.fixed), it.mode == "G1"]
         self.at.value, self.blocks.value, lo = at, budget, self.made

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import codegen.gcode.mcodes as mcodes
+import codegen.toolpath.limits as limits
 from codegen.errors import Diagnostic, SourceRef
 from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
                                  code_name, group_of, harmless_reason)
@@ -49,6 +50,7 @@ class Interpreter(Moves, GrblState):
         self.movable = (True, True, has_z, "e" in self.motors)
         self.fixed = tuple(i for i in range(4) if not self.movable[i])
         self.home_z = float(machine.delta.height) if self.kinematics == "delta" else 0.0
+        self.reach = limits.axis_reach(machine)  # mm, per axis: where a move may go
         start = [0.0] * 4
         start[: len(program.start)] = [float(v) for v in program.start]
         self.pos = start
@@ -205,6 +207,8 @@ class Interpreter(Moves, GrblState):
         else:
             feed, tool = self.draw_feed if self.feed is None else self.feed, self.spindle
         feed = self.speed(feed, tgt[3] != pos[3])
+        if self.beyond_limits(block, tgt, feed):
+            return
         if tgt[3] == pos[3]:
             accel = self.accel_travel
         elif tgt[0] == pos[0] and tgt[1] == pos[1] and tgt[2] == pos[2]:

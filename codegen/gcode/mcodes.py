@@ -10,6 +10,7 @@ targets in degrees C; fan S over 0..255.
 from __future__ import annotations
 
 from codegen.toolpath.items import Dwell, Limits, Output
+from codegen.toolpath.limits import dwell_error
 
 FAN_FULL_SCALE = 255.0
 
@@ -167,6 +168,10 @@ def dwell(it, block, params):
         seconds = _number(it, block, params, "P", strict=False) / 1000.0
     else:
         return None
+    if (message := dwell_error(seconds)) is not None:
+        letter = "S" if "S" in params else "P"
+        it.fail(block, letter, f"'{it.word(block, letter)}': {message}")
+        return False
     if seconds > 0.0:
         it.items.append(Dwell(seconds, it.source(block)))
     return None

@@ -7,9 +7,12 @@ the C's runs of lines as rows of its arrays (codegen/gcode/fast.py); `take` turn
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 import codegen.gcode.arcs as arcs
+import codegen.toolpath.limits as limits
 from codegen.gcode.codes import AXIS_LETTERS, PLANE_NAMES
 from codegen.gcode.fast import RUN
 from codegen.toolpath.items import Arc, Home, Lines
@@ -102,6 +105,26 @@ class Moves:
                 return True
         return False
 
+    def beyond_limits(self, block, tgt: list[float], speed: float, length: float | None = None) -> bool:
+        """An error (True) when the move goes out of reach (at each axis word) or lasts longer than a move may (at
+        its F, else the line): codegen/toolpath/limits.py. `length`: the path's (an arc's), else the straight one."""
+        pos, failed = self.pos, False
+        for i, letter in enumerate(AXIS_LETTERS):
+            if tgt[i] != pos[i] and (message := limits.reach_error(i, tgt[i], self.reach)) is not None:
+                self.fail(block, letter, message)
+                failed = True
+        if failed:
+            return True
+        if length is None:
+            length = math.dist(tgt[:3], pos[:3]) or abs(tgt[3] - pos[3])
+        message = limits.move_error(length, speed)
+        if message is None:
+            return False
+        given = self.word_index(block, "F") is not None
+        feed = f"'{self.word(block, 'F')}'" if given else f"the feed of {speed * 60.0:.6g} mm/min"
+        self.fail(block, "F", f"{feed} {message}")
+        return True
+
     def add_point(self, tgt: list[float]) -> int:
         """The tool goes to `tgt`: a new point; returns the index of the one before."""
         self.flat.extend(tgt)
@@ -134,6 +157,8 @@ class Moves:
             length = float(np.linalg.norm(np.subtract(tgt[:3], self.pos[:3]))) or abs(tgt[3] - self.pos[3])
             feed, tool = self.draw_speed(length), self.spindle
         feed = self.speed(feed, tgt[3] != self.pos[3])
+        if self.beyond_limits(block, tgt, feed):
+            return
         accel = self.accel_for(tgt)
         start = self.add_point(tgt)
         self.items.append(self.line_item(block, start, feed, tool, mode, accel))
@@ -182,8 +207,12 @@ class Moves:
         except arcs.ArcError as err:
             return self.fail(block, err.letter if err.letter in params else given[0], err.message)
         along = [tgt[i] - pos[i] for i in range(3) if i not in plane]
-        feed = self.draw_speed(float(np.hypot(circle.radius * abs(circle.sweep), np.linalg.norm(along))))
-        feed = self.speed(feed, tgt[3] != pos[3])
+        length = float(np.hypot(circle.radius * abs(circle.sweep), np.linalg.norm(along)))
+        if (message := arcs.too_long(circle, length, "R" in params and params["R"] < 0.0)) is not None:
+            return self.fail(block, "R" if "R" in params else given[0], message)
+        feed = self.speed(self.draw_speed(length), tgt[3] != pos[3])
+        if self.beyond_limits(block, tgt, feed, length):
+            return
         tool = self.spindle
         accel = self.accel_travel if tgt[3] == pos[3] else self.accel_print
         start_index = self.add_point(tgt)

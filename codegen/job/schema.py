@@ -100,6 +100,24 @@ def _sweep(v: float) -> float:
     return v
 
 
+def _within(low: float, high: float, below: str, above: str = "") -> AfterValidator:
+    """A machine number's sane range (issue 28: beyond it the planner or its tables run away), with the reason
+    for each side."""
+    def check(v: float) -> float:
+        if not low <= v <= high:
+            bound, why = (f"<= {high:g}", above) if v > high else (f">= {low:g}", below)
+            raise _fail("range", f"must be {bound} ({why})")
+        return v
+
+    return AfterValidator(check)
+
+
+# Machine numbers beyond these make the host's work grow with the number, not with the job's steps.
+STEPS_PER_MM = _within(0.0, 1e5, "", "a step finer than 10 nm is finer than any drive; positions in steps are int32")
+SLOWEST_TOP_SPEED = _within(0.1, math.inf, "mm/s: an axis slower than 6 mm/min plans moves of days")
+LEAST_ACCEL = _within(1.0, math.inf, "mm/s^2: a gentler ramp to full speed takes hours")
+DELTA_SIZE = _within(10.0, 1e5, "mm: smaller, a carriage's step moves the tool by millimetres",
+                     "mm: 100 m is beyond any machine")
 Number = Annotated[float, BeforeValidator(_number)]
 Positive = Annotated[float, BeforeValidator(_number), Field(gt=0)]
 Text = Annotated[str, BeforeValidator(_text)]
@@ -117,9 +135,9 @@ class _Model(BaseModel):
 # ---- machine ----
 
 class Stepper(_Model):
-    steps_per_mm: Positive
-    max_velocity: Positive  # mm/s
-    max_accel: Positive  # mm/s^2
+    steps_per_mm: Annotated[Positive, STEPS_PER_MM]
+    max_velocity: Annotated[Positive, SLOWEST_TOP_SPEED]  # mm/s
+    max_accel: Annotated[Positive, LEAST_ACCEL]  # mm/s^2
     range: Optional[XY] = None  # (min, max) in mm
     invert_dir: Flag = False  # the DIR pin is inverted on this motor
     _steps_source: SourceRef = PrivateAttr(default_factory=lambda: SourceRef("<job>"))
@@ -145,9 +163,9 @@ MIN_TOWER_APART_DEG = 10.0  # nearer towers make the delta's inverse ill-conditi
 
 
 class Delta(_Model):
-    radius: Positive
-    diagonal_rod: Positive
-    height: Positive
+    radius: Annotated[Positive, DELTA_SIZE]
+    diagonal_rod: Annotated[Positive, DELTA_SIZE]
+    height: Annotated[Positive, DELTA_SIZE]
     tower_angles: Angles = (210.0, 330.0, 90.0)  # deg
 
     @field_validator("diagonal_rod")

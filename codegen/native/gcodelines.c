@@ -7,13 +7,15 @@
  * Built at first use into the user's cache (codegen/native/__init__.py) and called through ctypes.
  */
 #include <locale.h>
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
 /* The interpreter's state (codegen/gcode/fast.py packs it): reals, and flags. */
 enum { POS = 0, OFF = 4, UNIT = 8, FLOW, E_SHIFT, FEED, DRAW_FEED, RAPID, SPEED_FACTOR, MIN_FEED, MIN_TRAVEL_FEED,
-       ACCEL_PRINT, ACCEL_TRAVEL, ACCEL_RETRACT, S_FULL, POWER };
+       ACCEL_PRINT, ACCEL_TRAVEL, ACCEL_RETRACT, S_FULL, POWER,
+       REACH /* x 4: how far each axis may go */, LONGEST_MOVE /* s: codegen/toolpath/limits.py */ };
 enum { RELATIVE, E_RELATIVE, HAS_FEED, SPINDLE, FIXED /* bit i: axis i has no motor */, MODE /* 0: G0, 1: G1 */ };
 enum { X, Y, Z, E, F, S, WORDS };
 
@@ -118,6 +120,29 @@ static int classify(const char *text, int64_t n, int *mode, int *has, double *va
     return words ? PLAIN : OTHER;
 }
 
+/* The speed (mm/s) of a move as Interpreter.line takes it: its F (`feed` < 0: none on the line), M220, M205. */
+static double move_speed(const double *state, int mode, double feed, int64_t has_feed, int extrudes)
+{
+    double speed = mode == 0 ? state[RAPID] : (feed >= 0.0 ? feed : (has_feed ? state[FEED] : state[DRAW_FEED]));
+    speed = speed * state[SPEED_FACTOR];
+    const double least = extrudes ? state[MIN_FEED] : state[MIN_TRAVEL_FEED];
+    return least > speed ? least : speed;
+}
+
+/* Whether a move goes out of reach or lasts longer than a move may (Moves.beyond_limits reports it). */
+static int beyond(const double *state, const double *pos, const double *tgt, int mode, double feed,
+                  int64_t has_feed)
+{
+    for (int i = 0; i < 4; i++)
+        if (tgt[i] != pos[i] && !(fabs(tgt[i]) <= state[REACH + i]))
+            return 1;
+    const double dx = tgt[0] - pos[0], dy = tgt[1] - pos[1], dz = tgt[2] - pos[2];
+    double length = sqrt(dx * dx + dy * dy + dz * dz);
+    if (length == 0.0)
+        length = fabs(tgt[3] - pos[3]);
+    return !(length / move_speed(state, mode, feed, has_feed, tgt[3] != pos[3]) <= state[LONGEST_MOVE]);
+}
+
 /* Runs lines from *at (line k is text[starts[k] .. starts[k + 1] - 1)) while they are plain or comments and the
  * batch has room (*blocks: in, the blocks it may still take; out, the blocks taken). Each move goes to row
  * `made` on of end (x 4), feed, accel, power, rapid, line, indent (at most `capacity` rows). Returns the moves
@@ -162,6 +187,8 @@ int64_t run_lines(const char *text, const int64_t *starts, int64_t lines, int64_
                 fixed_moves = 1;
         if (moves && fixed_moves)
             break;
+        if (moves && beyond(state, pos, tgt, mode, (has & (1 << F)) ? value[F] * unit / 60.0 : -1.0, flags[HAS_FEED]))
+            break;  /* an error: Python's */
         /* the line is ours */
         taken++;
         if (has & (1 << F)) {
@@ -175,12 +202,8 @@ int64_t run_lines(const char *text, const int64_t *starts, int64_t lines, int64_
         flags[MODE] = mode;
         if (!moves)
             continue;
-        double speed = mode == 0 ? state[RAPID] : (flags[HAS_FEED] ? state[FEED] : state[DRAW_FEED]);
         const int extrudes = tgt[3] != pos[3];
-        speed = speed * state[SPEED_FACTOR];
-        const double least = extrudes ? state[MIN_FEED] : state[MIN_TRAVEL_FEED];
-        if (least > speed)
-            speed = least;
+        const double speed = move_speed(state, mode, -1.0, flags[HAS_FEED], extrudes);
         double a = state[ACCEL_PRINT];
         if (!extrudes)
             a = state[ACCEL_TRAVEL];

@@ -18,6 +18,7 @@ from codegen.shapes.ellipse import ellipse
 from codegen.shapes.function import function
 from codegen.shapes.sine import sine
 from codegen.toolpath.items import Toolpath
+from codegen.toolpath.limits import axis_reach, items_errors
 
 BUILDERS = {
     "line": lines.line,
@@ -48,6 +49,7 @@ def build_toolpath(job) -> Toolpath:
         has_z="z" in machine.motor_names or machine.kinematics == "delta",
     )
     toolpath = Toolpath(start=start)
+    reach = axis_reach(machine)
     problems: list[Diagnostic] = []
     for shape in program.shapes:
         builder = BUILDERS.get(shape.kind)
@@ -58,6 +60,10 @@ def build_toolpath(job) -> Toolpath:
             items = builder(shape, pen)
         except JobError as err:  # the shape is skipped; the shapes after it are still checked
             problems.extend(err.diagnostics)
+            continue
+        beyond = items_errors(items, reach)
+        if beyond:  # the shape is refused, like a shape in error: the next one starts where the tool is
+            problems.extend(Diagnostic(shape.source, message) for message in beyond)
             continue
         toolpath.items.extend(items)
         if items:

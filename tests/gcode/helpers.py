@@ -10,6 +10,7 @@ import pytest
 
 from codegen.errors import JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
+from tests.helpers import machine
 
 PRINTER = ("x", "y", "z", "e")
 MILL = ("x", "y", "z")
@@ -18,10 +19,10 @@ PLOTTER = ("x", "y")
 
 def make_job(gcode: str, motors=PRINTER, start=(0, 0), feed=1200, travel_feed=None, kinematics="cartesian",
              path=Path("/nowhere/job.yaml"), **program):
-    machine = NS(motor_names=motors, kinematics=kinematics)
+    fake = machine(kinematics, motors)
     if kinematics == "delta":
-        machine.delta = NS(height=250.0)
-    return NS(machine=machine, path=path,
+        fake.delta = NS(height=250.0, diagonal_rod=215.0)
+    return NS(machine=fake, path=path,
               program=NS(start=start, feed=feed, travel_feed=travel_feed, gcode=gcode,
                          gcode_source=SourceRef("job.yaml", 8, 5), **program))
 

@@ -15,7 +15,7 @@ from codegen.errors import JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
 from codegen.job import load_job
 from codegen.toolpath.items import Arc, Dwell, Home, Limits, Line, Output
-from tests.helpers import DATA
+from tests.helpers import DATA, machine
 
 DATA = DATA / "gcode"
 PRINTER = ("x", "y", "z", "e")
@@ -38,7 +38,7 @@ FILES = {  # file -> the machine it is for
 
 def job_for(name: str, motors) -> NS:
     path = DATA / name
-    return NS(machine=NS(motor_names=motors, kinematics="cartesian"), path=path.parent / "job.yaml",
+    return NS(machine=machine(motors=motors), path=path.parent / "job.yaml",
               program=NS(start=(0, 0), feed=1200, travel_feed=None, gcode=path.name,
                          gcode_source=SourceRef(str(path.parent / "job.yaml"), 9, 10)))
 

@@ -12,7 +12,7 @@ from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.gcode import toolpath_from_gcode
 from codegen.gcode.codes import code_name
 from codegen.gcode.reader import Block, Origin, columns, read
-from tests.helpers import DATA
+from tests.helpers import DATA, machine
 
 DATA = DATA / "gcode"
 ORIGIN = Origin("t.gcode")
@@ -37,7 +37,7 @@ def problems(text: str) -> list[tuple[int, int, str]]:
 
 
 def job(gcode: str, motors=("x", "y", "z", "e")):
-    return NS(machine=NS(motor_names=motors, kinematics="cartesian"),
+    return NS(machine=machine(motors=motors),
               program=NS(start=(0, 0), feed=1200, travel_feed=None, gcode=gcode,
                          gcode_source=SourceRef("job.yaml", 8, 5)),
               path=Path("/nowhere/job.yaml"))

@@ -372,3 +372,29 @@ def test_attributes_that_are_not_keys_of_the_file(tmp_path):
         (9, 49, "program.shapes[0].line: unknown key 'from_' (did you mean 'from'?)"),
         (10, 35, "program.shapes[1].function: unknown key 'expr'; expected feed, z, y, x, origin"),
     ]
+
+
+def test_machine_numbers_beyond_what_the_planner_holds_are_refused_with_the_reason(tmp_path):
+    """Issue 28: steps_per_mm 1e9 hung the staircase, max_velocity 1e-6 planned 2.7e67 s, a delta of height 1e9
+    allocated 1.16 GiB and one of radius 1e-9 293 MiB."""
+    path = write(tmp_path, """\
+        machine:
+          kinematics: delta
+          steppers:
+            a: {steps_per_mm: 1e9, max_velocity: 200, max_accel: 3000}
+            b: {steps_per_mm: 80, max_velocity: 0.000001, max_accel: 0.5}
+            c: {steps_per_mm: 100000, max_velocity: 0.1, max_accel: 1}
+          delta: {radius: 1e-9, diagonal_rod: 215, height: 1e9}
+        program:
+          shapes:
+            - line: {to: [1, 1, 5]}
+        """)
+    assert errors(path) == [
+        (4, 23, "machine.steppers.a.steps_per_mm: must be <= 100000 (a step finer than 10 nm is finer than any "
+                "drive; positions in steps are int32)"),
+        (5, 41, "machine.steppers.b.max_velocity: must be >= 0.1 (mm/s: an axis slower than 6 mm/min plans moves "
+                "of days)"),
+        (5, 62, "machine.steppers.b.max_accel: must be >= 1 (mm/s^2: a gentler ramp to full speed takes hours)"),
+        (7, 19, "machine.delta.radius: must be >= 10 (mm: smaller, a carriage's step moves the tool by millimetres)"),
+        (7, 52, "machine.delta.height: must be <= 100000 (mm: 100 m is beyond any machine)"),
+    ]

@@ -94,17 +94,25 @@ G1 X18 F1200
 G1 X19 ; \u00e9
 G1 X20 Y1\u00e9
 G1 X1234567890123456789012345678901234567890123456789012345678901234567890.5
+M205 S0 T0
+M220 S100
+G1 X99999 Y-100000
+G1 X21 Y100000.001 E30000000
+G1 X22 F0.00001
+G1 X23 F0.0001
+G0 Z0.5
+G1 E1000 F0.0001
 """ + "".join(f"G1 X{20 + k * 0.37:.3f} Y{k % 7}.25 E{3 + k * 0.01:.5f}\n" for k in range(60))
 
 
 def job(text: str, motors=("x", "y", "z", "e")):
-    return NS(machine=NS(motor_names=motors, kinematics="cartesian"), path=Path("/nowhere/job.yaml"),
+    return NS(machine=machine(motors=motors), path=Path("/nowhere/job.yaml"),
               program=NS(start=(0, 0), feed=1200, travel_feed=None, gcode=text,
                          gcode_source=SourceRef("job.yaml", 8, 5)))
 
 
 def file_job(path: Path):
-    return NS(machine=NS(motor_names=("x", "y", "z", "e"), kinematics="cartesian"), path=path.parent / "job.yaml",
+    return NS(machine=machine(motors=("x", "y", "z", "e")), path=path.parent / "job.yaml",
               program=NS(start=(0, 0), feed=1200, travel_feed=None, gcode=path.name,
                          gcode_source=SourceRef(str(path.parent / "job.yaml"), 1, 1)))
 
@@ -153,7 +161,7 @@ def test_tricky_lines_read_in_c_as_in_python(motors, monkeypatch):
 def test_lines_after_the_last_error_read_in_c_as_in_python(monkeypatch):
     clean = "\n".join(line for line in TRICKY.splitlines()
                       if not any(bad in line for bad in ("X6 X7", "G1 X\n", "F0", "S-1", "Q1", "(comment) Y", "*",
-                                                          "G93", "\u00e9", "1234567890"))
+                                                          "G93", "\u00e9", "1234567890", "X99999", "Y100000"))
                       and line not in ("G1 X", "X11 Y12"))
     native = read(job(clean), True, monkeypatch)
     assert native == read(job(clean), False, monkeypatch)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from types import SimpleNamespace as NS
 
 import numpy as np
@@ -13,6 +14,7 @@ from codegen.job.expr import parse
 from codegen.shapes import build_toolpath
 from codegen.shapes.context import split_chords
 from codegen.toolpath.items import Arc, Curve, Line
+from tests.helpers import machine
 
 TOL = 0.002
 SRC = SourceRef("shape.yaml", 7, 5)
@@ -20,7 +22,11 @@ SRC = SourceRef("shape.yaml", 7, 5)
 
 def make_job(*shapes, start=(0, 0), motors=("x", "y"), kinematics="cartesian", tol=TOL, feed=1200,
              travel_feed=None):
-    return NS(machine=NS(tolerance=tol, motor_names=motors, kinematics=kinematics),
+    fake = machine(kinematics, motors)
+    fake.tolerance = tol
+    if kinematics == "delta":
+        fake.delta = NS(diagonal_rod=215.0)
+    return NS(machine=fake,
               program=NS(start=start, feed=feed, travel_feed=travel_feed, shapes=list(shapes)))
 
 
@@ -382,3 +388,19 @@ def test_no_z_motor_rejects_every_shape_that_needs_z():
     assert "points needs z=2 mm" in diagnostics[1].message
     assert build(ellipse(z=0))  # z = 0 is fine
     assert build(ellipse(z=3), motors=("a", "b", "c"), kinematics="delta")
+
+
+def test_a_shape_beyond_the_limits_is_refused_at_the_shape():
+    """Issue 28: the shapes get the G-code's limits (codegen/toolpath/limits.py), each reason at the shape."""
+    started = time.monotonic()
+    diagnostics = errors_of(line((1e10, 5), line=3), line((5, 5), feed=0.000001, line=4),
+                            shape("circle", center=(0, 0), radius=20000, start=0, direction="ccw", line=5),
+                            shape("arc", center=(2e5, 0), radius=5, start=0, sweep=90, line=6), line((6, 6), line=7))
+    assert [(d.where.line, d.message) for d in diagnostics] == [
+        (3, "x = 1e+10 mm is beyond the reach of 100000 mm from the origin"),
+        (4, "the feed of 1e-06 mm/min makes this move last 13.4 years; the slowest move the tables hold lasts 1 day "
+            "(here at least 0.00491 mm/min)"),
+        (5, "this arc is 125664 mm long; the longest arc a move may draw is 100000 mm"),
+        (6, "x = 200005 mm is beyond the reach of 100000 mm from the origin")]
+    assert time.monotonic() - started < 2.0
+    assert build(line((99999, 5)))  # within the reach
