@@ -121,7 +121,7 @@ def _bytes_mutated(data: bytes, rng: random.Random) -> bytes:
 def mutate_gcode(lines: list[str], rng: random.Random) -> tuple[bytes, list[str]]:
     """The mutated file's bytes and the names of the mutations applied."""
     applied = []
-    for _ in range(rng.choice((1, 1, 2, 3, 5))):
+    for _ in range(rng.choice((1, 1, 1, 2, 3))):
         lines = _lines_mutated(lines, rng)
     applied.append("lines")
     end = rng.choices(("\n", "\r\n", "\r"), weights=(8, 1, 1))[0]

@@ -94,12 +94,13 @@ def classify(call: Callable[[], int]) -> Outcome:
 
 
 def died(exitcode: int | None, dump: str, timed_out: bool) -> Outcome:
-    """The outcome of a worker that died (or was killed at its hard deadline); `dump`: its faulthandler output."""
+    """The outcome of a worker that died (or was killed at its hard deadline); `dump`: its faulthandler output,
+    innermost frame first (its head is kept)."""
     stage = innermost_codegen_frame(dump)
     if timed_out or "Timeout (" in dump:
-        return Outcome(HANG, f"hang in {stage}", dump[-3000:])
+        return Outcome(HANG, f"hang in {stage}", dump[:3000])
     if exitcode is not None and exitcode < 0:
         name = signal.Signals(-exitcode).name
         kind = MEMORY if name == "SIGKILL" else CRASH  # SIGKILL from outside: the kernel's OOM killer
-        return Outcome(kind, f"{'killed' if kind == MEMORY else 'crash'} by {name} in {stage}", dump[-3000:])
-    return Outcome(CRASH, f"worker exited with {exitcode} in {stage}", dump[-3000:])
+        return Outcome(kind, f"{'killed' if kind == MEMORY else 'crash'} by {name} in {stage}", dump[:3000])
+    return Outcome(CRASH, f"worker exited with {exitcode} in {stage}", dump[:3000])
