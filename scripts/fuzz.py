@@ -16,7 +16,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from tests.fuzzing.campaign import Settings, fuzz, table  # noqa: E402
-from tests.fuzzing.pipeline import plan_input  # noqa: E402
+from tests.fuzzing.outcomes import plan_input  # noqa: E402
 from tests.fuzzing.pool import GiB  # noqa: E402
 
 

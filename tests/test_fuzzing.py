@@ -3,17 +3,17 @@ shrinker and a whole small campaign. The real pipeline's short run is tests/test
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import time
 
 from codegen.errors import BuildError, Diagnostic, JobError, SourceRef
-from tests.fuzzing.campaign import Settings, fuzz, table
+from tests.fuzzing.campaign import Budget, Settings, fuzz, shrink, table
 from tests.fuzzing.inputs import FuzzInput, make_input
-from tests.fuzzing.outcomes import (BUILD_FAILED, CRASH, HANG, MEMORY, OK, REFUSED, TRACEBACK, UNPOSITIONED,
-                                    classify, innermost_codegen_frame)
+from tests.fuzzing.outcomes import (BUILD_FAILED, CRASH, HANG, MEMORY, OK, REFUSED, TRACEBACK, UNPOSITIONED, classify,
+                                    innermost_codegen_frame)
 from tests.fuzzing.pool import GiB, WorkerPool
-from tests.fuzzing.shrink import Budget, shrink
 
 
 def _raise(error: BaseException):
@@ -113,7 +113,7 @@ def gcode_is_a_bug(item: FuzzInput) -> int:
 
 def test_a_campaign_writes_each_signature_shrunk(tmp_path):
     settings = Settings(seed=28, count=8, jobs=2, out=tmp_path, shrink_seconds=30)
-    results = fuzz(settings, gcode_is_a_bug, stream=open(os.devnull, "w"))
+    results = fuzz(settings, gcode_is_a_bug, stream=io.StringIO())
     assert results.inputs == 8
     (finding,) = results.findings.values()
     assert finding.signature == "ZeroDivisionError in ?" and finding.count == results.kinds[TRACEBACK] > 0
@@ -122,5 +122,5 @@ def test_a_campaign_writes_each_signature_shrunk(tmp_path):
 
 
 def test_an_empty_campaign_has_no_table_rows(tmp_path):
-    results = fuzz(Settings(count=0, out=tmp_path), gcode_is_a_bug, stream=open(os.devnull, "w"))
+    results = fuzz(Settings(count=0, out=tmp_path), gcode_is_a_bug, stream=io.StringIO())
     assert results.inputs == 0 and table(results).count("\n") == 0

@@ -77,7 +77,8 @@ def swap_code(line: str, rng: random.Random) -> str:
 
 def odd_comment(line: str, rng: random.Random) -> str:
     cut = rng.randint(0, len(line))
-    insert = rng.choice(("(", ")", ";", "%", "((", "(;)", "*", f"*{rng.randint(0, 300)}", "N", f"N{rng.choice(EXTREMES)}"))
+    insert = rng.choice(("(", ")", ";", "%", "((", "(;)", "*", f"*{rng.randint(0, 300)}", "N",
+                         f"N{rng.choice(EXTREMES)}"))
     return line[:cut] + insert + line[cut:]
 
 

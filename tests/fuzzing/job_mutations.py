@@ -4,6 +4,7 @@ billion-laughs bomb, non-UTF-8 bytes, tabs, unbalanced brackets, a cut file)."""
 
 from __future__ import annotations
 
+import copy
 import random
 
 import yaml
@@ -38,8 +39,8 @@ def _value(rng: random.Random):
     if kind < 0.45:
         return rng.choice(EXTREME_VALUES)
     if kind < 0.9:
-        return rng.choice(WRONG_TYPES)
-    return _nested(rng.choice((3, 30, 300)), rng)
+        return copy.deepcopy(rng.choice(WRONG_TYPES))  # a fresh list or mapping: later mutations change it
+    return _nested(rng.choice((3, 30, 100)), rng)  # deeper: _deep_brackets, as text
 
 
 def mutate_tree(data: dict, rng: random.Random) -> str:

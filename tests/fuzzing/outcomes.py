@@ -1,17 +1,24 @@
 """One input's outcome and its signature. Acceptable: OK (the plan finished), REFUSED (JobError, every
 diagnostic at file:line:col), BUILD FAILED (BuildError). Failures: traceback, hang, memory, crash, a refusal
 without a line:col, a plan whose own checks failed. A failure's signature names the bug, not the input: the
-exception type and the innermost codegen frame, the stage a hang was in, a message with its numbers blanked."""
+exception type and the innermost codegen frame, the stage a hang was in, a message with its numbers blanked.
+The pipeline is `printer-codegen plan JOB --json --quiet` in this process (plan_input)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
+import json
 import re
 import signal
 import traceback
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
+from codegen.cli.main import parser
 from codegen.errors import BuildError, JobError
+from tests.fuzzing.inputs import FuzzInput
 
 OK, REFUSED, BUILD_FAILED = "ok", "refused", "build failed"
 TRACEBACK, HANG, MEMORY, CRASH, UNPOSITIONED, CHECK = ("traceback", "hang", "memory", "crash", "unpositioned",
@@ -20,6 +27,7 @@ ACCEPTABLE = (OK, REFUSED, BUILD_FAILED)
 CODEGEN_FRAME = re.compile(r'File "[^"]*/(codegen/[^"]+)", line \d+,? in (\S+)')
 DIGITS = re.compile(r"\d+(\.\d+)?(e[-+]?\d+)?")
 PREFIX = 60  # characters of a message kept in a signature
+WORK = Path("fuzz-input")  # relative to the worker's own folder (pool.py)
 
 
 class Hang(BaseException):
@@ -104,3 +112,22 @@ def died(exitcode: int | None, dump: str, timed_out: bool) -> Outcome:
         kind = MEMORY if name == "SIGKILL" else CRASH  # SIGKILL from outside: the kernel's OOM killer
         return Outcome(kind, f"{'killed' if kind == MEMORY else 'crash'} by {name} in {stage}", dump[:3000])
     return Outcome(CRASH, f"worker exited with {exitcode} in {stage}", dump[:3000])
+
+
+def plan_file(job: Path) -> int:
+    """`plan`'s exit code on the job file; JobError and BuildError go to the caller as in main()."""
+    args = parser().parse_args(["plan", str(job), "--json", "--quiet"])
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        code = args.handler(args)
+    if code == 1:
+        problems = json.loads(out.getvalue()).get("problems") or ["plan exited 1"]
+        raise PlanCheckFailed("; ".join(problems))
+    return code
+
+
+def plan_input(item: FuzzInput) -> int:
+    """The input written to ./fuzz-input/ and planned."""
+    for old in WORK.glob("*"):
+        old.unlink()
+    return plan_file(item.write(WORK))
