@@ -12,7 +12,7 @@ from tests.fuzzing.campaign import Settings, fuzz, table
 from tests.fuzzing.outcomes import plan_input
 from tests.fuzzing.pool import GiB
 
-SHORT = Settings(seed=28, count=300, jobs=1, time_limit=10.0, memory_bytes=2 * GiB, shrink_seconds=5.0)
+SHORT = Settings(seed=28, count=300, jobs=1, time_limit=10.0, memory_bytes=2 * GiB, shrink_seconds=3.0)
 
 
 # Known findings on main (issue 28, being fixed): job files whose YAML the reader refuses with a traceback, refusals
