@@ -193,7 +193,7 @@ def write_finding(finding: Finding, number: int, out: Path) -> Path:
     """The smallest input as OUT/<n>-<slug>/job.yaml (+ input.gcode), its signature and detail beside it."""
     folder = out / f"{number:02d}-{_slug(finding.signature)}"
     path = finding.smallest.write(folder)
-    (folder / "signature.txt").write_text(f"{finding.signature}\nseen {finding.count} times; first made from: "
+    (folder / "signature.txt").write_text(f"{finding.signature}\nseen {finding.count} times; made from: "
                                           f"{finding.smallest.origin}\n\n{finding.outcome.detail}\n",
                                           encoding="utf-8", errors="replace")
     return path
