@@ -22,7 +22,8 @@ from tests.helpers import EXAMPLES, streamed
 SLOW_FIRST = ("tests/verify/test_stream_examples.py", "tests/firmware/mcs51/test_stream_iram.py",
               "tests/cli/test_end_to_end.py", "tests/verify/test_hold_mcs51.py",
               "tests/verify/test_hold_mcs51_stream.py", "tests/report/test_html.py", "tests/pipeline/test_properties.py",
-              "tests/tables/test_hold.py", "tests/verify/test_bounded.py", "tests/verify/test_pins.py")
+              "tests/tables/test_hold.py", "tests/verify/test_bounded.py", "tests/verify/test_pins.py",
+              "tests/test_fuzz_short.py")
 
 
 def pytest_collection_modifyitems(items: list) -> None:
