@@ -120,7 +120,7 @@ def code_name(letter: str, number: str) -> str | None:
     except KeyError:
         pass
     value = float(number)
-    if not value < LARGEST_CODE:  # nan and inf too: G followed by 400 nines
+    if not abs(value) < LARGEST_CODE:  # nan and inf too: G followed by 400 nines, G-999...
         return None
     tenths = round(value * 10.0)
     name = None

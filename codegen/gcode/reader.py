@@ -157,6 +157,8 @@ def _checksum(line: str, code: str) -> tuple[str, tuple[int, str] | None]:
     if not given.isdigit() or not given.isascii():
         return code, (star, "expected a checksum number after '*'")
     actual = reduce(xor, line[:star].encode("utf-8", "surrogateescape"), 0)
+    if len(given) > 3:  # a checksum is one byte; int() of thousands of digits is refused, and slow
+        return code, (star, f"a checksum is 0 to 255, not a number of {len(given)} digits")
     if int(given) != actual:
         return code, (star, f"checksum mismatch: the line says *{given}, its checksum is {actual}")
     return code[:star], None

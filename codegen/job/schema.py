@@ -114,8 +114,13 @@ def _within(low: float, high: float, below: str, above: str = "") -> AfterValida
 
 # Machine numbers beyond these make the host's work grow with the number, not with the job's steps.
 STEPS_PER_MM = _within(0.0, 1e5, "", "a step finer than 10 nm is finer than any drive; positions in steps are int32")
-SLOWEST_TOP_SPEED = _within(0.1, math.inf, "mm/s: an axis slower than 6 mm/min plans moves of days")
-LEAST_ACCEL = _within(1.0, math.inf, "mm/s^2: a gentler ramp to full speed takes hours")
+SLOWEST_TOP_SPEED = _within(0.1, 1e5, "mm/s: an axis slower than 6 mm/min plans moves of days",
+                            "mm/s: 100 m/s is beyond any motor, and its square overflows the planner")
+HOMING_SPEED = _within(0.1, 1e4, "mm/s: a slower approach takes hours over a machine's length",
+                       "mm/s: 10 m/s is beyond any motor")
+BACKOFF = _within(0.0, 1e3, "", "mm: a backoff of a metre leaves any switch behind")
+LEAST_ACCEL = _within(1.0, 1e8, "mm/s^2: a gentler ramp to full speed takes hours",
+                      "mm/s^2: 10,000 g is beyond any machine, and its products overflow the planner")
 DELTA_SIZE = _within(10.0, 1e5, "mm: smaller, a carriage's step moves the tool by millimetres",
                      "mm: 100 m is beyond any machine")
 Number = Annotated[float, BeforeValidator(_number)]
@@ -191,9 +196,9 @@ class Delta(_Model):
 class Homing(_Model):
     """How the motors find their switches: fast towards them, back off, slowly towards them again."""
 
-    speed: Positive = 20.0  # mm/s of motor travel on the first approach
-    slow_speed: Positive = 2.0  # mm/s on the second approach
-    backoff: Positive = 3.0  # mm away from the switches between the approaches
+    speed: Annotated[Positive, HOMING_SPEED] = 20.0  # mm/s of motor travel on the first approach
+    slow_speed: Annotated[Positive, HOMING_SPEED] = 2.0  # mm/s on the second approach
+    backoff: Annotated[Positive, BACKOFF] = 3.0  # mm away from the switches between the approaches
 
 
 class Link(_Model):

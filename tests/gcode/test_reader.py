@@ -147,6 +147,11 @@ def test_checksum_wrong():
         (1, 16, "checksum mismatch: the line says *30, its checksum is 33")]
 
 
+def test_a_checksum_of_thousands_of_digits_is_refused_at_its_star():
+    """The fuzzer's ValueError: int() of 6,855 digits exceeds Python's limit for integer strings."""
+    assert problems("G28*" + "2" * 6855) == [(1, 4, "a checksum is 0 to 255, not a number of 6855 digits")]
+
+
 def test_special_fields_file_has_exactly_its_wrong_checksum():
     got = blocks((DATA / "parser" / "special-fields.gcode").read_text())
     assert [(d.where.line, d.where.col, d.message) for d in got if isinstance(d, Diagnostic)] == [
@@ -194,3 +199,4 @@ def test_a_line_of_many_words_that_fails_at_its_end_is_read_in_linear_time():
 def test_a_code_number_beyond_any_code_names_none():
     """Issue 28: G followed by 400 nines overflowed float -> int in code_name (exit 1, a traceback)."""
     assert code_name("G", "9" * 400) is None and code_name("G", "1000000") is None and code_name("G", "28") == "G28"
+    assert code_name("G", "-" + "9" * 400) is None  # -inf: the fuzzer's OverflowError

@@ -398,3 +398,28 @@ def test_machine_numbers_beyond_what_the_planner_holds_are_refused_with_the_reas
         (7, 19, "machine.delta.radius: must be >= 10 (mm: smaller, a carriage's step moves the tool by millimetres)"),
         (7, 52, "machine.delta.height: must be <= 100000 (mm: 100 m is beyond any machine)"),
     ]
+
+
+def test_speeds_and_accelerations_too_large_or_homing_too_slow_are_refused_with_the_reason(tmp_path):
+    """The fuzzer's OverflowError in homing (slow_speed 1e-308) and ValueError in the planner (max_velocity
+    1e308: its square is infinite)."""
+    path = write(tmp_path, """\
+        machine:
+          kinematics: cartesian
+          steppers:
+            x: {steps_per_mm: 80, max_velocity: 1e308, max_accel: 1e308}
+            y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+          homing: {slow_speed: 1.0e-308, backoff: 1e9}
+        program:
+          shapes:
+            - line: {to: [1, 1]}
+        """)
+    assert errors(path) == [
+        (4, 41, "machine.steppers.x.max_velocity: must be <= 100000 (mm/s: 100 m/s is beyond any motor, and its "
+                "square overflows the planner)"),
+        (4, 59, "machine.steppers.x.max_accel: must be <= 1e+08 (mm/s^2: 10,000 g is beyond any machine, and its "
+                "products overflow the planner)"),
+        (6, 25, "machine.homing.slow_speed: must be >= 0.1 (mm/s: a slower approach takes hours over a machine's "
+                "length)"),
+        (6, 45, "machine.homing.backoff: must be <= 1000 (mm: a backoff of a metre leaves any switch behind)"),
+    ]
