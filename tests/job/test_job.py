@@ -419,7 +419,7 @@ def test_speeds_and_accelerations_too_large_or_homing_too_slow_are_refused_with_
                 "square overflows the planner)"),
         (4, 59, "machine.steppers.x.max_accel: must be <= 1e+08 (mm/s^2: 10,000 g is beyond any machine, and its "
                 "products overflow the planner)"),
-        (6, 25, "machine.homing.slow_speed: must be >= 0.1 (mm/s: a slower approach takes hours over a machine's "
+        (6, 24, "machine.homing.slow_speed: must be >= 0.1 (mm/s: a slower approach takes hours over a machine's "
                 "length)"),
-        (6, 45, "machine.homing.backoff: must be <= 1000 (mm: a backoff of a metre leaves any switch behind)"),
+        (6, 43, "machine.homing.backoff: must be <= 1000 (mm: a backoff of a metre leaves any switch behind)"),
     ]
