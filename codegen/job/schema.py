@@ -113,7 +113,12 @@ def _within(low: float, high: float, below: str, above: str = "") -> AfterValida
 
 
 # Machine numbers beyond these make the host's work grow with the number, not with the job's steps.
-STEPS_PER_MM = _within(0.0, 1e5, "", "a step finer than 10 nm is finer than any drive; positions in steps are int32")
+STEPS_PER_MM = _within(0.1, 1e5, "a step longer than 10 mm is no stepper drive's",
+                       "a step finer than 10 nm is finer than any drive; positions in steps are int32")
+# the planner cuts curves into pieces within the tolerance: a tolerance of atoms makes countless pieces
+TOLERANCE = _within(1e-4, 10.0, "mm: finer than 0.1 um, curves would be cut into countless pieces",
+                    "mm: coarser than 10 mm, a curve is no longer the curve")
+JUNCTION = _within(0.0, 10.0, "", "mm: beyond 10 mm every corner is taken at full speed, and v^2 overflows")
 SLOWEST_TOP_SPEED = _within(0.1, 1e5, "mm/s: an axis slower than 6 mm/min plans moves of days",
                             "mm/s: 100 m/s is beyond any motor, and its square overflows the planner")
 HOMING_SPEED = _within(0.1, 1e4, "mm/s: a slower approach takes hours over a machine's length",
@@ -373,8 +378,8 @@ class Heater(_Model):
 class Machine(_Model):
     kinematics: _choice(*KINEMATICS)  # type: ignore[valid-type]
     steppers: dict[str, Stepper]
-    junction_deviation: Positive = 0.01  # mm, Grbl's $11
-    tolerance: Positive = 0.002  # mm, Grbl's $12
+    junction_deviation: Annotated[Positive, JUNCTION] = 0.01  # mm, Grbl's $11
+    tolerance: Annotated[Positive, TOLERANCE] = 0.002  # mm, Grbl's $12
     step_pulse_us: Annotated[float, BeforeValidator(_number), Field(gt=0, le=100)] = 2.0  # STEP high time
     dir_setup_us: Annotated[float, BeforeValidator(_number), Field(ge=0, le=100)] = 1.0  # DIR before STEP
     homing: Homing = Homing()

@@ -400,16 +400,18 @@ def test_machine_numbers_beyond_what_the_planner_holds_are_refused_with_the_reas
     ]
 
 
-def test_speeds_and_accelerations_too_large_or_homing_too_slow_are_refused_with_the_reason(tmp_path):
-    """The fuzzer's OverflowError in homing (slow_speed 1e-308) and ValueError in the planner (max_velocity
-    1e308: its square is infinite)."""
+def test_machine_numbers_that_overflowed_the_host_are_refused_with_the_reason(tmp_path):
+    """The fuzzer's OverflowErrors in homing (slow_speed or steps_per_mm 1e-308), ValueErrors in the planner
+    (max_velocity 1e308: its square is infinite) and in the delta's cuts (tolerance 1e-308)."""
     path = write(tmp_path, """\
         machine:
           kinematics: cartesian
           steppers:
             x: {steps_per_mm: 80, max_velocity: 1e308, max_accel: 1e308}
-            y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+            y: {steps_per_mm: 1.0e-308, max_velocity: 200, max_accel: 3000}
           homing: {slow_speed: 1.0e-308, backoff: 1e9}
+          tolerance: 1.0e-308
+          junction_deviation: 1e300
         program:
           shapes:
             - line: {to: [1, 1]}
@@ -419,7 +421,12 @@ def test_speeds_and_accelerations_too_large_or_homing_too_slow_are_refused_with_
                 "square overflows the planner)"),
         (4, 59, "machine.steppers.x.max_accel: must be <= 1e+08 (mm/s^2: 10,000 g is beyond any machine, and its "
                 "products overflow the planner)"),
+        (5, 23, "machine.steppers.y.steps_per_mm: must be >= 0.1 (a step longer than 10 mm is no stepper drive's)"),
         (6, 24, "machine.homing.slow_speed: must be >= 0.1 (mm/s: a slower approach takes hours over a machine's "
                 "length)"),
         (6, 43, "machine.homing.backoff: must be <= 1000 (mm: a backoff of a metre leaves any switch behind)"),
+        (7, 14, "machine.tolerance: must be >= 0.0001 (mm: finer than 0.1 um, curves would be cut into countless "
+                "pieces)"),
+        (8, 23, "machine.junction_deviation: must be <= 10 (mm: beyond 10 mm every corner is taken at full speed, "
+                "and v^2 overflows)"),
     ]
