@@ -6,8 +6,6 @@ from __future__ import annotations
 import dataclasses
 import io
 
-import pytest
-
 from tests.fuzzing.campaign import Settings, fuzz, table
 from tests.fuzzing.outcomes import plan_input
 from tests.fuzzing.pool import GiB
@@ -15,9 +13,6 @@ from tests.fuzzing.pool import GiB
 SHORT = Settings(seed=28, count=300, jobs=1, time_limit=10.0, memory_bytes=2 * GiB, shrink_seconds=3.0)
 
 
-# Known findings on main (issue 28, being fixed): job files whose YAML the reader refuses with a traceback, refusals
-# without a line:col (non-UTF-8 job files), numeric limits. Strict once they are merged.
-@pytest.mark.xfail(strict=False, reason="issue 28's known findings are being fixed")
 def test_a_short_fuzz_run_finds_nothing(tmp_path):
     results = fuzz(dataclasses.replace(SHORT, out=tmp_path), plan_input, stream=io.StringIO())
     assert results.inputs == SHORT.count
