@@ -8,6 +8,7 @@ Nothing is written to disk. See /work/shared/JOB-FORMAT.md for the format and RE
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import yaml
@@ -31,15 +32,24 @@ def board_targets() -> dict[str, str]:
     """Every board file in targets/ that names its target: board name (the file's stem) -> target."""
     from codegen.paths import targets_dir
 
-    boards = {}
-    for f in sorted(targets_dir().glob("*.yaml")):
+    folder = targets_dir()
+    files = tuple(sorted((f.name, f.stat().st_mtime_ns) for f in folder.glob("*.yaml")))
+    return dict(_board_targets(str(folder), files))
+
+
+@lru_cache(maxsize=8)
+def _board_targets(folder: str, files: tuple[tuple[str, int], ...]) -> tuple[tuple[str, str], ...]:
+    """Read once per state of the folder (`files`: names and modification times): PyYAML read the eight board
+    files in 0.27 s, on every job loaded."""
+    boards = []
+    for name, _ in files:
         try:
-            doc = yaml.safe_load(f.read_text(encoding="utf-8"))
+            doc = yaml.safe_load((Path(folder) / name).read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, yaml.YAMLError):
             continue
         if isinstance(doc, dict) and isinstance(doc.get("target"), str):
-            boards[f.stem] = doc["target"]
-    return boards
+            boards.append((Path(name).stem, doc["target"]))
+    return tuple(boards)
 
 
 def _check_board(data: dict, target: str, marks: Marks) -> list[Diagnostic]:

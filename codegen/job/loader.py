@@ -185,8 +185,11 @@ def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Dia
     marks = Marks(file, text.splitlines())
     loader = yaml.SafeLoader(text)
     try:
-        _check_depth(text, file)
-        root = loader.get_single_node()
+        try:
+            root = loader.get_single_node()
+        except RecursionError:  # PyYAML's parser recurses a few frames a level: find the level too deep
+            _check_depth(text, file)
+            raise
         if root is None:
             raise JobError([Diagnostic(SourceRef(file, 1, 1), "the job file is empty")])
         builder = _Builder(loader, marks)
@@ -228,8 +231,8 @@ def _unprintable(file: str, text: str, found: re.Match) -> Diagnostic:
 
 
 def _check_depth(text: str, file: str) -> None:
-    """Refuse nesting deeper than MAX_DEPTH before PyYAML's recursive parser meets it (a RecursionError);
-    the scanner alone reads the file without recursion."""
+    """Refuse nesting deeper than MAX_DEPTH, where PyYAML's recursive parser met its end (a RecursionError); the
+    scanner alone reads the file without recursion."""
     depth = 0
     for token in yaml.scan(text, Loader=yaml.SafeLoader):
         if isinstance(token, _OPENING):
