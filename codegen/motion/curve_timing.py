@@ -19,7 +19,8 @@ within its limits; elsewhere a block keeps its chord times:
   what its acceleration allows over the shorter of the two chords.
 A block that keeps its chord times leaves its neighbours' slopes as they are: the master's velocity then jumps
 at that vertex by half what chord timing makes it jump. The planner keeps 2 % below every limit; curve timing
-may use that headroom (for rates up to 98.5 %: the compressor's windows may add 1.25 % over 8 steps).
+may use that headroom (for rates up to 98.5 %, the rest for the slaves' steps where blocks meet; the compressor's
+windows shorten no 8 steps below the limit: codegen/tables/rate_windows.py).
 """
 
 from __future__ import annotations
@@ -33,8 +34,7 @@ from codegen.motion.blocks import Events
 from codegen.motion.planner import Plan, quantisation_factor
 from codegen.toolpath.segments import Segments
 
-# Of every motor's rate: the compressor's windows (5 % of a gap either way) may shorten 8 steps by 2 x 5 % of one
-# gap, 1.25 %, and 0.985 x 1.0125 < 1.
+# Of every motor's rate (the rest: the slaves' uneven steps where blocks meet, which the retimed curve does not see).
 RATE_SHARE = 0.985
 ACCEL_SHARE = 1.0  # of every motor's acceleration: the planner's headroom (its window average is far below)
 

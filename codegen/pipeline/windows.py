@@ -225,8 +225,9 @@ class Stages:
         extra = None if self.runtime is None else block_extra_ticks(
             self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
         with watch("rate runs"):
+            prior = [np.round(rate.tail * target.tick_hz) for rate in before.checker.rates]  # the last steps played
             compressed = compress(events, kin.motors, target.tick_hz, *self.gaps, max_rate=self.max_rate,
-                                  origin_fx=before.origin_fx, block_extra_ticks=extra)
+                                  origin_fx=before.origin_fx, block_extra_ticks=extra, prior_ticks=prior)
         laser_counts, power_error = before.laser_counts, 0.0
         if self.laser is not None and len(events.time):
             with watch("laser power"):

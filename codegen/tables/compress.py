@@ -1,7 +1,8 @@
 """Compression: ideal event times -> rate runs `(interval, add, count)` within a stated timing window.
 
 Every emitted event stays within `window(k)` of its ideal time, where the window is a share of the ideal gap
-to the previous event (so motor rates keep their accuracy at any speed), capped by an absolute bound. Events
+to the previous event (so motor rates keep their accuracy at any speed), capped by an absolute bound, and
+narrowed where 8 of a motor's steps would otherwise come closer than its rate (codegen/tables/rate_windows.py). Events
 are never closer than the player's minimum gap: ideal times are first pushed apart where needed (exactly, as a
 running maximum), and the push is counted in the timing error the checks report. A pushed event's successors
 catch up no faster than every motor's rate allows (a block start can cost the player more than the gap the
@@ -24,11 +25,12 @@ import numpy as np
 from codegen.motion.blocks import Events
 from codegen.motion.planner import quantisation_factor
 from codegen.native import contiguous, library, pointer
+from codegen.tables.rate_windows import rate_windows
 from codegen.tables.runfit import fit_runs, fit_runs_native
 from codegen.tables.schedule import FRAC_BITS, FRAC_ONE, MAX_ADD, MAX_COUNT, MAX_INTERVAL, Schedule
 
-# Of a motor's rate that catching up may use (the planner keeps 2 %): the windows (5 % of a gap either way) may
-# shorten 8 steps by 2 x 5 % of one gap, 1.25 %, and 0.985 x 1.0125 < 1.
+# Of a motor's rate that catching up may use (the planner keeps 2 %); the windows then shorten no 8 steps below
+# the limit (codegen/tables/rate_windows.py).
 RATE_SHARE = 0.985
 
 
@@ -68,14 +70,17 @@ def rate_gaps(events: Events, max_rate: np.ndarray, share: float = RATE_SHARE) -
 
 def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_ticks: int, block_gap_ticks: int,
              window: TimingWindow = TimingWindow(), final_tool: bool = False, max_rate: np.ndarray | None = None,
-             origin_fx: int = 0, block_extra_ticks: np.ndarray | None = None) -> Compressed:
+             origin_fx: int = 0, block_extra_ticks: np.ndarray | None = None,
+             prior_ticks: list[np.ndarray] | None = None) -> Compressed:
     """`run_gap_ticks`: how close the player can make an event that starts a new run; `block_gap_ticks`:
     one that starts a block (both include reading the table; plain events inside a run are cheaper).
     Runs go on across block starts; they are fitted greedily (codegen/tables/runfit.py). `max_rate` (steps/s per
     motor): pushed events catch up within it. `origin_fx` (1/256 tick): where
     the player's clock stands before the first event (the event before, in the window before); every tick
     here counts from the player's tick 0. `block_extra_ticks`: per block, what its first event needs more than
-    `block_gap_ticks` (the runtime records the player reads before it: codegen/tables/runtime.py)."""
+    `block_gap_ticks` (the runtime records the player reads before it: codegen/tables/runtime.py). With `max_rate`,
+    the windows also keep every motor's 8 steps within it (codegen/tables/rate_windows.py), those that begin at
+    `prior_ticks` too (per motor, its last steps before the first event)."""
     rate_gap = None if max_rate is None else rate_gaps(events, max_rate) * tick_hz
     base = origin_fx >> FRAC_BITS
     fit = (origin_fx - FRAC_ONE * base, base, MAX_COUNT, MAX_ADD, MAX_INTERVAL)
@@ -83,9 +88,13 @@ def compress(events: Events, motors: tuple[str, ...], tick_hz: int, run_gap_tick
     lib = library("runfit")
     if lib is None:
         needed, ideal, win, lo, hi = numpy_windows(*made)
-        n, interval, add, tick = fit_runs(lo, hi, needed, *fit)
     else:
         needed, ideal, win, lo, hi = _native_windows(lib, *made)
+    if max_rate is not None:
+        lo, hi = rate_windows(events, ideal, win, lo, hi, max_rate, tick_hz, base, prior_ticks)
+    if lib is None:
+        n, interval, add, tick = fit_runs(lo, hi, needed, *fit)
+    else:
         n, interval, add, tick = fit_runs_native(lib, lo, hi, needed, *fit)  # hi is ours to overwrite
     schedule = Schedule(
         motors=motors,
