@@ -16,7 +16,8 @@ from pydantic import ValidationError
 
 from codegen.errors import Diagnostic, JobError, SourceRef, suggest
 from codegen.job.expr import Expr, ExprError, parse
-from codegen.job.loader import Marks, cross_check, read_yaml, translate
+from codegen.job.loader import cross_check, translate
+from codegen.job.reading import Marks, read_yaml
 from codegen.job.schema import (DEFAULT_BOARDS, KINEMATICS, MOTORS, SHAPES, TARGETS, Arc, Circle, Delta, Ellipse,
                                 Function, Job, Line, Machine, Points, Polyline, Program, Shape, Sine, Stepper, Travel)
 from codegen.targets import board_heater_pins

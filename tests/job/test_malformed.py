@@ -10,7 +10,7 @@ import yaml
 
 from codegen.errors import BuildError, JobError
 from codegen.job import load_job
-from codegen.job.loader import MAX_DEPTH
+from codegen.job.reading import MAX_DEPTH
 from codegen.pipeline.host import host_build
 from tests.helpers import ROOT
 
