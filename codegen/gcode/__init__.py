@@ -18,7 +18,8 @@ import numpy as np
 
 from codegen.errors import Diagnostic, JobError
 from codegen.gcode.fast import NativeLines
-from codegen.gcode.interpreter import MAX_ERRORS, Interpreter
+from codegen.gcode.diagnostics import MAX_ERRORS
+from codegen.gcode.interpreter import Interpreter
 from codegen.gcode.reader import LineReader, Origin
 from codegen.toolpath.items import Toolpath, expanded
 
