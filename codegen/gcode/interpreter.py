@@ -21,11 +21,11 @@ from codegen.errors import Diagnostic
 from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, HARMLESS_TAKES, MOTION, PARAMS, PLANES,
                                  PROBES, SUPPORTED, code_name, group_of, harmless_reason)
 from codegen.gcode.diagnostics import Diagnostics, Stop
-from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState
+from codegen.gcode.dialect import Dialect, DialectState
+from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
 from codegen.gcode.moves import LINE, Moves
 from codegen.gcode.reader import Block, Origin
 
-S_FULL_SCALE = 255.0  # the S of full tool power (Marlin's laser scale), unless the job gives `s_max`
 _ORDER = ("G93", "G94", "M3", "M4", "M5", "M7", "M8", "M9", *mcodes.HANDLERS, "G4", *PLANES, *SYSTEMS, "G43.1",
           "G49", "G90", "G91", "M82", "M83", "G10", "G28.1", "G30.1", "G28", "G30", "G92", "G92.1")
 _MOTION_CODES = {("G", n): "G" + n.lstrip("0") if n.strip("0") else "G0"
@@ -36,8 +36,8 @@ _ARC_LETTERS = frozenset("XYZEFSIJKR")
 _FAST_INDEX = {letter: i for i, letter in enumerate("XYZEFS")}
 
 
-class Interpreter(Moves, GrblState, Diagnostics):
-    def __init__(self, job, origin: Origin, strict: bool = False):
+class Interpreter(Moves, GrblState, Diagnostics, DialectState):
+    def __init__(self, job, origin: Origin, strict: bool = False, dialect: Dialect = Dialect("marlin", None, "")):
         machine, program = job.machine, job.program
         self.motors = tuple(machine.motor_names)
         self.kinematics = getattr(machine, "kinematics", "cartesian")
@@ -64,8 +64,6 @@ class Interpreter(Moves, GrblState, Diagnostics):
         self.spindle = False
         self.dynamic = False  # M4 (Grbl's laser mode: power follows the speed), else M3's constant power
         self.power = 1.0
-        scale = getattr(program, "s_max", None)
-        self.s_full = float(scale) if scale else S_FULL_SCALE
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.origin, self.strict = origin, strict
@@ -77,6 +75,7 @@ class Interpreter(Moves, GrblState, Diagnostics):
         self.warned: dict[str, list] = {}
         self.notes: list[Diagnostic] = []
         self.grbl_init()
+        self.dialect_init(machine, program, dialect)
 
     # ---- results ----
 
@@ -139,7 +138,7 @@ class Interpreter(Moves, GrblState, Diagnostics):
             if feed <= 0.0:
                 return self.fail(block, "F", f"feed rate '{self.word(block, 'F')}' must be > 0")
             self.feed = feed * unit / 60.0
-        if power is not None and self._power(block, {"S": power}) is False:
+        if power is not None and self.set_power(block, {"S": power}) is False:
             return
         self.mode = mode
         if tgt == pos or (self.fixed and self.axis_missing(block, tgt)):
@@ -175,7 +174,7 @@ class Interpreter(Moves, GrblState, Diagnostics):
             params[letter] = float(number)
         if "F" in params and self._feed(block, params) is False:
             return
-        if "S" in params and self._power(block, params) is False:
+        if "S" in params and self.set_power(block, params) is False:
             return
         self.mode = motion
         self.arc_move(block, motion, params)
@@ -188,17 +187,11 @@ class Interpreter(Moves, GrblState, Diagnostics):
         self.feed = value * self.unit / 60.0
         return None
 
-    def _power(self, block: Block, params) -> bool | None:
-        value = params["S"]
-        if value < 0.0:
-            self.fail(block, "S", f"power '{self.word(block, 'S')}' must be >= 0")
-            return False
-        self.power = min(value / self.s_full, 1.0)
-        return None
-
     def _general(self, block: Block) -> None:
         """Any line: codes by name and group, parameters by owner, every problem reported, then the codes."""
         words = block.words
+        if words[0][0] == "$":
+            return system_command(self, block)
         codes: list[tuple[str, int]] = []
         params: dict[str, float] = {}
         problems: list[tuple[int, str]] = []
@@ -251,7 +244,7 @@ class Interpreter(Moves, GrblState, Diagnostics):
             self.feed = None  # back from G93 the feed rate is undefined until an F, as in Grbl: the job's feed
         if "F" in params and not inverse and self._feed(block, params) is False:
             return
-        if "S" in params and not any("S" in PARAMS[n] for n in names) and self._power(block, params) is False:
+        if "S" in params and not any("S" in PARAMS[n] for n in names) and self.set_power(block, params) is False:
             return
         if "G53" in names and motion not in ("G0", "G1"):
             return self.fail(block, "G53", "G53 (machine coordinates) moves only with G0 or G1")

@@ -17,8 +17,8 @@ PLOTTER = ("x", "y")
 
 
 def make_job(gcode: str, motors=PRINTER, start=(0, 0), feed=1200, travel_feed=None, kinematics="cartesian",
-             path=Path("/nowhere/job.yaml"), **program):
-    machine = NS(motor_names=motors, kinematics=kinematics)
+             path=Path("/nowhere/job.yaml"), laser=False, **program):
+    machine = NS(motor_names=motors, kinematics=kinematics, laser=NS(pwm_hz=1000) if laser else None)
     if kinematics == "delta":
         machine.delta = NS(height=250.0)
     return NS(machine=machine, path=path,
