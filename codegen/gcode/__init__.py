@@ -17,8 +17,10 @@ from typing import Iterator, TextIO
 import numpy as np
 
 from codegen.errors import Diagnostic, JobError
+from codegen.gcode.diagnostics import MAX_ERRORS
+from codegen.gcode.dialect import dialect_of
 from codegen.gcode.fast import NativeLines
-from codegen.gcode.interpreter import MAX_ERRORS, Interpreter
+from codegen.gcode.interpreter import Interpreter
 from codegen.gcode.reader import LineReader, Origin
 from codegen.toolpath.items import Toolpath, expanded
 
@@ -36,7 +38,7 @@ class GcodeStream:
     def __init__(self, job, strict: bool = False):
         self.job = job
         self.source, self.origin = _source(job)
-        self.interpreter = Interpreter(job, self.origin, strict)
+        self.interpreter = Interpreter(job, self.origin, strict, dialect_of(job, self.source))
         self.start = np.array(self.interpreter.flat[:4], dtype=float)
         self.read_share = 0.0  # of the text read into the batches so far: for a progress bar
 

@@ -83,6 +83,9 @@ HARMLESS = {
     "M503": "report settings",
     "M862": "printer check",  # M862.1 nozzle, M862.3 model, M862.5 G-code level, ...
 }
+# The harmless codes that take no words but their own (G64's P and Q tolerances): the line's other words keep their
+# meaning, as in Grbl and LinuxCNC (`G64 X5` moves in the modal motion). The others take every word of their line.
+HARMLESS_TAKES = {"G40": "", "G61": "", "G64": "PQ", "G80": ""}
 # Parameters of supported codes that are skipped the same way: (code, letter) -> why.
 HARMLESS_PARAMS = {
     ("M205", "B"): "minimum segment time; Marlin applies it only while its move queue runs low",

@@ -21,7 +21,7 @@ REALS = ("unit", "flow", "e_shift", "feed", "draw_feed", "rapid", "speed_factor"
          "accel_print", "accel_travel", "accel_retract", "s_full", "power")  # after pos and off (gcodelines.c)
 FEED, POWER = 8 + REALS.index("feed"), 8 + REALS.index("power")
 LIMITS = 5  # after the reals: the reach of x, y, z, e and the longest move (codegen/toolpath/limits.py)
-FLAGS = ("relative", "e_relative", "has_feed", "spindle", "fixed", "mode")  # gcodelines.c's order
+FLAGS = ("relative", "e_relative", "has_feed", "spindle", "fixed", "mode", "s_watched")  # gcodelines.c's order
 HAS_FEED, MODE = FLAGS.index("has_feed"), FLAGS.index("mode")
 
 
@@ -67,7 +67,7 @@ class NativeLines:
         state[:] = [*it.pos, *it.off, *[getattr(it, name) or 0.0 for name in REALS],  # feed None: 0.0
                     *it.reach, LONGEST_MOVE_S]
         flags[:] = [it.relative, it.e_relative, it.feed is not None, it.spindle,
-                    sum(1 << i for i in it.fixed), it.mode == "G1"]
+                    sum(1 << i for i in it.fixed), it.mode == "G1", it.s_watched]
         self.at.value, self.blocks.value, lo = at, budget, self.made
         moves = self.lib.run_lines(self.text, self.line_starts, self.lines, ctypes.byref(self.at),
                                    ctypes.byref(self.blocks), state, flags, ctypes.c_int64(lo),

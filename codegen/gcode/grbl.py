@@ -9,9 +9,16 @@ G28 and G30 go to stored positions as Grbl does once a program stores one (G28.1
 point its axis words give (program coordinates), then to the stored position in machine coordinates, only
 the named axes when there are any. Without a stored G28 position, G28 homes (Marlin's meaning, and Grbl's
 machine origin after homing); G30 without G30.1 goes to the home position.
+
+The `$` system commands, a line each: `$H` homes (as G28 without a stored position: every axis the machine has,
+or the axes named, `$HX`); `$X` (alarm unlock), the settings (`$110=5000`, `$RST=`, `$N0=`) and the report
+queries (`$$`, `$#`, `$G`, `$I`, `$N`, `$`) are skipped with a warning (errors with --strict), a setting naming
+the job file key that gives it; `$C` (check mode), `$SLP` (sleep) and `$J=` (a sender's jog) are errors.
 """
 
 from __future__ import annotations
+
+import re
 
 from codegen.toolpath.items import Output
 
@@ -116,3 +123,57 @@ class GrblState:
             return False
         self.inverse_feed = params["F"]
         return None
+
+
+# ---- `$` lines ----
+
+QUERIES = ("$", "$$", "$#", "$G", "$I", "$N")
+AXES = "XYZ"
+_SETTING = re.compile(r"\$(\d+)\s*=\s*(\S*)")
+_STEPPER = {10: ("steps_per_mm", ""), 11: ("max_velocity", " (mm/s; Grbl's is mm/min)"), 12: ("max_accel", ""),
+            13: ("range", " ([min, max])")}  # $100-$102, $110-$112, $120-$122, $130-$132 by their tens
+_KEYS = {11: "machine.junction_deviation", 12: "machine.tolerance", 30: "program.s_max", 32: "machine.laser",
+         20: "machine.steppers.<motor>.range (soft limits)"}
+ERRORS = {
+    "$C": "'$C' switches Grbl's check mode (it then reads the program without moving): not modelled; remove it",
+    "$SLP": "'$SLP' puts Grbl to sleep (motors off until a reset): not modelled; remove it",
+}
+JOG = ("'$J=' is a jog, a move a sender makes at the operator's request, not part of a program: write it as G1 "
+       "(G91 for a relative jog) with its F")
+
+
+def setting_key(it, number: int) -> str | None:
+    """The job file key that gives Grbl's setting $number, with a hint; None: no key (it changes nothing here)."""
+    tens, axis = divmod(number, 10)
+    if tens in _STEPPER and axis < 3:
+        motors = it.motors if it.kinematics == "cartesian" else ("x", "y", "z")
+        field, hint = _STEPPER[tens]
+        return f"machine.steppers.{motors[axis] if axis < len(motors) else AXES[axis].lower()}.{field}{hint}"
+    return _KEYS.get(number)
+
+
+def system_command(it, block) -> None:
+    """A `$` line (block.words: [("$", the rest of the line, upper case)])."""
+    command = "$" + block.words[0][1].replace(" ", "")
+    k = None  # the `$`: the line's first column
+    if command.startswith("$H") and all(letter in AXES for letter in command[2:]):
+        it.home(block, {letter: 0.0 for letter in command[2:]})
+    elif command == "$X":
+        it.skip(block, k, command, "alarm unlock; there is no alarm state here")
+    elif command in QUERIES:
+        it.skip(block, k, command, "a report query")
+    elif command.startswith("$J="):
+        it.fail(block, k, JOG)
+    elif command in ERRORS:
+        it.fail(block, k, ERRORS[command])
+    elif command.startswith("$RST="):
+        it.skip(block, k, command, "restores Grbl's settings; the job file describes the machine")
+    elif command.startswith("$N") and "=" in command:
+        it.skip(block, k, command[:command.index("=")], "a startup block, which Grbl runs at its reset, not here")
+    elif (setting := _SETTING.fullmatch(command)) is not None:
+        key = setting_key(it, int(setting.group(1)))
+        name = f"${int(setting.group(1))}"
+        it.skip(block, k, name, f"a Grbl setting; the job file gives it: {key}" if key else
+                "a Grbl setting that changes nothing this toolchain models")
+    else:
+        it.fail(block, k, f"unknown Grbl command '{command}'")

@@ -18,15 +18,15 @@ import math
 
 import codegen.gcode.mcodes as mcodes
 import codegen.toolpath.limits as limits
-from codegen.errors import Diagnostic, SourceRef
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
-                                 code_name, group_of, harmless_reason)
-from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState
+from codegen.errors import Diagnostic
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, HARMLESS_TAKES, MOTION, PARAMS, PLANES,
+                                 PROBES, SUPPORTED, code_name, group_of, harmless_reason)
+from codegen.gcode.diagnostics import Diagnostics, Stop
+from codegen.gcode.dialect import Dialect, DialectState
+from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
 from codegen.gcode.moves import LINE, Moves
-from codegen.gcode.reader import Block, Origin, columns
+from codegen.gcode.reader import Block, Origin
 
-MAX_ERRORS = 20
-S_FULL_SCALE = 255.0  # the S of full tool power (Marlin's laser scale), unless the job gives `s_max`
 _ORDER = ("G93", "G94", "M3", "M4", "M5", "M7", "M8", "M9", *mcodes.HANDLERS, "G4", *PLANES, *SYSTEMS, "G43.1",
           "G49", "G90", "G91", "M82", "M83", "G10", "G28.1", "G30.1", "G28", "G30", "G92", "G92.1")
 _MOTION_CODES = {("G", n): "G" + n.lstrip("0") if n.strip("0") else "G0"
@@ -37,12 +37,8 @@ _ARC_LETTERS = frozenset("XYZEFSIJKR")
 _FAST_INDEX = {letter: i for i, letter in enumerate("XYZEFS")}
 
 
-class _Stop(Exception):
-    """The program ends here (M2/M30), or there are too many errors."""
-
-
-class Interpreter(Moves, GrblState):
-    def __init__(self, job, origin: Origin, strict: bool = False):
+class Interpreter(Moves, GrblState, Diagnostics, DialectState):
+    def __init__(self, job, origin: Origin, strict: bool = False, dialect: Dialect = Dialect("marlin", None, "")):
         machine, program = job.machine, job.program
         self.motors = tuple(machine.motor_names)
         self.kinematics = getattr(machine, "kinematics", "cartesian")
@@ -70,8 +66,6 @@ class Interpreter(Moves, GrblState):
         self.spindle = False
         self.dynamic = False  # M4 (Grbl's laser mode: power follows the speed), else M3's constant power
         self.power = 1.0
-        scale = getattr(program, "s_max", None)
-        self.s_full = float(scale) if scale else S_FULL_SCALE
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.origin, self.strict = origin, strict
@@ -81,7 +75,9 @@ class Interpreter(Moves, GrblState):
         self.native = None  # the C's moves (codegen/gcode/fast.py), where it reads the plain lines
         self.errors: list[Diagnostic] = []
         self.warned: dict[str, list] = {}
+        self.notes: list[Diagnostic] = []
         self.grbl_init()
+        self.dialect_init(machine, program, dialect)
 
     # ---- results ----
 
@@ -93,61 +89,8 @@ class Interpreter(Moves, GrblState):
                 self.line(block)
             else:
                 self._error(block.where, block.message)
-        except _Stop:
+        except Stop:
             return False
-        return True
-
-    def warnings(self) -> list[Diagnostic]:
-        return [Diagnostic(where, f"'{key}' ignored ({reason})" + (f"; {n} times" if n > 1 else ""), "warning")
-                for key, (where, n, reason) in self.warned.items()]
-
-    # ---- diagnostics ----
-
-    @staticmethod
-    def word_index(block: Block, what: str | None) -> int | None:
-        """The first word with this letter (`X`) or code (`G92`); None: the block itself."""
-        if what is None:
-            return None
-        for k, (letter, number) in enumerate(block.words):
-            if letter == what or (len(what) > 1 and letter == what[0] and code_name(letter, number) == what):
-                return k
-        return None
-
-    @staticmethod
-    def word(block: Block, letter: str) -> str:
-        """The word of this letter as written (`E.5`)."""
-        for word_letter, number in block.words:
-            if word_letter == letter:
-                return letter + number
-        return letter
-
-    def where(self, block: Block, k: int | None = None) -> SourceRef:
-        return self.origin.at(block.index, block.indent if k is None else columns(block)[k])
-
-    def source(self, block: Block) -> SourceRef:
-        return self.origin.at(block.index, block.indent)
-
-    def _error(self, where: SourceRef, message: str) -> None:
-        if len(self.errors) >= MAX_ERRORS:
-            self.errors.append(Diagnostic(where, f"too many errors ({MAX_ERRORS} reported), stopping here"))
-            raise _Stop
-        self.errors.append(Diagnostic(where, message))
-
-    def fail(self, block: Block, what: str | int | None, message: str) -> None:
-        """An error at a word: its index, its letter, or its code (None: the line)."""
-        k = what if isinstance(what, int) else self.word_index(block, what)
-        self._error(self.where(block, k), message)
-
-    def skip(self, block: Block, k: int, key: str, reason: str) -> bool:
-        """A harmless code (or parameter): one warning per key, or an error with --strict. True if allowed."""
-        if self.strict:
-            self.fail(block, k, f"'{key}' is not accepted with --strict ({reason})")
-            return False
-        seen = self.warned.get(key)
-        if seen is None:
-            self.warned[key] = [self.where(block, k), 1, reason]
-        else:
-            seen[1] += 1
         return True
 
     # ---- one line ----
@@ -197,7 +140,7 @@ class Interpreter(Moves, GrblState):
             if feed <= 0.0:
                 return self.fail(block, "F", f"feed rate '{self.word(block, 'F')}' must be > 0")
             self.feed = feed * unit / 60.0
-        if power is not None and self._power(block, {"S": power}) is False:
+        if power is not None and self.set_power(block, {"S": power}) is False:
             return
         self.mode = mode
         if tgt == pos or (self.fixed and self.axis_missing(block, tgt)):
@@ -235,7 +178,7 @@ class Interpreter(Moves, GrblState):
             params[letter] = float(number)
         if "F" in params and self._feed(block, params) is False:
             return
-        if "S" in params and self._power(block, params) is False:
+        if "S" in params and self.set_power(block, params) is False:
             return
         self.mode = motion
         self.arc_move(block, motion, params)
@@ -248,17 +191,11 @@ class Interpreter(Moves, GrblState):
         self.feed = value * self.unit / 60.0
         return None
 
-    def _power(self, block: Block, params) -> bool | None:
-        value = params["S"]
-        if value < 0.0:
-            self.fail(block, "S", f"power '{self.word(block, 'S')}' must be >= 0")
-            return False
-        self.power = min(value / self.s_full, 1.0)
-        return None
-
     def _general(self, block: Block) -> None:
         """Any line: codes by name and group, parameters by owner, every problem reported, then the codes."""
         words = block.words
+        if words[0][0] == "$":
+            return system_command(self, block)
         codes: list[tuple[str, int]] = []
         params: dict[str, float] = {}
         problems: list[tuple[int, str]] = []
@@ -311,7 +248,7 @@ class Interpreter(Moves, GrblState):
             self.feed = None  # back from G93 the feed rate is undefined until an F, as in Grbl: the job's feed
         if "F" in params and not inverse and self._feed(block, params) is False:
             return
-        if "S" in params and not any("S" in PARAMS[n] for n in names) and self._power(block, params) is False:
+        if "S" in params and not any("S" in PARAMS[n] for n in names) and self.set_power(block, params) is False:
             return
         if "G53" in names and motion not in ("G0", "G1"):
             return self.fail(block, "G53", "G53 (machine coordinates) moves only with G0 or G1")
@@ -328,7 +265,7 @@ class Interpreter(Moves, GrblState):
             if name in names:
                 mcodes.pause(self, block, params, name)
         if "M2" in names or "M30" in names:
-            raise _Stop
+            raise Stop
 
     def _move(self, block: Block, motion: str, params, machine: bool) -> None:
         """The line's motion; with G53 in absolute machine coordinates (X, Y, Z) for this move alone."""
@@ -373,7 +310,7 @@ class Interpreter(Moves, GrblState):
         if motion is not None and taker is not None:
             problems.append((max(names[motion], names[taker]),
                              f"'{motion}' and '{taker}' on one line: both take the axis words"))
-        if harmless:  # they take every word of the line
+        if harmless:
             for name, k, _ in harmless:  # pressure advance moves the extruder off the plan: only "off" is harmless
                 letter = {"M900": "K", "M572": "S"}.get(name)
                 if letter is not None and params.get(letter, 0.0) != 0.0:
@@ -381,14 +318,21 @@ class Interpreter(Moves, GrblState):
                                      f"pressure (linear) advance is not modelled; only {letter}0 (off)"))
             if problems:
                 return None, None
-            allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])
-            return (motion, names) if allowed and names else (None, None)
+            if any(HARMLESS_TAKES.get(name) is None for name, _, _ in harmless):  # they take every word of the line
+                allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])
+                return (motion, names) if allowed and names else (None, None)
         if motion is None and taker is None:
             taken = {letter for name in names for letter in PARAMS[name]}  # M220's R is not an arc's radius
             if any(a in params for a in AXIS_LETTERS) or (self.mode in ("G2", "G3") and
                                                           any(a in params and a not in taken for a in "IJKR")):
                 motion = self.mode
+                if any(name == "G80" for name, _, _ in harmless):
+                    k = min(self.word_index(block, a) for a in (*AXIS_LETTERS, *"IJKR") if a in params)
+                    problems.append((k, f"'{block.words[k][0]}{block.words[k][1]}': G80 on this line cancels the "
+                                     "motion mode; axis words need G0, G1, G2 or G3"))
         used = set("FS")
+        for name, _, _ in harmless:  # the rest of the line keeps its meaning: G64 X5 moves in the modal motion
+            used.update(HARMLESS_TAKES[name])
         for name in names:
             used.update(PARAMS[name])
         if motion is not None:
@@ -399,7 +343,7 @@ class Interpreter(Moves, GrblState):
                 word = self.word(block, letter)
                 problems.append((k, f"'{word}' is not a parameter of {' or '.join(names)}" if names else
                                  f"'{word}' needs a code that takes it"))
-        if problems:
+        if problems or not all([self.skip(block, k, name, reason) for name, k, reason in harmless]):
             return None, None
         for (code, letter), reason in HARMLESS_PARAMS.items():
             if code in names and letter in params:

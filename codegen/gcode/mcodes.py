@@ -161,11 +161,12 @@ def feed_factor(it, block, params):
 
 @_guarded
 def dwell(it, block, params):
-    """G4 P (ms) or S (s; S wins when both are given); no wait without either."""
+    """G4 P (ms in Marlin, s in Grbl: codegen/gcode/dialect.py) or S (s; S wins when both are given); no wait
+    without either."""
     if "S" in params:
         seconds = _number(it, block, params, "S", strict=False)
     elif "P" in params:
-        seconds = _number(it, block, params, "P", strict=False) / 1000.0
+        seconds = _number(it, block, params, "P", strict=False) * it.dwell_p_seconds(block)
     else:
         return None
     if (message := dwell_error(seconds)) is not None:

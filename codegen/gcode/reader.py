@@ -6,7 +6,8 @@ either case; a letter standing alone (`G28 X Y`) is a word with an empty number,
 number after it is the RepRap checksum, the XOR of every byte before the `*` (N word included), and a wrong
 one is an error on its line. A line starting with `/` is deleted (block delete on). `%` on a line of its own
 is a program delimiter: when the program opens with one, the next one ends it. Lines end in LF or CRLF.
-Codes taking free text (M117 messages) keep the rest of the line as their text.
+Codes taking free text (M117 messages) keep the rest of the line as their text; so does a Grbl `$` line (`$H`,
+`$110=5000`): one word, `$` and the rest.
 
 `read` yields a `Block` per line with words, and a `Diagnostic` per bad line; columns are 0-based offsets
 into the line and become positions through an `Origin` (a .gcode file, or a block scalar in the job file).
@@ -119,6 +120,8 @@ class LineReader:
         self.started = True
         if first == "/":
             return None  # block delete
+        if first == "$":  # Grbl's system commands (codegen/gcode/system.py)
+            return Block(index, code, [("$", code[indent + 1:].strip().upper())], indent)
         if LINE_OF_WORDS.fullmatch(code):
             words = WORD.findall(code.upper())
             if "M" in code or "m" in code:

@@ -569,7 +569,8 @@ class Program(_Model):
     start: Point = (0.0, 0.0)
     feed: Positive = 1200.0  # mm/min
     travel_feed: Optional[Positive] = None  # mm/min; None: as fast as the machine allows
-    s_max: Optional[Positive] = None  # the G-code S of full power: 255 as Marlin (default), 1000 as Grbl's $30
+    s_max: Optional[Positive] = None  # the G-code S of full power; default per dialect: 255 (Marlin), 1000 (Grbl's $30)
+    dialect: Optional[_choice("marlin", "grbl")] = None  # type: ignore[valid-type]  # None: guessed from the G-code
     home: Flag = False  # home at power-up before the program (delta machines always do)
     shapes: Optional[Annotated[list[ShapeItem], Field(min_length=1)]] = None
     gcode: Optional[Text] = None  # a path relative to the job file, or the G-code itself

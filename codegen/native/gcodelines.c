@@ -16,7 +16,8 @@
 enum { POS = 0, OFF = 4, UNIT = 8, FLOW, E_SHIFT, FEED, DRAW_FEED, RAPID, SPEED_FACTOR, MIN_FEED, MIN_TRAVEL_FEED,
        ACCEL_PRINT, ACCEL_TRAVEL, ACCEL_RETRACT, S_FULL, POWER,
        REACH /* x 4: how far each axis may go */, LONGEST_MOVE /* s: codegen/toolpath/limits.py */ };
-enum { RELATIVE, E_RELATIVE, HAS_FEED, SPINDLE, FIXED /* bit i: axis i has no motor */, MODE /* 0: G0, 1: G1 */ };
+enum { RELATIVE, E_RELATIVE, HAS_FEED, SPINDLE, FIXED /* bit i: axis i has no motor */, MODE /* 0: G0, 1: G1 */,
+       S_WATCHED /* lines with S are Python's (its note or warning about S comes first) */ };
 enum { X, Y, Z, E, F, S, WORDS };
 
 #define NUMBER_CHARS 64 /* longer numbers are left to Python */
@@ -178,7 +179,7 @@ int64_t run_lines(const char *text, const int64_t *starts, int64_t lines, int64_
                                        : (value[E] * unit + off[3]) * state[FLOW] + state[E_SHIFT];
         if ((has & (1 << F)) && value[F] <= 0.0)
             break;  /* an error: Python's */
-        if ((has & (1 << S)) && value[S] < 0.0)
+        if ((has & (1 << S)) && (value[S] < 0.0 || flags[S_WATCHED]))
             break;
         const int moves = tgt[0] != pos[0] || tgt[1] != pos[1] || tgt[2] != pos[2] || tgt[3] != pos[3];
         int fixed_moves = 0;

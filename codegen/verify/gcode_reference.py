@@ -2,11 +2,13 @@
 where each line leaves the tool, how fast it may go there, the circle of each arc, how long each dwell lasts.
 
 It follows the contract (JOB-FORMAT.md, Marlin's and Grbl's documentation), not the front end's code: G0-G3 (IJ and
-R arcs in the three planes), G4 (P ms, S s), G17-G19, G20/G21, G90/G91, G92/G92.1, G93/G94, F, M220 S/B/R and M205
-S/T (a move's speed is F times the M220 factor, at least M205's least feeds), Grbl's coordinate systems (G54-G59,
-G10 L2/L20, G53, G43.1/G49), M2/M30. Homing (G28, G30) leaves its axes unknown until an absolute coordinate gives
-each again; nothing about an unknown axis is checked. Lines are read one at a time (`Reading.upto`), so a print
-of any length is held a line at a time.
+R arcs in the three planes), G4 (S s; P ms in Marlin, s in Grbl: `program.dialect`, else the first line that only
+one of them writes), G17-G19, G20/G21, G90/G91, G92/G92.1, G93/G94, F, M220 S/B/R and M205 S/T (a move's speed is F
+times the M220 factor, at least M205's least feeds), Grbl's coordinate systems (G54-G59, G10 L2/L20, G53,
+G43.1/G49), M2/M30, Grbl's `$H` (`$` lines move nothing else). A line's axis words move in the modal motion whatever
+else it holds (G40, G64, M3 ...), but beside an M code that takes its own letters (M201 X). Homing (G28, G30, $H)
+leaves its axes unknown until an absolute coordinate gives each again; nothing about an unknown axis is checked.
+Lines are read one at a time (`Reading.upto`), so a print of any length is held a line at a time.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ UNKNOWN = math.nan
 HOMES = {"G28", "G30"}
 SYSTEMS = {f"G{n}": n - 54 for n in range(54, 60)}
 FREE_TEXT = {"M117", "M118", "M23", "M28", "M32"}  # the rest of the line is text, not words
+TOOL_CODES = {"M3", "M4", "M5", "M7", "M8", "M9"}  # Grbl's spindle and coolant: the axis words on their line move
+DIALECT_LINES = 2000  # how far into the file the dialect's deciding line is looked for
+GRBL_ONLY = re.compile(r"^\$|G0*38\.|G0*10L0*20?(?![\d.])")  # on the code, upper case, without spaces
+MARLIN_ONLY = re.compile(r"(?<![A-Z])(M0*(104|109|140|190|82|83|106)|G0*29)(?![\d.])")
 PLANES = {"G17": (0, 1), "G18": (2, 0), "G19": (1, 2)}
 OFFSETS = {(0, 1): "IJ", (2, 0): "KI", (1, 2): "JK"}
 TEXT_CHARS = 48  # of a line's text in a message
@@ -68,6 +74,24 @@ def gcode_lines(job) -> tuple[Iterator[str], int]:
     return iter(program.gcode.split("\n")), program.gcode_source.line
 
 
+def grbl_dialect(job) -> bool:
+    """Whether G4 P counts seconds: `program.dialect`, else the first of the first DIALECT_LINES lines that only Grbl
+    (`$` lines, G38, G10 L2/L20, a comment naming Grbl) or Marlin (heaters, fan, M82/M83, G29, ;FLAVOR:Marlin)
+    writes; neither: Marlin."""
+    given = getattr(job.program, "dialect", None)
+    if given is not None:
+        return given == "grbl"
+    lines, _ = gcode_lines(job)
+    for _, text in zip(range(DIALECT_LINES), lines):
+        code, _, comment = text.upper().partition(";")
+        if "GRBL" in comment or ("FLAVOR" in comment and "MARLIN" in comment):
+            return "GRBL" in comment
+        code = COMMENT.sub(" ", code).replace(" ", "").replace("\t", "")
+        if GRBL_ONLY.search(code) or MARLIN_ONLY.search(code):
+            return GRBL_ONLY.search(code) is not None
+    return False
+
+
 def _file_lines(path: Path) -> Iterator[str]:
     with open(path, encoding="utf-8", errors="replace", newline="\n") as file:
         for text in file:
@@ -89,6 +113,7 @@ class Reading:
         self.plane = (0, 1)
         self.motion = "G0"
         self.feed = float(job.program.feed) / 60.0  # mm/s
+        self.p_seconds = 1.0 if grbl_dialect(job) else 0.001  # G4 P's unit
         self.factor, self.saved_factor, self.least = 1.0, 1.0, 0.0  # M220's; the larger of M205 S and T
         self.delimited, self.ended = False, False
         self.text = ""  # the line being read
@@ -111,6 +136,11 @@ class Reading:
             self.ended, self.delimited = self.delimited, True
             return
         if not code or code.startswith("/"):
+            return
+        if code.startswith("$"):  # Grbl's system commands: only $H (with the axes it names, or all) moves
+            if code.startswith("$H"):
+                for i in [i for i, letter in enumerate("XYZ") if letter in code[2:]] or [0, 1, 2]:
+                    self.pos[i], self.g92[i] = UNKNOWN, 0.0
             return
         words = [(letter, number) for letter, number in WORD.findall(code)]
         if words and f"{words[0][0]}{_number(words[0][1])}" in FREE_TEXT:
@@ -142,13 +172,13 @@ class Reading:
             self.ended = True
             return
         if "G4" in codes:
-            seconds = params["S"] if "S" in params else params.get("P", 0.0) / 1000.0
+            seconds = params["S"] if "S" in params else params.get("P", 0.0) * self.p_seconds
             if seconds > 0:
                 yield Dwell(self.number, self.text, seconds)
             return
         if self._offsets(codes, params, letters):
             return
-        if any(c.startswith("M") for c in codes) or not any(k in params for k in "XYZ"):
+        if any(c.startswith("M") and c not in TOOL_CODES for c in codes) or not any(k in params for k in "XYZ"):
             return  # an M code's letters are its own; a move of E alone leaves x, y, z
         yield self._move(params, "G53" in codes)
 

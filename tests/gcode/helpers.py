@@ -18,8 +18,9 @@ PLOTTER = ("x", "y")
 
 
 def make_job(gcode: str, motors=PRINTER, start=(0, 0), feed=1200, travel_feed=None, kinematics="cartesian",
-             path=Path("/nowhere/job.yaml"), **program):
+             path=Path("/nowhere/job.yaml"), laser=False, **program):
     fake = machine(kinematics, motors)
+    fake.laser = NS(pwm_hz=1000) if laser else None
     if kinematics == "delta":
         fake.delta = NS(height=250.0, diagonal_rod=215.0)
     return NS(machine=fake, path=path,

@@ -90,7 +90,7 @@ def e_by_hand(name: str, relative: bool) -> float:
 @pytest.mark.parametrize("name", sorted(FILES))
 def test_every_file_interprets(name):
     toolpath, warnings = interpret(name)
-    assert toolpath.items and all(w.severity == "warning" for w in warnings)
+    assert toolpath.items and {w.severity for w in warnings} <= {"warning", "note"}
     for a, b in zip(toolpath.items, toolpath.items[1:]):  # moves chain: each starts where the last ended
         if isinstance(a, (Line, Arc)) and isinstance(b, (Line, Arc)):
             assert b.start is a.end or (b.start == a.end).all()
@@ -151,7 +151,12 @@ def test_svg2gcode_lines():
 
 def test_laser():
     toolpath, warnings = interpret("laser/hiking.gcode")
-    assert kinds(toolpath.items) == {"Output": 100, "Dwell": 49, "Line": 2874} and warnings == []
+    assert kinds(toolpath.items) == {"Output": 100, "Dwell": 49, "Line": 2874}
+    assert [(w.severity, w.where.line, w.where.col, w.message) for w in warnings] == [
+        ("note", 4, 4, "G4 P in milliseconds: G-code dialect marlin, guessed from line 8 ('M106' is Marlin's); "
+                       "program.dialect sets it"),
+        ("warning", 9, 4, "'S' ignored (the machine has no `laser:`, so M3/M4 switch the tool pin on and off only; "
+                          "`machine.laser: {pwm_hz: 1000}` (a PWM laser) gives power control over S)")]
     lines = [i for i in toolpath.items if isinstance(i, Line)]
     assert sum(i.tool for i in lines) == 2825 and {i.power for i in lines if i.tool} == {1.0}
     assert {i.seconds for i in toolpath.items if isinstance(i, Dwell)} == {0.4}

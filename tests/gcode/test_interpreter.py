@@ -57,7 +57,7 @@ def test_points_are_shared_read_only_rows():
 
 
 def test_no_motion_and_zero_length_produce_nothing():
-    got = moves("G90\nF100\nG1 X0 Y0\nG1\nG21\nS10\nG1 X5\nG1 X5\nG91 G1 X0\nM5\n")
+    got = moves("G90\nF100\nG1 X0 Y0\nG1\nG21\nS10\nG1 X5\nG1 X5\nG91 G1 X0\nM5\n", laser=True, s_max=255)
     assert got == [("G1", [0, 0, 0, 0], [5, 0, 0, 0], 100 / 60, False)]
 
 
@@ -89,11 +89,11 @@ def test_feed_applies_to_the_move_as_given():
 
 def test_tool_and_power():
     got = items("G1 X1 F60\nM3 S127.5\nG1 X2\nG0 X3\nS255\nG2 X5 I1\nS510\nG1 X6\nM5\nG1 X7\nM4 S0\nG1 X8\n"
-                "G1 X9 S51\n")
+                "G1 X9 S51\n", laser=True, dialect="marlin")
     assert [(i.label, i.tool, i.power) for i in got] == [
         ("G1", False, 1.0), ("G1", True, 0.5), ("G0", False, 0.5), ("G2", True, 1.0), ("G1", True, 1.0),
         ("G1", False, 1.0), ("G1", True, 0.0), ("G1", True, 0.2)]
-    assert items("M3 S500\nG1 X1\n", s_max=1000)[0].power == 0.5  # the job's full scale
+    assert items("M3 S500\nG1 X1\n", s_max=1000, laser=True)[0].power == 0.5  # the job's full scale
 
 
 def test_outputs():
@@ -120,7 +120,7 @@ def test_limits_and_accelerations():
 
 
 def test_dwell():
-    got = items("G4 P400\nG4 S1.5\nG4 P0\nG4\nG4 P100 S2\n")
+    got = items("G4 P400\nG4 S1.5\nG4 P0\nG4\nG4 P100 S2\n", dialect="marlin")
     assert [(type(d), d.seconds) for d in got] == [(Dwell, 0.4), (Dwell, 1.5), (Dwell, 2.0)]
 
 

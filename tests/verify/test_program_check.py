@@ -51,6 +51,21 @@ def test_homing_leaves_axes_unknown_until_an_absolute_coordinate(tmp_path):
     assert third == (4.0, 5.0, 0.0)  # G28 cleared the G92 offset of x
 
 
+def test_axis_words_beside_other_codes_move_and_dollar_h_homes(tmp_path):
+    moves = reading(tmp_path, "G1 F1000\nG64 X5\nG61 Y3\nG40 G91 X1 Z1\nM3 S100 X1\n$H\n$J=G91 X10 F100\nG90 X2\n")
+    assert [(m.line, m.end) for m in moves[:-1]] == [(2, (5.0, 0.0, 0.0)), (3, (5.0, 3.0, 0.0)),
+                                                     (4, (6.0, 3.0, 1.0)), (5, (7.0, 3.0, 1.0))]
+    last = moves[-1]  # $H leaves every axis unknown, $J= moves nothing
+    assert last.line == 8 and last.end[0] == 2.0 and math.isnan(last.end[1]) and math.isnan(last.end[2])
+
+
+@pytest.mark.parametrize("gcode, seconds", [
+    ("; Grbl\nG4 P0.5\n", 0.5), ("M104 S200\n$X\nG4 P500\n", 0.5), ("$X\nM104 S200\nG4 P0.5\n", 0.5),
+    ("G4 P500\n", 0.5)])
+def test_g4_p_counts_the_guessed_dialect_s_unit(tmp_path, gcode, seconds):
+    assert [d.seconds for d in reading(tmp_path, gcode)] == [seconds]
+
+
 def test_grbl_coordinate_systems(tmp_path):
     moves = reading(tmp_path, "G10 L2 P2 X10 Y20\nG55 G0 X1 Y1\nG53 G0 X1 Y1\nG10 L20 P1 X0\nG54 G0 X2\n"
                               "G43.1 Z2\nG0 Z1\n")
