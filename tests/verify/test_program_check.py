@@ -29,7 +29,8 @@ def reading(tmp_path: Path, gcode: str, start=(0.0, 0.0, 0.0)) -> list:
     (tmp_path / "p.gcode").write_text(gcode)
     text = (EXAMPLES / "gcode" / "mixed.yaml").read_text()
     job_path = tmp_path / "job.yaml"
-    job_path.write_text(text[:text.index("  gcode: |")] + "  gcode: p.gcode\n")
+    machine = text[:text.index("program:")]  # the program's dialect is the G-code's own here: guessed
+    job_path.write_text(machine + "program:\n  start: [0, 0, 5]\n  gcode: p.gcode\n")
     return list(Reading(load_job(job_path), start).upto(math.inf))
 
 
