@@ -8,9 +8,9 @@ Each window ends at the last settled corner (a junction that is not part of a cu
 the planner, which look at a block's neighbours along a curve, never need a neighbour in another window. A long
 stretch without a corner (one long straight move: the front end cuts it into blocks of at most MAX_MODULUS steps,
 codegen/motion/staircase.py split_long) ends, once it holds more than WINDOW_EVENTS master steps, at its last
-settled straight junction (collinear pieces: curve timing there is the chords' own, so no time changes), or failing
-one at a settled junction of a curve: a window's steps, and the memory of every stage after it, stay bounded
-whatever one move's length (issue 28). A segment's
+settled straight junction (collinear pieces: curve timing there is the chords' own, so no time changes), or with
+none past twice that, at a settled junction of a curve: a window's steps, and the memory of every stage after it,
+stay bounded whatever one move's length (issue 28). A segment's
 own limits wait for the junction after it (its curvature there), and the window's last segment stays held as
 the next window's context: every junction is planned from both of its segments, as in the whole program.
 
@@ -94,9 +94,11 @@ class Lookahead:
             ok = settled(prof)
             ok[0] = ok[-1] = False
             ends = np.flatnonzero(ok & plan.corner)
-            if len(ends) == 0 and self._held_events() > WINDOW_EVENTS:
+            events = self._held_events() if len(ends) == 0 else 0
+            if events > WINDOW_EVENTS:
                 ends = np.flatnonzero(ok & _straight(prof))
-            if len(ends) == 0 and (held > MAX_HELD or self._held_events() > WINDOW_EVENTS):
+            # A curve's straight junctions (inside a long chord) settle a stopping distance later: wait for them.
+            if len(ends) == 0 and (held > MAX_HELD or events > 2 * WINDOW_EVENTS):
                 ends, curve_cut = np.flatnonzero(ok), True
             if len(ends) == 0:
                 return []
