@@ -5,7 +5,12 @@ segments after it, all held, gain at least its own limit at full acceleration: a
 reach back to it, and neither can anything that comes later, so its speed (and every speed before it) is the
 one a plan of the whole program gives (Grbl's planner and Klipper's lookahead hold no more than that either).
 Each window ends at the last settled corner (a junction that is not part of a curve), so that the stages after
-the planner, which look at a block's neighbours along a curve, never need a neighbour in another window. A segment's
+the planner, which look at a block's neighbours along a curve, never need a neighbour in another window. A long
+stretch without a corner (one long straight move: the front end cuts it into blocks of at most MAX_MODULUS steps,
+codegen/motion/staircase.py split_long) ends, once it holds more than WINDOW_EVENTS master steps, at its last
+settled straight junction (collinear pieces: curve timing there is the chords' own, so no time changes), or with
+none past twice that, at a settled junction of a curve: a window's steps, and the memory of every stage after it,
+stay bounded whatever one move's length (issue 28). A segment's
 own limits wait for the junction after it (its curvature there), and the window's last segment stays held as
 the next window's context: every junction is planned from both of its segments, as in the whole program.
 
@@ -20,10 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.motion.planner import Plan, PlannerLimits, finish, passes, profile, settled
+from codegen.motion.planner import Plan, PlannerLimits, Profile, finish, passes, profile, settled
 from codegen.toolpath.segments import Segments, concat
 
 MAX_HELD = 1 << 16  # segments held without a settled corner: then a window ends at a settled junction of a curve
+WINDOW_EVENTS = 1 << 18  # master steps held without a settled corner: then a window ends at a straight junction
+STRAIGHT_COS = 1.0 - 1e-12  # cosine of the turn at a junction between collinear pieces of one straight move
 
 
 @dataclass
@@ -87,7 +94,11 @@ class Lookahead:
             ok = settled(prof)
             ok[0] = ok[-1] = False
             ends = np.flatnonzero(ok & plan.corner)
-            if len(ends) == 0 and held > MAX_HELD:
+            events = self._held_events() if len(ends) == 0 else 0
+            if events > WINDOW_EVENTS:
+                ends = np.flatnonzero(ok & _straight(prof))
+            # A curve's straight junctions (inside a long chord) settle a stopping distance later: wait for them.
+            if len(ends) == 0 and (held > MAX_HELD or events > 2 * WINDOW_EVENTS):
                 ends, curve_cut = np.flatnonzero(ok), True
             if len(ends) == 0:
                 return []
@@ -105,3 +116,15 @@ class Lookahead:
         self.held_steps = self.held_steps[keep]
         self.context = 1
         return [window]
+
+    def _held_events(self) -> int:
+        """The master steps of the segments held (the context's included)."""
+        return int(np.abs(self.held_steps).max(axis=1, initial=0).sum())
+
+
+def _straight(prof: Profile) -> np.ndarray:
+    """(n + 1,) the junctions between two collinear moving pieces of a stretch (False at its ends)."""
+    straight = np.zeros(len(prof) + 1, dtype=bool)
+    cos_turn = np.sum(prof.direction[:-1] * prof.direction[1:], axis=1)
+    straight[1:-1] = prof.moving[:-1] & prof.moving[1:] & (cos_turn >= STRAIGHT_COS)
+    return straight
