@@ -1,8 +1,9 @@
 """Lookahead planner: constant-acceleration trapezoids over the whole program, vectorised.
 
 Speeds are limited per segment by the feed, every motor's velocity (projected on the motor, with Bresenham's
-step quantisation taken into account), the player's event rate and block load time, and on curves by the centripetal acceleration
-each motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
+step quantisation taken into account), the player's event rate and block load time (and the time a block's events
+need to make up a load at the compressor's catch-up pace), and on curves by the centripetal acceleration each
+motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
 backward and forward passes are exact recurrences on v^2 written as running minima (numpy, no Python loop).
 """
 
