@@ -58,6 +58,11 @@ class TargetInfo:
         extra = self.block_gap_ticks(step_pulse_us, dir_setup_us) - self.run_gap_ticks(motors, step_pulse_us)
         return 1.25 * max(extra, 0) / self.tick_hz
 
+    def block_load_s(self, step_pulse_us: float = 2.0, dir_setup_us: float = 1.0) -> float:
+        """The least time between a block's first event and the one before, with `max_event_rate`'s headroom
+        (the compressor pushes that event 1.1 x the gap + 2 ticks after the one before)."""
+        return 1.25 * self.block_gap_ticks(step_pulse_us, dir_setup_us) / self.tick_hz
+
     def pulse_jitter_s(self, heaters: bool = False) -> float:
         """How much earlier than its tick + the constant latency a pulse may come against the one before: the
         latency's spread (a link interrupt in the way, a hold poll), then main's longest stretch with interrupts

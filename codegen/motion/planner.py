@@ -1,8 +1,9 @@
 """Lookahead planner: constant-acceleration trapezoids over the whole program, vectorised.
 
 Speeds are limited per segment by the feed, every motor's velocity (projected on the motor, with Bresenham's
-step quantisation taken into account), the player's event rate and block load time, and on curves by the centripetal acceleration
-each motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
+step quantisation taken into account), the player's event rate and block load time (and the time a block's events
+need to make up a load at the compressor's catch-up pace), and on curves by the centripetal acceleration each
+motor can take (v^2 * curvature). Junction speeds follow Grbl's junction deviation at corners. The
 backward and forward passes are exact recurrences on v^2 written as running minima (numpy, no Python loop).
 """
 
@@ -18,6 +19,8 @@ from codegen.toolpath.segments import Segments
 SMOOTH_TURN = 0.5  # rad: junctions turning less than this are part of a curve, not corners
 RATE_WINDOW = 7  # step intervals over which motor rates are held (8 consecutive steps)
 ACCEL_WINDOW_S = 0.020  # s over which motor accelerations are held (velocity change between two windows)
+# Of a motor's rate the compressor's pushed events catch up at (codegen/tables/compress.py; the planner keeps 2 %).
+CATCH_UP_SHARE = 0.985
 
 
 @dataclass(frozen=True)
@@ -25,6 +28,7 @@ class PlannerLimits:
     junction_deviation: float  # mm
     max_event_rate: float = np.inf  # events/s the player sustains
     block_overhead: float = 0.0  # s a block start costs the player beyond an ordinary event
+    block_load: float = 0.0  # s the player needs between a block's first event and the one before, with headroom
     margin: float = 0.02  # headroom kept below every motor limit, for step and tick quantisation
     pulse_jitter_s: float = 0.0  # how much closer than planned the player may put 8 steps (TargetInfo)
     tool_stops: bool = True  # the tool switching on or off is a stop (a pen); a laser's power follows at its step
@@ -97,6 +101,19 @@ def quantisation_factor(steps: np.ndarray) -> np.ndarray:
     return np.where((d > 0) & (d < n), np.floor(ratio) / np.maximum(ratio, 1e-300), 1.0)
 
 
+def catch_up_time(steps: np.ndarray, max_rate: np.ndarray, limits: PlannerLimits) -> np.ndarray:
+    """Per segment (one block), the least time its events take where the block load delays its first event (the
+    load is longer than an event's gap at CATCH_UP_SHARE of the motors' rates): the rest come at no more than
+    that share (the compressor's `rate_gaps`), so they make up the delay only in what the block leaves them;
+    a block at its motors' full rate never would, and the player would fall further behind at every block load.
+    0 where the load is shorter (no delay), or no motor steps."""
+    d = np.abs(steps).astype(float)
+    rate = CATCH_UP_SHARE * jitter_rate(max_rate, limits.pulse_jitter_s)[None, :] * quantisation_factor(steps)
+    at_rate = np.max(d / rate, axis=1, initial=0.0)  # every event at the catch-up pace
+    gap = np.divide(at_rate, d.max(axis=1, initial=0.0), out=np.zeros_like(at_rate), where=at_rate > 0)
+    return np.where((limits.block_load > gap) & (at_rate > 0), at_rate - gap + limits.block_load, 0.0)
+
+
 def bresenham_factors(factors: np.ndarray, steps: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
     """Motor mm per path mm as the player moves the slaves: a slave makes |d| / N steps per master event,
     with d and N rounded, where the exact ratio may be smaller (a short block of a coarse motor: 10 steps
@@ -164,6 +181,8 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     # Every segment is one block: its events at the sustained rate, plus the block load at its start.
     least_time = master / limits.max_event_rate + limits.block_overhead
     v_events = np.divide(keep * length, least_time, out=np.full(n, np.inf), where=least_time > 0)
+    catch_up = catch_up_time(steps, motor.max_rate, limits)
+    v_events = np.minimum(v_events, np.divide(length, catch_up, out=np.full(n, np.inf), where=catch_up > 0))
 
     # Junctions j = 1 .. n-1 between segment j-1 and j.
     u_prev, u_next = u[:-1], u[1:]

@@ -101,5 +101,6 @@ def planner_limits(job, kin: Kinematics, target: TargetInfo, heaters: bool = Fal
     pulse_us, setup_us, motors = job.machine.step_pulse_us, job.machine.dir_setup_us, len(kin.motors)
     return PlannerLimits(job.machine.junction_deviation, max_event_rate=target.max_event_rate(motors, pulse_us),
                          block_overhead=target.block_overhead_s(motors, pulse_us, setup_us),
+                         block_load=target.block_load_s(pulse_us, setup_us),
                          pulse_jitter_s=target.pulse_jitter_s(heaters), tool_stops=job.machine.laser is None,
                          accel_share=1.0 - RAMP_SHARE if ramp_share(job) else 1.0)

@@ -5,7 +5,11 @@ import math
 import numpy as np
 import pytest
 
+from codegen.kinematics import make_kinematics
+from codegen.motion.planner import CATCH_UP_SHARE, PlannerLimits, catch_up_time, profile
+from codegen.motion.stepgen import segment_steps
 from codegen.toolpath.items import Arc, Line, Toolpath
+from codegen.toolpath.segments import flatten
 from tests.helpers import SRC, machine, planned, point, polyline
 
 KEEP = 0.98  # the planner's headroom below every limit
@@ -122,3 +126,28 @@ def test_move_acceleration_cap_from_the_program():
     tp.items[0] = Line(tp.items[0].start, tp.items[0].end, 100, True, SRC, accel=400.0)
     _, _, _, p = planned(tp)
     assert p.accel[0] == pytest.approx(400.0)
+
+
+def test_catch_up_time_leaves_a_block_the_time_to_make_up_its_load():
+    """A block load longer than one event's gap at the compressor's catch-up pace (98.5 % of the rate) delays the
+    first event by the load; the other N - 1 events come at that pace at the most: N - 1 gaps + the load."""
+    steps = np.array([[36, 20], [36, 0], [0, 0]])
+    master = 36 / (CATCH_UP_SHARE * 6000)  # the slave, at 12 of 12.6 events per 7 steps, needs less
+    assert catch_up_time(steps, np.array([6000.0, 6000.0]), PlannerLimits(0.01, block_load=351e-6)) \
+        == pytest.approx([master * 35 / 36 + 351e-6, master * 35 / 36 + 351e-6, 0.0], rel=1e-12)
+    # a load no longer than the gap delays nothing
+    assert catch_up_time(steps, np.array([6000.0, 6000.0]), PlannerLimits(0.01, block_load=160e-6)).tolist() \
+        == [0.0, 0.0, 0.0]
+
+
+def test_short_block_at_full_rate_slows_for_its_block_load():
+    """The 8051's case (tests/data/jobs/found/moves-behind-the-block-loads.yaml): 36 steps at 6000 steps/s with
+    a 351 us block load; at the motor's 98 % the player fell 0.1 ms behind the plan at every block."""
+    kin = make_kinematics(machine(x={"spm": 100, "vmax": 60}))
+    segments = flatten(polyline([(0, 0), (0.36, 0)], feed=1000), 0.002)
+    steps = segment_steps(segments, kin)
+    assert steps.tolist() == [[36, 0]]
+    free = profile(segments, kin, steps, PlannerLimits(0.01))
+    loaded = profile(segments, kin, steps, PlannerLimits(0.01, block_load=351e-6))
+    assert math.sqrt(free.w_nominal[0]) == pytest.approx(60 * KEEP)
+    assert math.sqrt(loaded.w_nominal[0]) == pytest.approx(0.36 / (35 / (CATCH_UP_SHARE * 6000) + 351e-6))
