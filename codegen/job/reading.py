@@ -21,6 +21,7 @@ YPath = tuple  # of str (mapping keys) and int (list indexes)
 
 _FLOAT_12 = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+")  # YAML 1.2 floats such as 1e-3
 _MAX_NODES = 100_000
+_SURROGATE = re.compile("[\ud800-\udfff]")
 MAX_DEPTH = 50  # a job nests about 6 levels; PyYAML's parser recurses about 3 frames a level
 _NON_PRINTABLE = yaml.reader.Reader.NON_PRINTABLE  # the characters PyYAML refuses to read
 _OPENING = (yaml.BlockMappingStartToken, yaml.BlockSequenceStartToken, yaml.FlowMappingStartToken,
@@ -139,6 +140,8 @@ class _Builder:
             if not isinstance(key_node, ScalarNode):
                 self.error(key_node, f"{dotted(path) or 'job'}: keys must be plain names")
                 continue
+            if self.half_pair(key_node, path):
+                continue
             key = key_node.value
             if key in out:
                 first = self.marks.keys[path + (key,)][0]
@@ -150,15 +153,28 @@ class _Builder:
                 self.marks.values[path + (key,)] = self.marks.keys[path + (key,)]  # `key:` alone: point at it
         return out
 
+    def half_pair(self, node: ScalarNode, path: YPath) -> bool:
+        """Whether a `\\uD83D` escape left half a surrogate pair in the scalar: no character, nothing can print it."""
+        half = _SURROGATE.search(node.value)
+        if half:
+            where = f"{dotted(path)}: " if path else ""
+            self.error(node, f"{where}\\u{ord(half.group()):04X} is half of a UTF-16 surrogate pair, not a character; "
+                             f"write the character itself or its \\U00XXXXXX escape")
+        return half is not None
+
     def scalar(self, node: ScalarNode, path: YPath) -> Any:
+        if self.half_pair(node, path):
+            return None
         if node.style is None and node.tag == "tag:yaml.org,2002:str" and _FLOAT_12.fullmatch(node.value):
             return float(node.value)
         try:
             return self.loader.construct_object(node, deep=True)
-        except (yaml.YAMLError, ValueError, OverflowError) as e:
+        except yaml.YAMLError as e:
             problem = getattr(e, "problem", None) or str(e)
-            self.error(node, f"{dotted(path) or 'job'}: {problem}")
-            return None
+        except (ValueError, OverflowError, KeyError, AttributeError, TypeError):  # `!!timestamp x`, `!!bool x`
+            problem = f"'{node.value}' is not a valid {node.tag.rsplit(':', 1)[-1]}"
+        self.error(node, f"{dotted(path) or 'job'}: {problem}")
+        return None
 
 
 def read_yaml(path: Path, file: str | None = None) -> tuple[Any, Marks, list[Diagnostic]]:

@@ -132,3 +132,17 @@ def test_a_wrong_type_at_any_key_is_a_diagnostic_or_a_plan(tmp_path, example):
                 pass
             tried += 1
     assert tried >= len(WRONG) * 20
+
+
+@pytest.mark.parametrize("tag, kind", [("!!timestamp", "timestamp"), ("!!bool", "bool")])
+def test_a_tag_pyyaml_cannot_construct_is_an_error_at_its_value(tmp_path, tag, kind):
+    """PyYAML raised AttributeError for `!!timestamp x` and KeyError for `!!bool x`."""
+    assert errors(job(tmp_path, gcode=f"{tag} x"))[0] == (8, 10, f"program.gcode: 'x' is not a valid {kind}")
+
+
+def test_half_a_surrogate_pair_and_control_characters_in_the_name_are_refused(tmp_path):
+    """`\\ud800` printed as a UnicodeEncodeError with plan's summary; `\\e[31m` sent terminal codes with it."""
+    assert errors(job(tmp_path, name='"\\ud800"')) == [
+        (1, 7, "name: \\uD800 is half of a UTF-16 surrogate pair, not a character; write the character itself or "
+               "its \\U00XXXXXX escape")]
+    assert errors(job(tmp_path, name='"\\e[31mred"')) == [(1, 7, "name: must be printable text (no control characters)")]

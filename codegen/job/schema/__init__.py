@@ -94,4 +94,6 @@ class Job(Model):
     def _file_name(cls, v: str) -> str:
         if any(c in v for c in "/\\\0") or v in (".", ".."):
             raise fail("name", "must be usable as a folder name (no '/' or '\\')")
+        if any(not c.isprintable() for c in v):  # an ESC would send terminal codes with every summary printed
+            raise fail("name", "must be printable text (no control characters)")
         return v
