@@ -164,7 +164,7 @@ class _Builder:
 
     def scalar(self, node: ScalarNode, path: YPath) -> Any:
         if self.half_pair(node, path):
-            return node.value  # reported once: the models take the text as it is
+            return _SURROGATE.sub("\ufffd", node.value)  # reported once: the models see a replacement character
         if node.style is None and node.tag == "tag:yaml.org,2002:str" and _FLOAT_12.fullmatch(node.value):
             return float(node.value)
         try:
