@@ -32,7 +32,7 @@ def errors(path: Path) -> list[tuple[int, int, str]]:
     return [(d.where.line, d.where.col, d.message) for d in info.value.diagnostics]
 
 
-def job(tmp_path: Path, name="j", kinematics="cartesian", gcode="'G1 X1 F600'", text=None) -> Path:
+def job(tmp_path: Path, name="j", kinematics="cartesian", gcode="|\n    G1 X1 F600", text=None) -> Path:
     path = tmp_path / "job.yaml"
     body = text if text is not None else CARTESIAN.format(name=name, kinematics=kinematics, gcode=gcode)
     path.write_bytes(body.encode("utf-8") if isinstance(body, str) else body)
