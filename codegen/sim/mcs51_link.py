@@ -115,7 +115,7 @@ class _Console:
         text, self.buffer = self.buffer.split(end, 1)
         self.waiting = True
         after = text.decode(errors="replace").split(f"\n{MARK_A}\n", 1)[-1]
-        numbers = [int(line) for line in after.splitlines() if line.strip().isdigit()]
+        numbers = [int(line) for line in after.splitlines() if line.strip().lstrip("-").isdigit()]
         return numbers[:-1], numbers[-1]
 
     def close(self) -> None:
@@ -160,7 +160,9 @@ def _setup(hex_path: Path, sym: dict, config: FirmwareConfig, pins: dict, switch
         count += 1
         cmds.append(f"break {spec}")
         if prints is not None:
-            cmds.append(f"commands {count} " + " ; ".join(f"expression /u {p}" for p in prints) + " ; run")
+            # no /u: s51 0.6.4 leaks memory at every /u it evaluates (about 5 KB a record, measured); a clock
+            # printed as a negative int32 is unwrapped all the same (_Run._unwrap)
+            cmds.append(f"commands {count} " + " ; ".join(f"expression {p}" for p in prints) + " ; run")
 
     for port in ports:
         brk(f"sfr w {SFR[port]:#x}", ["sim_ticks", f"{effects.get(port, '')}{port * 256}+P{port}"])
