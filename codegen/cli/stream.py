@@ -86,7 +86,7 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, lis
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
     samples = None
-    if bounded(args, setup.target.target, job):
+    if bounded(args, setup.target.target, job, streamed=True):
         with tempfile.NamedTemporaryFile(prefix="table-", suffix=".bin") as table:  # the comparison reads it too
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
             result, compared = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
@@ -108,10 +108,12 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, lis
     return host, result, trace, samples, headline
 
 
-def bounded(args, target: str, job) -> bool:
+def bounded(args, target: str, job, streamed: bool = False) -> bool:
     """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold (its
-    outputs written or gathered as it is compared: run_outputs)."""
-    return target == "avr" and job.machine.feed_hold is None and args.hold is None and args.override is None
+    outputs written or gathered as it is compared: run_outputs), or an 8051's stream without one (and without
+    --vcd: the waveform is written from the simavr harness's records)."""
+    plain = job.machine.feed_hold is None and args.hold is None and args.override is None
+    return plain and (target == "avr" or (target == "mcs51" and streamed and not args.vcd))
 
 
 def run_outputs(args) -> RunOutputs:

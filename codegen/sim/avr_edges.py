@@ -27,6 +27,21 @@ FALLOC_PUNCH_HOLE = 0x03  # FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE (linux/fa
 PAGE = 1 << 16
 
 
+@dataclass(frozen=True)
+class RunPins:
+    """What reading a target's edges file needs of its board (codegen/verify/run_reader.py): its clock, the pins'
+    names in the file's order (STEP and DIR of each motor, then the tool, then the slow pins), their level after
+    reset."""
+
+    f_cpu: int
+    cycles_per_tick: int
+    start_to_tick0: int  # cycles from a START_PIN record (the player's timer start) to its tick 0
+    invert_dir: tuple[bool, ...]
+    names: tuple[str, ...]
+    tool_on_level: int
+    reset_level: int
+
+
 class PinWave(NamedTuple):
     """One recorded pin's levels: at reset, then each change."""
 
@@ -59,11 +74,11 @@ class EdgeDecoder:
     """Feed it the records in order (`feed`): the step pulses of each piece from cycle `since` on (records before
     it count only for the levels), with the pulse widths and DIR setup times carried over the pieces."""
 
-    def __init__(self, invert_dir: list[bool], slow_names: list[str], since: int = 0):
+    def __init__(self, invert_dir: list[bool], slow_names: list[str], since: int = 0, reset_level: int = 0):
         motors = len(invert_dir)
         self.invert = np.asarray(invert_dir, dtype=np.int64)
-        self.since = since
-        self.dir_level = np.zeros(motors, dtype=np.int64)  # pins start low after reset
+        self.since, self.reset_level = since, reset_level
+        self.dir_level = np.full(motors, reset_level, dtype=np.int64)  # an AVR's pins are low after reset
         self.high_since: list[int | None] = [None] * motors  # a STEP still high: its rise
         self.dir_changed: list[int | None] = [None] * motors  # the latest DIR change no rise has followed yet
         self.width_min: list[int | None] = [None] * motors  # cycles, from `since` on
@@ -161,7 +176,7 @@ class EdgeDecoder:
         out = {}
         for name, parts in zip(self.slow_names, self._slow):
             rec = np.concatenate(parts) if parts else np.zeros(0, EDGE_RECORD)
-            out[name] = PinWave(0, rec["cycle"].astype(np.int64), rec["level"])
+            out[name] = PinWave(self.reset_level, rec["cycle"].astype(np.int64), rec["level"])
         return out
 
 

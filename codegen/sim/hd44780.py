@@ -164,15 +164,18 @@ class _Controller:
             self.address = (self.address + step) % 80
 
 
-def _display_writes(records: np.ndarray, masks: dict[int, int]) -> np.ndarray:
-    """The records of the display's ports that change one of its pins (masks: port -> the display's pins)."""
+def _display_writes(records: np.ndarray, masks: dict[int, int], seen: dict[int, int]) -> np.ndarray:
+    """The records of the display's ports that change one of its pins (masks: port -> the display's pins; seen:
+    port -> its pins' bits as last written, updated here: the latch is 0xFF after reset)."""
     rec = np.asarray(records, dtype=np.int64).reshape(-1, 3)
     rec = rec[np.isin(rec[:, 1], list(masks))]
     keep = np.zeros(len(rec), dtype=bool)
     for port, mask in masks.items():
         rows = np.flatnonzero(rec[:, 1] == port)
-        seen = rec[rows, 2] & mask
-        keep[rows] = seen != np.concatenate([[mask], seen[:-1]])  # the latch is 0xFF after reset
+        bits = rec[rows, 2] & mask
+        keep[rows] = bits != np.concatenate([[seen[port]], bits[:-1]])
+        if len(bits):
+            seen[port] = int(bits[-1])
     return rec[keep]
 
 
@@ -192,49 +195,67 @@ def _fall_problems(ns: float, clock: int, rise: int | None, fall: int | None, co
     return out
 
 
+class DisplayDecoder:
+    """The display driven by records fed in time order, a piece at a time (`feed`), and what it shows (`display`);
+    f_osc: the records' clocks per second; osc_hz: the display's oscillator (execution times scale with 270 kHz /
+    osc_hz); power_on: the clock of power-up."""
+
+    def __init__(self, wiring: LcdWiring, f_osc: float = 12_000_000, osc_hz: float = OSC_HZ, power_on: int = 0):
+        used = [p for p in (wiring.rs, wiring.e, wiring.rw, *wiring.data) if p is not None]
+        self.wiring = wiring
+        self.masks = {port: sum(1 << p.bit for p in used if p.port == port) for port in sorted({p.port for p in used})}
+        self.latch = dict.fromkeys(self.masks, 0xFF)
+        self.seen = dict(self.masks)
+        self.ns = 1e9 / f_osc
+        self.lcd = _Controller(f_osc, osc_hz, power_on)
+        self.e, self.control, self.data = 1, (self._level(wiring.rs), self._level(wiring.rw)), self._bus()
+        self.rise = self.fall = None  # clocks of the last edges of E (E is high from reset, with no rise seen)
+        self.control_at = self.data_at = -(1 << 62)  # clocks of the last changes of RS/RW and of the data lines
+
+    def _level(self, pin: Pin | None) -> int:
+        return 0 if pin is None else self.latch[pin.port] >> pin.bit & 1
+
+    def _bus(self) -> int:
+        return sum(self._level(p) << (self.wiring.first_data_line + i) for i, p in enumerate(self.wiring.data))
+
+    def feed(self, records: np.ndarray) -> None:
+        wiring, lcd, ns = self.wiring, self.lcd, self.ns
+        for clock, port, value in _display_writes(records, self.masks, self.seen).tolist():
+            self.latch[port] = value
+            held = self.fall is not None and (clock - self.fall) * ns < HOLD_NS
+            if (self._level(wiring.rs), self._level(wiring.rw)) != self.control:
+                self.control, self.control_at = (self._level(wiring.rs), self._level(wiring.rw)), clock
+                if held:
+                    lcd.problems.append(Problem(clock, f"RS or RW changes within {HOLD_NS} ns after E falls"))
+            if self._bus() != self.data:
+                self.data, self.data_at = self._bus(), clock
+                if held:
+                    lcd.problems.append(Problem(clock, f"a data line changes within {HOLD_NS} ns after E falls"))
+            if self._level(wiring.e) == self.e:
+                continue
+            self.e = self._level(wiring.e)
+            if self.e:
+                self.rise = clock
+                continue
+            if self.rise is None and clock < lcd.busy_until:
+                self.fall = clock  # E leaving its reset level during the power-up wait: ignored
+                continue
+            lcd.problems += [Problem(clock, text) for text in _fall_problems(ns, clock, self.rise, self.fall,
+                                                                             self.control_at, self.data_at)]
+            self.fall = clock
+            if self.control[1]:
+                lcd.problems.append(Problem(clock, "a read (RW high): the decoder models writes only"))
+            else:
+                lcd.receive(clock, self.control[0], self.data)
+
+    def display(self) -> Display:
+        lcd = self.lcd
+        return Display(lines=lcd.lines(), states=lcd.states, problems=sorted(lcd.problems, key=lambda p: p.clock))
+
+
 def decode(records: np.ndarray, wiring: LcdWiring, f_osc: float = 12_000_000, osc_hz: float = OSC_HZ,
            power_on: int = 0) -> Display:
-    """The display driven by `records` (see the module's doc); f_osc: the records' clocks per second; osc_hz: the
-    display's oscillator (execution times scale with 270 kHz / osc_hz); power_on: the clock of power-up."""
-    used = [p for p in (wiring.rs, wiring.e, wiring.rw, *wiring.data) if p is not None]
-    masks = {port: sum(1 << p.bit for p in used if p.port == port) for port in sorted({p.port for p in used})}
-    latch = dict.fromkeys(masks, 0xFF)
-    ns = 1e9 / f_osc
-    lcd = _Controller(f_osc, osc_hz, power_on)
-
-    def level(pin: Pin | None) -> int:
-        return 0 if pin is None else latch[pin.port] >> pin.bit & 1
-
-    def bus() -> int:
-        return sum(level(p) << (wiring.first_data_line + i) for i, p in enumerate(wiring.data))
-
-    e, control, data = 1, (level(wiring.rs), level(wiring.rw)), bus()
-    rise = fall = None  # clocks of the last edges of E (E is high from reset, with no rise seen)
-    control_at = data_at = -(1 << 62)  # clocks of the last changes of RS/RW and of the data lines
-    for clock, port, value in _display_writes(records, masks).tolist():
-        latch[port] = value
-        held = fall is not None and (clock - fall) * ns < HOLD_NS
-        if (level(wiring.rs), level(wiring.rw)) != control:
-            control, control_at = (level(wiring.rs), level(wiring.rw)), clock
-            if held:
-                lcd.problems.append(Problem(clock, f"RS or RW changes within {HOLD_NS} ns after E falls"))
-        if bus() != data:
-            data, data_at = bus(), clock
-            if held:
-                lcd.problems.append(Problem(clock, f"a data line changes within {HOLD_NS} ns after E falls"))
-        if level(wiring.e) == e:
-            continue
-        e = level(wiring.e)
-        if e:
-            rise = clock
-            continue
-        if rise is None and clock < lcd.busy_until:
-            fall = clock  # E leaving its reset level during the power-up wait: ignored
-            continue
-        lcd.problems += [Problem(clock, text) for text in _fall_problems(ns, clock, rise, fall, control_at, data_at)]
-        fall = clock
-        if control[1]:
-            lcd.problems.append(Problem(clock, "a read (RW high): the decoder models writes only"))
-        else:
-            lcd.receive(clock, control[0], data)
-    return Display(lines=lcd.lines(), states=lcd.states, problems=sorted(lcd.problems, key=lambda p: p.clock))
+    """The display driven by `records` (see the module's doc; DisplayDecoder)."""
+    decoder = DisplayDecoder(wiring, f_osc, osc_hz, power_on)
+    decoder.feed(records)
+    return decoder.display()

@@ -29,6 +29,7 @@ How s51 0.6.4 is driven (each point measured here):
 
 from __future__ import annotations
 
+import array
 import json
 import os
 import select
@@ -52,6 +53,8 @@ from codegen.link.host import LinkFigures
 from codegen.sim.avr import HOMING_FAILED, SimTrace, _homing_fault, switch_thresholds
 from codegen.sim.hd44780 import decode as decode_display
 from codegen.sim.mcs51 import slow_pins, switch_model, trace_of
+from codegen.sim.mcs51_edges import EdgeRecords, KeptRecords
+from codegen.sim.mcs51_line import UartLine
 
 TAG_TIMER, TAG_FAULT, TAG_RX, TAG_FILL = 16, 19, 21, 22  # record tags beyond the port tags 0..3
 SBUF = 0x99
@@ -112,7 +115,7 @@ class _Console:
         text, self.buffer = self.buffer.split(end, 1)
         self.waiting = True
         after = text.decode(errors="replace").split(f"\n{MARK_A}\n", 1)[-1]
-        numbers = [int(line) for line in after.splitlines() if line.strip().isdigit()]
+        numbers = [int(line) for line in after.splitlines() if line.strip().lstrip("-").isdigit()]
         return numbers[:-1], numbers[-1]
 
     def close(self) -> None:
@@ -157,7 +160,9 @@ def _setup(hex_path: Path, sym: dict, config: FirmwareConfig, pins: dict, switch
         count += 1
         cmds.append(f"break {spec}")
         if prints is not None:
-            cmds.append(f"commands {count} " + " ; ".join(f"expression /u {p}" for p in prints) + " ; run")
+            # no /u: s51 0.6.4 leaks memory at every /u it evaluates (about 5 KB a record, measured); a clock
+            # printed as a negative int32 is unwrapped all the same (_Run._unwrap)
+            cmds.append(f"commands {count} " + " ; ".join(f"expression {p}" for p in prints) + " ; run")
 
     for port in ports:
         brk(f"sfr w {SFR[port]:#x}", ["sim_ticks", f"{effects.get(port, '')}{port * 256}+P{port}"])
@@ -179,11 +184,15 @@ def _setup(hex_path: Path, sym: dict, config: FirmwareConfig, pins: dict, switch
 
 
 def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: int,
-                    switches: dict[int, int | None] | None = None) -> tuple[SimTrace, LinkFigures]:
+                    switches: dict[int, int | None] | None = None,
+                    edges: Path | None = None) -> tuple[SimTrace, LinkFigures]:
     """Run the streaming firmware `hex_path` (built by codegen.firmware.mcs51.stream) against `host` (HostLink's
     interface: transmit, receive, wake_at, done) until the host's session ends; BuildError past `cycle_budget`
     CPU clocks (an image that homes gets its homing time on top) or when s51 misbehaves. `switches`: the endstop
-    keys as codegen.sim.mcs51.simulate takes them. The trace's tick 0 is the player's after the first START."""
+    keys as codegen.sim.mcs51.simulate takes them. The trace's tick 0 is the player's after the first START.
+    With `edges`, the pins' records go to that file as they come (codegen/sim/mcs51_edges.py EdgeRecords: verify
+    reads it beside the run, codegen/verify/bounded.py) and the trace has no pulses and no pins, only the
+    session's state, clock, homing's fault, display and ring fills."""
     if shutil.which("s51") is None:
         raise BuildError("s51 not found: install sdcc-ucsim")
     began = time.monotonic()
@@ -212,33 +221,44 @@ def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: 
         s51 = _Console(["s51", "-X", str(f_cpu), "-S", f"in={fifo},out={out_path}"], work)
         try:
             with open(out_path, "rb") as answers:
-                run = _Run(s51, host, answers, feed, f_cpu, byte_clocks, budget)
-                run.go(setup)
+                run = _Run(s51, host, answers, feed, f_cpu, byte_clocks, budget,
+                           KeptRecords() if edges is None else EdgeRecords(edges, config))
+                try:
+                    run.go(setup)
+                finally:
+                    run.records.close()
                 final_committed = run.committed(sym)
         finally:
             s51.close()
             os.close(feed)
-    rec = np.array(run.records, dtype=np.int64).reshape(-1, 3)
+    rec = run.records.array()
     clocks = int(sym["clocks_per_tick"])
     starts = rec[rec[:, 1] == TAG_TIMER, 0]
     timer_start = int(starts[0]) + clocks * (1 + int(sym["start_ticks"])) if len(starts) else None
-    trace = trace_of(rec, pins, f_cpu, run.now, timer_start, int(starts[0]) if len(starts) else None)
+    if edges is None:
+        trace = trace_of(rec, pins, f_cpu, run.now, timer_start, int(starts[0]) if len(starts) else None)
+    else:
+        motors = len(config.motors)
+        trace = SimTrace("done", run.now, f_cpu, timer_start, *(np.zeros(0, np.int64) for _ in range(3)),
+                         [None] * motors, [None] * motors, [])
     faults = rec[rec[:, 1] == TAG_FAULT]
     if len(faults):
         axis_bits, phase = decode_status(int(faults[0, 2]))
         trace.homing_failed, trace.homing_fault = True, _homing_fault(config, HOMING_FAILED, axis_bits, phase)
     lcd = board_lcd(config.board, [m.name for m in config.motors])
     if lcd is not None:
-        trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu)
+        trace.display = decode_display(rec, lcd.wiring, f_osc=f_cpu) if edges is None else run.records.display.display()
     link = getattr(host, "link", host)  # a HostLink, or a wrapper of one (link.faults.Faulty, a test's)
     # As the plan counts it: a finished job's last ring of the stream drains the ring, and does not count.
     finished = link.outcome == "finished"
-    fills = [fill for fill, committed, _ in run.fills
-             if not finished or committed - fill <= final_committed - layout.ring_bytes]
-    trace.ring_fill = np.array([(clock, fill) for fill, _, clock in run.fills], dtype=np.int64).reshape(-1, 2)
+    fills = np.frombuffer(run.fills, dtype=np.int64).reshape(-1, 3)  # ring bytes, bytes taken, clock
+    drained = finished & (fills[:, 1] - fills[:, 0] > final_committed - layout.ring_bytes)
+    counted = fills[~drained, 0]
+    trace.ring_fill = fills[:, [2, 0]].copy()
     figures = LinkFigures(baud=layout.baud, bytes=link.stats.bytes, frames=link.stats.frames,
-                          retransmits=link.stats.retransmits, min_ring_fill_bytes=min(fills) if fills else None,
-                          underruns=int(link.outcome == "underrun"), lost_bytes=run.lost_bytes(),
+                          retransmits=link.stats.retransmits,
+                          min_ring_fill_bytes=int(counted.min()) if len(counted) else None,
+                          underruns=int(link.outcome == "underrun"), lost_bytes=run.line.lost_bytes(run.now),
                           wall_s=time.monotonic() - began)
     return trace, figures
 
@@ -246,14 +266,14 @@ def simulate_stream(hex_path: Path, config: FirmwareConfig, host, cycle_budget: 
 class _Run:
     """The loop: at each stop the host hears what the firmware sent and answers, and the next stop is set."""
 
-    def __init__(self, s51: _Console, host, answers, feed: int, f_cpu: int, byte_clocks: int, budget: int):
+    def __init__(self, s51: _Console, host, answers, feed: int, f_cpu: int, byte_clocks: int, budget: int,
+                 records: KeptRecords | EdgeRecords):
         self.s51, self.host, self.answers, self.feed = s51, host, answers, feed
         self.f_cpu, self.byte_clocks, self.budget = f_cpu, byte_clocks, budget
         self.now = 0  # CPU clocks, unwrapped
-        self.records: list[tuple[int, int, int]] = []  # (clock, tag, value): pins, timer start, fault
-        self.fills: list[tuple[int, int, int]] = []  # at each record the player reads: ring bytes, bytes taken, clock
-        self.arrivals: list[int] = []  # when each byte sent to the firmware completes on a real line
-        self.reads: list[int] = []  # when the firmware read SBUF
+        self.records = records  # (clock, tag, value) rows: pins, timer start, fault
+        self.fills = array.array("q")  # at each record the player reads: ring bytes, bytes taken, clock
+        self.line = UartLine(byte_clocks)
         self.tx_due: int | None = None  # when the frame going out will have gone
         self.polling = False  # uart0_check_often
 
@@ -272,13 +292,10 @@ class _Run:
             out = self.host.transmit(self.now / self.f_cpu)
             if out:
                 os.write(self.feed, out)
-                line_free = self.arrivals[-1] if self.arrivals else 0
-                for _ in out:
-                    line_free = max(line_free, self.now) + self.byte_clocks
-                    self.arrivals.append(line_free)
+                self.line.send(len(out), self.now)
             # The FIFO holds bytes until the UART starts on the last one, which is before the firmware reads the
             # one ahead of it: then polling it is of no more use.
-            waiting = len(self.reads) < len(self.arrivals) - 1
+            waiting = self.line.waiting()
             if waiting != self.polling:
                 self.polling = waiting
                 pending.append(f"expression uart0_check_often={int(waiting)}")
@@ -289,7 +306,7 @@ class _Run:
             if self.tx_due is not None:
                 targets.append(self.tx_due)
             if waiting:
-                targets.append(max(self.arrivals[-1], self.now + self.byte_clocks))
+                targets.append(max(self.line.last_arrival, self.now + self.byte_clocks))
             wait = max(1, min(targets) - self.now)
             pending += ["expression tb=sim_ticks", f"expression tw={wait}"]
             numbers, ticks = self.s51.batch(pending, ["run"], 10 + wait / SIM_CLOCKS_PER_S)
@@ -297,6 +314,7 @@ class _Run:
             target = self.now + wait
             self._take(numbers)
             self.now = self._unwrap(ticks)
+            self.line.judge(self.now)
             if self.tx_due is not None and self.now >= self.tx_due:
                 self.tx_due = None
             if self.now < target:  # not the host's time: the only other stop is a frame's last byte going out
@@ -311,6 +329,7 @@ class _Run:
         return self.now + ((ticks - self.now + (1 << 31)) % (1 << 32)) - (1 << 31)
 
     def _take(self, numbers: list[int]) -> None:
+        records: list[tuple[int, int, int]] = []
         i = 0
         while i < len(numbers):
             clock, code = self._unwrap(numbers[i]), numbers[i + 1]
@@ -318,21 +337,16 @@ class _Run:
             tag, value = code >> 8, code & 0xFF
             i += 2
             if tag == TAG_FILL:
-                self.fills.append((value, numbers[i], clock))
+                self.fills.extend((value, numbers[i], clock))
                 i += 1
             elif tag == TAG_RX:
-                self.reads.append(clock)
+                self.line.reading(clock)
             else:
-                self.records.append((clock, tag, value))
+                records.append((clock, tag, value))
+        if records:
+            self.records.add(np.array(records, dtype=np.int64))
 
     def committed(self, sym: dict) -> int:
         """Stream bytes the firmware has taken since the last HELLO, as it counts them now."""
         numbers, _ = self.s51.batch([], [f"expression /u {_committed(sym)}"], 10)
         return numbers[-1]
-
-    def lost_bytes(self) -> int:
-        """Bytes a real UART would have lost: completed on the line while the one before was still unread
-        (and, where s51 merged two, reads missing; a byte that completed less than a byte time ago may be unread)."""
-        done = [t for t in self.arrivals if t + self.byte_clocks <= self.now]
-        late = sum(1 for k in range(1, min(len(done), len(self.reads) + 1)) if self.reads[k - 1] > done[k])
-        return max(late, len(done) - len(self.reads))

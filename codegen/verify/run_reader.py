@@ -17,12 +17,26 @@ from codegen.firmware.avr.board import board_pins
 from codegen.firmware.avr.player import START_TICKS
 from codegen.firmware.config import FirmwareConfig, load_target
 from codegen.sim.avr import PHASE_HOME, SimTrace, watched
-from codegen.sim.avr_edges import EdgeDecoder, EdgeFile, Steps
+from codegen.sim.avr_edges import EdgeDecoder, EdgeFile, RunPins, Steps
+from codegen.sim.mcs51_edges import mcs51_run_pins
 from codegen.verify.pins import DirWatch, board_driver
 
 MARGIN_CYCLES = 4096  # read this far past a chapter's last pulse: the laser's write after its edge comes with it
 BACKLOG = 8  # chapters' worth of pulses the reader holds at most while waiting for a motor's (a run gone wrong)
 POLL_S = 0.02  # between looks at a file that had less than a whole read's worth new: the simulator writes on
+
+
+def run_pins(config: FirmwareConfig) -> RunPins:
+    """The edges file's layout of `config`'s target: the simavr harness's (codegen/sim/avr.py `watched`) or the
+    one codegen/sim/mcs51_edges.py writes from s51's records."""
+    if config.target == "mcs51":
+        return mcs51_run_pins(config)
+    pins = board_pins(config)
+    mcu = load_target(pins.mcu)
+    f_cpu = int(mcu["f_cpu"])
+    cycles_per_tick = f_cpu // int(mcu.get("tick_hz", f_cpu))
+    return RunPins(f_cpu, cycles_per_tick, START_TICKS * cycles_per_tick, tuple(w.invert_dir for w in pins.motors),
+                   tuple(name for name, _ in watched(config)), 1 if pins.tool_active_high else 0, 0)
 
 
 def _cat(parts: list[Steps]) -> Steps:
@@ -36,14 +50,12 @@ class RunReader:
 
     def __init__(self, edges: Path, config: FirmwareConfig, ended: Callable[[], bool], since: int = 0,
                  records: Callable[[np.ndarray], None] | None = None, keep: bool = False):
-        pins = board_pins(config)
-        mcu = load_target(pins.mcu)
-        self.f_cpu = int(mcu["f_cpu"])
-        self.cycles_per_tick = self.f_cpu // int(mcu.get("tick_hz", self.f_cpu))
-        names = [name for name, _ in watched(config)]
-        self.motors = len(pins.motors)
-        self.decoder = EdgeDecoder([w.invert_dir for w in pins.motors], names[2 * self.motors:], since)
-        self.tool_on_level = 1 if pins.tool_active_high else 0
+        pins = run_pins(config)
+        self.f_cpu, self.cycles_per_tick, self.start_to_tick0 = pins.f_cpu, pins.cycles_per_tick, pins.start_to_tick0
+        self.motors = len(pins.invert_dir)
+        self.decoder = EdgeDecoder(list(pins.invert_dir), list(pins.names[2 * self.motors:]), since,
+                                   pins.reset_level)
+        self.tool_on_level = pins.tool_on_level
         self.file, self.ended, self.done = EdgeFile(edges, keep=keep), ended, False
         self.records = records
         self.buffer = Steps.empty()  # the run's pulses read, not yet handed out
@@ -51,7 +63,8 @@ class RunReader:
         self.home: list[Steps] = []  # pulses before the player's first start: homing's
         self.first_run_cycle: int | None = None
         driver = board_driver(load_target(config.board), self.f_cpu)
-        self.dir_watches = [] if driver is None else [DirWatch(w.name, driver, self.f_cpu) for w in pins.motors]
+        motor_names = [name[:-len(".step")] for name in pins.names[:2 * self.motors:2]]
+        self.dir_watches = [] if driver is None else [DirWatch(name, driver, self.f_cpu) for name in motor_names]
         self.wait_s = 0.0  # wall time spent waiting for the harness
 
     # -- the clock and the slow outputs, as read so far (Comparison's `levels`) --
@@ -63,12 +76,12 @@ class RunReader:
     def timer_start_cycle(self) -> int | None:
         """The player's tick 0: START_TICKS ticks after it first started its timer."""
         starts = self.starts
-        return int(starts[0]) + START_TICKS * self.cycles_per_tick if len(starts) else None
+        return int(starts[0]) + self.start_to_tick0 if len(starts) else None
 
     @property
     def resumes(self) -> tuple[int, ...]:
         """Tick 0 of every restart of the player's timer after its first start (a hold's end)."""
-        return tuple(int(s) + START_TICKS * self.cycles_per_tick for s in self.starts[1:])
+        return tuple(int(s) + self.start_to_tick0 for s in self.starts[1:])
 
     @property
     def tool_edges(self) -> list[tuple[int, int]]:

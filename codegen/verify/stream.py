@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -127,19 +128,40 @@ def simulate_stream_bounded(host: HostBuild, setup: StreamSetup, image, faults, 
                     stream_bytes=host.link_plan.stream_bytes, heaters=tuple(h.name for h in config.heaters))
     switches = simulated_switches(host)
     cycles = int(session_budget_s(host, setup) * setup.target.f_cpu)
-    plants = job_plants(host.job, config) if config.heaters else None
-    with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
-        comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, outputs)
-        try:
-            with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
-                summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)
-            run = heater_run(sim, link, summary) if config.heaters else None
-            compared = comparing.result(summary)
-        finally:
-            comparing.stop()
+    if setup.target.target == "mcs51":
+        compared, figures = _s51_session(host, setup, image, strict, link, switches, cycles, comparing, outputs)
+        run = None
+    else:
+        plants = job_plants(host.job, config) if config.heaters else None
+        with StreamSim(image.hex_path, config, switches, plants, faults) as sim:
+            comparing = comparing(host, strict, setup.budget, sim.edges, switches, True, outputs)
+            try:
+                with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+                    summary, figures = sim.session(ShownSession(link, bar), cycles, decode=False)
+                run = heater_run(sim, link, summary) if config.heaters else None
+                compared = comparing.result(summary)
+            finally:
+                comparing.stop()
     if run is None:
         result = verify_json(host, compared.verdict, image)
     else:
         result = heater_verdict(host, run, compared, image, faults)
     result = stream_result(host, link, figures, result, compared.twin_final, compared.made_position)
     return result, compared
+
+
+def _s51_session(host: HostBuild, setup: StreamSetup, image, strict: bool, link: HostLink, switches: dict,
+                 cycles: int, comparing, outputs: RunOutputs) -> tuple[Compared, object]:
+    """An 8051's session in s51, its pins written to an edges file as they come (codegen/sim/mcs51_edges.py) and
+    compared beside it: what the comparison found, and the link's figures."""
+    simulator = importlib.import_module(SIM_MODULES["mcs51"])
+    with tempfile.TemporaryDirectory(prefix="printer-codegen-s51edges-") as tmp:
+        edges = Path(tmp) / "edges.bin"
+        comparing = comparing(host, strict, setup.budget, edges, switches, True, outputs)
+        try:
+            with progress.stage("stream (simulated)", host.link_plan.stream_bytes, "bytes") as bar:
+                summary, figures = simulator.simulate_stream(image.hex_path, setup.config, ShownSession(link, bar),
+                                                             cycles, switches=switches, edges=edges)
+            return comparing.result(summary), figures
+        finally:
+            comparing.stop()

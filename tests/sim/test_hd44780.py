@@ -16,7 +16,7 @@ from codegen.errors import BuildError
 from codegen.firmware.mcs51.board import SFR, board_data, memories
 from codegen.firmware.mcs51.lcd import Lcd, board_lcd, parse_lcd, pin_uses, render_lcd
 from codegen.firmware.mcs51.sdcc import read_map
-from codegen.sim.hd44780 import decode
+from codegen.sim.hd44780 import DisplayDecoder, decode
 from codegen.sim.mcs51 import _records
 
 CLOCKS_PER_US = 12
@@ -182,6 +182,22 @@ def test_short_e_pulse_setup_times_and_reads():
     assert problems == {(short, "E"), (setup, "E"), (setup, "a"), (read, "a")}
     assert "E high for 417 ns, less than 450 ns" in messages(out)[0]
     assert any("83 ns before E falls" in m for m in messages(out)) and "a read" in messages(out)[-1]
+
+
+@pytest.mark.parametrize("piece", [1, 5, 64])
+def test_records_fed_a_piece_at_a_time_decode_as_the_whole(piece):
+    """A stream's display is decoded as s51's records come (codegen/sim/mcs51_edges.py): a piece may end between
+    a latch write and the next, mid-nibble or with E high."""
+    w = Writer(wiring(FOUR_BIT)).init().text("Hello").text("World!", 0x40)
+    w.put(1, ord("A"), high_us=5 / 12)  # 417 ns high: a problem carried from its piece to the display's end
+    rows = np.array(w.rows, dtype=np.int64)
+    decoder = DisplayDecoder(w.w)
+    for start in range(0, len(rows), piece):
+        decoder.feed(rows[start:start + piece])
+    whole, pieces = decode(rows, w.w), decoder.display()
+    assert pieces.lines == whole.lines == ("Hello" + " " * 11, "World!" + " " * 10)  # "A": half a byte
+    assert pieces.states == whole.states and len(whole.states) == 1 + 11
+    assert messages(pieces) == messages(whole) and len(whole.problems) == 1
 
 
 def test_an_address_beyond_the_ddram_is_reported():
