@@ -177,9 +177,9 @@ HOST = [
     Mutant("the tool of the blocks inverted", "codegen/tables/compress.py",
            "        block_tool=events.block_tool.astype(bool),", "        block_tool=~events.block_tool.astype(bool),",
            AVR_JOB, names=("tool",)),
-    Mutant("G4 P read as tenths of a second", "codegen/gcode/mcodes.py",
-           '        seconds = _number(it, block, params, "P", strict=False) / 1000.0',
-           '        seconds = _number(it, block, params, "P", strict=False) / 100.0', GCODE_JOB, names=("dwell", "G4")),
+    Mutant("G4 P read as tenths of a second", "codegen/gcode/dialect.py",
+           "        return 1.0 if grbl else 0.001", "        return 1.0 if grbl else 0.01", GCODE_JOB,
+           names=("dwell", "G4")),
 ]
 
 MUTANTS = FIRMWARE + HOST

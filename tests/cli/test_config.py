@@ -42,7 +42,7 @@ def test_every_default_and_the_boards_pins(capsys, star):
     assert machine["link"] == {"baud": None}  # the target's rate
     assert machine["delta"] is machine["jog"] is machine["heaters"] is machine["laser"] is None
     assert doc["program"] == {"start": [100.0, 100.0], "feed": 18000.0, "travel_feed": None, "s_max": None,
-                              "home": False, "shapes": [{"polyline": {"points": STAR_POINTS}}]}
+                              "dialect": None, "home": False, "shapes": [{"polyline": {"points": STAR_POINTS}}]}
     assert "    a: {steps_per_mm: 80.0, max_velocity: 400.0, max_accel: 8000.0, range: null, invert_dir: false}" \
         in text.splitlines()
     board = doc["board_info"]
