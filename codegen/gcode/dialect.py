@@ -16,6 +16,7 @@ from codegen.errors import Diagnostic
 
 GUESS_LINES = 2000
 GUESS_CHARS = 1 << 18
+GUESS_LINE_CHARS = 256  # a deciding code stands near a line's start
 S_FULL_SCALE = {"marlin": 255.0, "grbl": 1000.0}
 _GRBL_CODE = re.compile(r"^\s*\$|G\s*0*38\s*\.|G\s*0*10\s*L\s*0*20?(?![\d.])", re.IGNORECASE)
 _MARLIN_CODE = re.compile(r"(?<![A-Z])(?:M\s*0*(?:104|109|140|190|82|83|106)|G\s*0*29)(?![\d.])", re.IGNORECASE)
@@ -38,14 +39,15 @@ class Dialect:
 
 def guess(text: str) -> Dialect:
     """The dialect of the G-code whose start is `text`: the first deciding line's, else Marlin."""
-    for index, line in enumerate(text.split("\n")[:GUESS_LINES]):
+    for index, whole in enumerate(text.split("\n")[:GUESS_LINES]):
+        line = whole[:GUESS_LINE_CHARS]  # a line of 176 KB (CR-only ends) made the searches below quadratic
         cut = line.find(";")
         comment = "" if cut < 0 else line[cut:].upper()
         if "GRBL" in comment:
             return Dialect("grbl", index, "a comment names Grbl")
         if "FLAVOR" in comment and "MARLIN" in comment:
             return Dialect("marlin", index, "the slicer's flavor is Marlin")
-        code = re.sub(r"\([^)]*\)", " ", line if cut < 0 else line[:cut])
+        code = re.sub(r"\([^()]*\)", " ", line if cut < 0 else line[:cut])
         if (found := _GRBL_CODE.search(code)) is not None:
             return Dialect("grbl", index, f"'{found.group().strip()}' is Grbl's")
         if (found := _MARLIN_CODE.search(code)) is not None:

@@ -41,6 +41,12 @@ def test_the_guess_reads_a_bounded_start():
     assert guess("G1 X1\n" * GUESS_LINES + "$H\n").line is None  # the default, Marlin
 
 
+def test_a_line_of_unclosed_comments_is_read_in_bounded_time():
+    """The long fuzz run's hang: 176 KB of `(` on one line; each `(` searched to the line's end (30 KB: 1.4 s)."""
+    found = guess("(" * 200_000 + "G" + "0" * 200_000 + "\nM104 S200\n")
+    assert (found.name, found.line, found.why) == ("marlin", 1, "'M104' is Marlin's")
+
+
 def test_g4_p_is_seconds_in_grbl_milliseconds_in_marlin_with_a_note_once():
     assert dwells_and_notes("; Grbl\nG4 P0.5\nG4 P2\n") == ([0.5, 2.0], [
         ("note", 9, 8, "G4 P in seconds: G-code dialect grbl, guessed from line 8 (a comment names Grbl); "
