@@ -22,3 +22,11 @@ def test_every_non_python_file_of_a_package_folder_is_package_data():
                     fnmatch.fnmatch(path.name, pattern) for pattern in data.get(package, [])):
                 missing.append(str(path.relative_to(ROOT)))
     assert missing == []
+
+
+def test_every_package_folder_is_listed():
+    """A subpackage left out of `packages` is missing from the non-editable install (codegen.job.schema once was:
+    the README's first command failed with ModuleNotFoundError)."""
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(init.parent.relative_to(ROOT).parts) for init in (ROOT / "codegen").rglob("__init__.py")}
+    assert found - listed == set()
