@@ -7,7 +7,8 @@ How s51 0.6.4 is driven (each point measured here):
   stops it, then the batch's last commands print sim_ticks and a marker. Breakpoints that print a record and
   `run` on do not stop it. Stopped with nothing to read, s51 sleeps 100 ms before it looks again (its
   loop_delay), and its input often ran dry before the next batch came: so each batch ends with `file` of a FIFO,
-  whose open waits for a writer, and the next batch goes in before we open the FIFO. A stop costs about a
+  whose open waits for a writer, and the next batch goes in before we open the FIFO. s51 echoes its input: a
+  batch goes in pieces whose echoes are whole lines (_Console). A stop costs about a
   millisecond.
 - Host to firmware: a FIFO given to `-S in=`. Bytes written while s51 stands still are taken by its UART at its
   next serial tick once `uart0_check_often` is 1, then one every 10 bit times of Timer2 (the firmware's own baud
@@ -59,7 +60,12 @@ from codegen.sim.mcs51_line import UartLine
 TAG_TIMER, TAG_FAULT, TAG_RX, TAG_FILL = 16, 19, 21, 22  # record tags beyond the port tags 0..3
 SBUF = 0x99
 VECTOR_SERIAL = 0x0023  # the serial interrupt's vector (a jump to link.c's interrupt: player.c)
-MARK_A, MARK_B = -271828, -314159  # expression results that end a batch's two parts
+PICK_BYTES = 99  # s51 reads its console this many bytes at a time (ucsim's cl_f::pick)
+GATE_NAME = "gate"
+GATE = f'file "{GATE_NAME}"'  # in s51's working directory
+MARK_A, MARK_A_PRINTS = "let /x 2748", b"\nabc\n"  # the end of what a batch's `before` printed
+MARK_B, MARK_B_PRINTS = "let /x 4077", b"\nfed\n"  # the end of a batch
+SYNC, SYNC_PRINTS = "let /x 12648430", b"c0ffee\n"  # the end of the setup
 MAX_WAIT = 1 << 30  # clocks: sim_ticks is 32-bit; a stop at least this often keeps the wrap unambiguous
 SIM_CLOCKS_PER_S = 5e6  # a pessimistic s51 speed with the FIFO polled, for the wall-clock watchdog
 BITS_PER_BYTE = 10
@@ -67,18 +73,24 @@ BITS_PER_BYTE = 10
 
 class _Console:
     """s51 driven through its console: batches of commands, the number lines each prints. Each batch ends on
-    `file` of a FIFO: s51 waits in its open until the next batch is in its input (see the top)."""
+    `file` of a FIFO, the gate: s51 waits in its open until the next batch is in its input (see the top).
+
+    s51 echoes its console's input as it reads it, 99 bytes at a time (ucsim's cl_f::pick), and runs a command
+    between two reads: a piece of a line echoed between two outputs could read as a number, or glue one to its
+    own line (measured: 1 batch in about 60,000). So a batch's bytes go in whole-line pieces of exactly 99
+    bytes (padded with spaces) ahead of a last piece of at most 99, into an empty pipe at once: every echo is of
+    whole lines. Markers print hex words (`abc`), which neither an echo nor a record (decimal) can print."""
 
     def __init__(self, args: list[str], cwd: Path):
-        self.barrier = cwd / "barrier.fifo"
+        self.barrier = cwd / GATE_NAME
         os.mkfifo(self.barrier)
         self.proc = subprocess.Popen(args, cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.DEVNULL)
         self.buffer = b""
-        self.waiting = False  # s51 waits at the barrier
+        self.waiting = False  # s51 waits at the gate
 
     def _release(self) -> None:
-        """s51's open of the barrier returns (it finds an empty file and goes on); s51 gone: nothing to do."""
+        """s51's open of the gate returns (it finds an empty file and goes on); s51 gone: nothing to do."""
         deadline = time.monotonic() + 30
         while self.waiting and self.proc.poll() is None:
             try:
@@ -89,18 +101,10 @@ class _Console:
                     self.buffer += os.read(self.proc.stdout.fileno(), 1 << 16)
                 if time.monotonic() > deadline:
                     tail = self.buffer[-3000:].decode(errors="replace")
-                    raise BuildError(f"s51 does not come to its barrier; it printed last:\n{tail}")
+                    raise BuildError(f"s51 does not come to its gate; it printed last:\n{tail}")
 
-    def batch(self, before: list[str], then: list[str], wall_s: float) -> tuple[list[int], int]:
-        """Run `before` (what it prints is dropped), then `then` (`run`: the simulation to its next stop): the
-        number lines printed meanwhile (by `then`, and the records of breakpoints that ran on), and sim_ticks
-        (32 bits) at the end."""
-        lines = [*before, f"expression {MARK_A}", *then, "expression /u sim_ticks", f"expression {MARK_B}",
-                 f'file "{self.barrier}"']
-        self.proc.stdin.write(("\n".join(lines) + "\n").encode())
-        self.proc.stdin.flush()
-        self._release()
-        end = f"\n{MARK_B}\n".encode()
+    def _read_until(self, end: bytes, wall_s: float) -> bytes:
+        """What s51 prints up to `end` (consumed with it)."""
         deadline = time.monotonic() + wall_s
         seen = 0
         while self.buffer.find(end, seen) < 0:
@@ -113,10 +117,36 @@ class _Console:
                                  f"polling loops?)")
             self.buffer += chunk
         text, self.buffer = self.buffer.split(end, 1)
+        return text
+
+    def setup(self, commands: list[str], wall_s: float) -> None:
+        """The commands before the first batch, what they print dropped. Their lines may be longer than a read:
+        all of them are read before s51 waits at the gate, which lets it go at once (it then looks at its input
+        again within its 100 ms loop delay, once)."""
+        self.proc.stdin.write(("\n".join([*commands, SYNC, GATE]) + "\n").encode())
+        self.proc.stdin.flush()
+        self._read_until(SYNC_PRINTS, wall_s)  # not at a line start: it may follow a piece of an echoed line
         self.waiting = True
-        after = text.decode(errors="replace").split(f"\n{MARK_A}\n", 1)[-1]
-        numbers = [int(line) for line in after.splitlines() if line.strip().lstrip("-").isdigit()]
-        return numbers[:-1], numbers[-1]
+        self._release()
+
+    def batch(self, before: list[str], then: list[str], wall_s: float) -> list[int]:
+        """Run `before` (what it prints is dropped), then `then` (`run`: the simulation to its next stop): the
+        number lines printed meanwhile (by `then`, and the records of breakpoints that ran on)."""
+        last = [MARK_A, *then, MARK_B, GATE] if before else [*then, MARK_B, GATE]
+        ahead = list(before)
+        while ahead and len(ahead[-1]) + 1 + _length(last) <= PICK_BYTES:
+            last.insert(0, ahead.pop())
+        pieces = [*_pieces(ahead), "\n".join(last) + "\n"]
+        data = "".join(pieces).encode()
+        if _length(last) > PICK_BYTES or len(data) > select.PIPE_BUF:
+            raise BuildError(f"s51 batch too long to be read whole: {pieces!r}")
+        self.proc.stdin.write(data)
+        self.proc.stdin.flush()
+        self._release()
+        text = self._read_until(MARK_B_PRINTS, wall_s)
+        self.waiting = True
+        after = text.decode(errors="replace").split(MARK_A_PRINTS.decode(), 1)[-1]
+        return [int(line) for line in after.splitlines() if line.strip().lstrip("-").isdigit()]
 
     def close(self) -> None:
         try:
@@ -127,6 +157,25 @@ class _Console:
         except (OSError, subprocess.TimeoutExpired):
             self.proc.kill()
             self.proc.wait()
+
+
+def _length(lines: list[str]) -> int:
+    return sum(len(line) + 1 for line in lines)
+
+
+def _pieces(lines: list[str]) -> list[str]:
+    """`lines` in pieces of exactly PICK_BYTES bytes, whole lines each, the last line of each padded."""
+    pieces, current = [], []
+    for line in lines:
+        if len(line) + 1 > PICK_BYTES:
+            raise BuildError(f"s51 command longer than a read of its console: {line!r}")
+        if _length(current) + len(line) + 1 > PICK_BYTES:
+            pieces.append(current)
+            current = []
+        current.append(line)
+    if current:
+        pieces.append(current)
+    return ["\n".join(p) + " " * (PICK_BYTES - _length(p)) + "\n" for p in pieces]
 
 
 def _committed(sym: dict) -> str:
@@ -279,7 +328,8 @@ class _Run:
 
     def go(self, setup: list[str]) -> None:
         # Bytes sent before the UART is set up are lost on a real board (the host's HELLO only tries again).
-        numbers, ticks = self.s51.batch(setup, ["run"], 10 + MAX_WAIT / SIM_CLOCKS_PER_S)
+        self.s51.setup(setup, 30)
+        *numbers, ticks = self.s51.batch([], ["run", "let sim_ticks"], 10 + MAX_WAIT / SIM_CLOCKS_PER_S)
         self._take(numbers)
         self.now = self._unwrap(ticks)
         pending: list[str] = []
@@ -298,7 +348,7 @@ class _Run:
             waiting = self.line.waiting()
             if waiting != self.polling:
                 self.polling = waiting
-                pending.append(f"expression uart0_check_often={int(waiting)}")
+                pending.append(f"let uart0_check_often={int(waiting)}")
             targets = [self.budget + 1, self.now + MAX_WAIT]
             wake = self.host.wake_at()
             if wake is not None:
@@ -308,8 +358,8 @@ class _Run:
             if waiting:
                 targets.append(max(self.line.last_arrival, self.now + self.byte_clocks))
             wait = max(1, min(targets) - self.now)
-            pending += ["expression tb=sim_ticks", f"expression tw={wait}"]
-            numbers, ticks = self.s51.batch(pending, ["run"], 10 + wait / SIM_CLOCKS_PER_S)
+            pending += ["let tb=sim_ticks", f"let tw={wait}"]
+            *numbers, ticks = self.s51.batch(pending, ["run", "let sim_ticks"], 10 + wait / SIM_CLOCKS_PER_S)
             pending = []
             target = self.now + wait
             self._take(numbers)
@@ -348,5 +398,4 @@ class _Run:
 
     def committed(self, sym: dict) -> int:
         """Stream bytes the firmware has taken since the last HELLO, as it counts them now."""
-        numbers, _ = self.s51.batch([], [f"expression /u {_committed(sym)}"], 10)
-        return numbers[-1]
+        return self.s51.batch([], [f"let /u {_committed(sym)}"], 10)[-1]
