@@ -105,8 +105,7 @@ class _Console:
 
     def _read_until(self, end: bytes, wall_s: float) -> bytes:
         """What s51 prints up to `end` (consumed with it)."""
-        deadline = time.monotonic() + wall_s
-        seen = 0
+        deadline, seen = time.monotonic() + wall_s, 0
         while self.buffer.find(end, seen) < 0:
             seen = max(0, len(self.buffer) - len(end))
             ready, _, _ = select.select([self.proc.stdout], [], [], max(0.0, deadline - time.monotonic()))
