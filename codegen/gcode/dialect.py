@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from codegen.errors import Diagnostic
+from codegen.gcode.codes import HARMLESS_TAKES
 
 GUESS_LINES = 2000
 GUESS_CHARS = 1 << 18
@@ -89,6 +90,18 @@ class DialectState:
         self.noted.add(meaning)
         self.notes.append(Diagnostic(self.where(block, k), f"{meaning}: G-code dialect {self.dialect.name}, "
                                      f"{self.dialect.reason(self.origin.line)}; {setting}", "note"))
+
+    def harmless_takes(self, block, name: str, k: int) -> str | None:
+        """The letters a skipped code takes from its line (None: every word). T and M6 take their own alone in
+        Grbl, which runs the rest of the block (`T1 X5` moves); Marlin runs one command a line and skips the
+        rest."""
+        if name[0] != "T" and name != "M6":
+            return HARMLESS_TAKES.get(name)
+        grbl = self.dialect.name == "grbl"
+        if any(letter not in "NTGM" for letter, _ in block.words):  # parameters beside it
+            self.note(block, k, f"words beside {name[0] if name[0] == 'T' else name} "
+                      f"{'kept' if grbl else 'skipped'}", "program.dialect sets it")
+        return ("T" if name == "M6" else "") if grbl else None  # M6's tool number beside it
 
     def dwell_p_seconds(self, block) -> float:
         """Seconds per unit of G4's P."""

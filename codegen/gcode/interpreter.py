@@ -19,8 +19,8 @@ import math
 import codegen.gcode.mcodes as mcodes
 import codegen.toolpath.limits as limits
 from codegen.errors import Diagnostic
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, HARMLESS_TAKES, MOTION, PARAMS, PLANES,
-                                 PROBES, SUPPORTED, code_name, group_of, harmless_reason)
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
+                                 code_name, group_of, harmless_reason)
 from codegen.gcode.diagnostics import Diagnostics, Stop
 from codegen.gcode.dialect import Dialect, DialectState
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
@@ -222,7 +222,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                 params[letter] = float(number)
                 if letter == "T":
                     tool = k
-        if tool is not None and not any(name[0] == "M" for name, _ in codes):  # T is a code, not M204's T
+        if tool is not None and not any(name == "M6" or "T" in PARAMS.get(name, "") for name, _ in codes):  # M6's T
             del params["T"]
             name = code_name("T", words[tool][1])
             if name is None:
@@ -239,6 +239,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
             self.fail(block, k, message)
         if problems or names is None:
             return
+        if any(name == "G80" for name, _ in codes):
+            self.mode = None  # until a G0..G3: axis words alone are an error meanwhile (Grbl's error 31)
         if "G20" in names:
             self.unit = 25.4
         elif "G21" in names:
@@ -318,7 +320,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                                      f"pressure (linear) advance is not modelled; only {letter}0 (off)"))
             if problems:
                 return None, None
-            if any(HARMLESS_TAKES.get(name) is None for name, _, _ in harmless):  # they take every word of the line
+            takes = [self.harmless_takes(block, name, k) for name, k, _ in harmless]
+            if None in takes:  # they take every word of the line
                 allowed = all([self.skip(block, k, name, reason) for name, k, reason in harmless])
                 return (motion, names) if allowed and names else (None, None)
         if motion is None and taker is None:
@@ -331,8 +334,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                     problems.append((k, f"'{block.words[k][0]}{block.words[k][1]}': G80 on this line cancels the "
                                      "motion mode; axis words need G0, G1, G2 or G3"))
         used = set("FS")
-        for name, _, _ in harmless:  # the rest of the line keeps its meaning: G64 X5 moves in the modal motion
-            used.update(HARMLESS_TAKES[name])
+        for name, k, _ in harmless:  # the rest of the line keeps its meaning: G64 X5 moves in the modal motion
+            used.update(self.harmless_takes(block, name, k))
         for name in names:
             used.update(PARAMS[name])
         if motion is not None:
@@ -342,6 +345,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                 k = self.word_index(block, letter)
                 word = self.word(block, letter)
                 problems.append((k, f"'{word}' is not a parameter of {' or '.join(names)}" if names else
+                                 f"'{word}': G80 cancelled the motion mode; axis words need G0, G1, G2 or G3"
+                                 if self.mode is None and letter in AXIS_LETTERS else
                                  f"'{word}' needs a code that takes it"))
         if problems or not all([self.skip(block, k, name, reason) for name, k, reason in harmless]):
             return None, None

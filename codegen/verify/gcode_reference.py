@@ -113,7 +113,8 @@ class Reading:
         self.plane = (0, 1)
         self.motion = "G0"
         self.feed = float(job.program.feed) / 60.0  # mm/s
-        self.p_seconds = 1.0 if grbl_dialect(job) else 0.001  # G4 P's unit
+        self.grbl = grbl_dialect(job)
+        self.p_seconds = 1.0 if self.grbl else 0.001  # G4 P's unit
         self.factor, self.saved_factor, self.least = 1.0, 1.0, 0.0  # M220's; the larger of M205 S and T
         self.delimited, self.ended = False, False
         self.text = ""  # the line being read
@@ -159,7 +160,7 @@ class Reading:
                 self.inverse_time = code == "G93"
             elif code in PLANES:
                 self.plane = PLANES[code]
-            elif code in ("G0", "G1", "G2", "G3"):
+            elif code in ("G0", "G1", "G2", "G3", "G80"):
                 self.motion = code
         if "F" in params and not self.inverse_time:
             self.feed = params["F"] * self.unit / 60.0
@@ -178,7 +179,9 @@ class Reading:
             return
         if self._offsets(codes, params, letters):
             return
-        if any(c.startswith("M") and c not in TOOL_CODES for c in codes) or not any(k in params for k in "XYZ"):
+        tool_change = "T" in letters or "M6" in codes  # Grbl runs the rest of the block; Marlin skips it
+        if (any(c.startswith("M") and c not in TOOL_CODES and c != "M6" for c in codes) or
+                not any(k in params for k in "XYZ") or (tool_change and not self.grbl)):
             return  # an M code's letters are its own; a move of E alone leaves x, y, z
         yield self._move(params, "G53" in codes)
 

@@ -48,3 +48,23 @@ def test_axis_words_on_a_g80_line_are_an_error():
 def test_strict_refuses_the_whole_line():
     assert errors("G1 F600\nG64 X5\n", strict=True, motors=MILL) == [
         (9, 5, "'G64' is not accepted with --strict (path blending; corners always blend by the junction deviation)")]
+
+
+def test_g80_cancels_the_motion_mode_for_the_lines_after_it():
+    """Grbl's error 31: after G80, axis words without G0..G3 have no motion to make; G1 brings one back."""
+    assert errors("G1 X5 F600\nG80\nX10\n", motors=MILL) == [
+        (10, 5, "'X10': G80 cancelled the motion mode; axis words need G0, G1, G2 or G3")]
+    moved, _ = ends("G1 X5 F600\nG80\nG0 X10\nY3\n")
+    assert moved == [("G1", [5, 0, 0, 0]), ("G0", [10, 0, 0, 0]), ("G0", [10, 3, 0, 0])]
+
+
+@pytest.mark.parametrize("line", ["T1 Y5", "Y5 M6", "T0 M6 Y5"])
+def test_axis_words_beside_a_tool_change_move_in_grbl_and_are_skipped_in_marlin(line):
+    """Grbl runs every word of a block (`T1 Y5` moves); Marlin runs one command a line and skips the rest, with a
+    note that says which dialect decided it."""
+    moved, _ = ends(f"G1 X2 F600\n{line}\n", dialect="grbl")
+    assert moved == [("G1", [2, 0, 0, 0]), ("G1", [2, 5, 0, 0])]
+    toolpath, diagnostics = run(f"G1 X2 F600\n{line}\n", motors=MILL, dialect=None)
+    assert [i.end.tolist() for i in toolpath.items] == [[2, 0, 0, 0]]
+    notes = [(d.where.line, d.message.split(":")[0]) for d in diagnostics if d.severity == "note"]
+    assert notes[0] == (9, f"words beside {'M6' if 'M6' in line else 'T'} skipped")

@@ -60,6 +60,13 @@ def test_axis_words_beside_other_codes_move_and_dollar_h_homes(tmp_path):
     assert last.line == 8 and last.end[0] == 2.0 and math.isnan(last.end[1]) and math.isnan(last.end[2])
 
 
+@pytest.mark.parametrize("dialect, ends", [("; Grbl\n", [(2, 2.0), (3, 5.0), (4, 7.0)]), ("", [(2, 2.0)])])
+def test_axis_words_beside_a_tool_change_move_in_grbl_alone(tmp_path, dialect, ends):
+    """Grbl runs the whole block (`T1 Y5` moves); Marlin runs the tool change and skips the rest of its line."""
+    moves = reading(tmp_path, f"{dialect}G1 F1000\nG1 Y2\nT1 Y5\nM6 T0 Y7\n")
+    assert [(m.line - (dialect != ""), m.end[1]) for m in moves] == ends
+
+
 @pytest.mark.parametrize("gcode, seconds", [
     ("; Grbl\nG4 P0.5\n", 0.5), ("M104 S200\n$X\nG4 P500\n", 0.5), ("$X\nM104 S200\nG4 P0.5\n", 0.5),
     ("G4 P500\n", 0.5)])
