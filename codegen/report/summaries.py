@@ -37,7 +37,8 @@ def plan_summary(host: HostBuild) -> dict:
         "max_timing_error_us": rounded(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
         "pass": f.ok,
         "problems": list(f.problems),
-        **(host.link_plan.summary() if host.link_plan is not None else {}),
+        **(host.link_plan.summary() if host.link_plan is not None else
+           {"mcu": host.target.mcu, "flash_bytes": host.target.flash_bytes}),
         **({"heaters": heaters_plan(host)} if host.heaters else {}),
         **({"laser": laser_plan(host)} if host.laser else {}),
         **({"feed_hold": feed_hold_plan(host)} if host.hold_plan is not None else {}),
@@ -128,6 +129,9 @@ def human_plan(summary: dict) -> str:
                      f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
     lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
                  f"timing within {summary['max_timing_error_us']:.2f} us of the plan")
+    if summary.get("flash_bytes") is not None and summary["table_bytes"] > summary["flash_bytes"]:
+        lines.append(f"  too big for a flash image: the tables alone are {summary['table_bytes']} bytes, the "
+                     f"{summary['mcu']} has {summary['flash_bytes']}; stream the job (--stream)")
     if "prefill_bytes" in summary:
         low = summary["min_ring_fill_bytes"]
         lines.append(f"  link {summary['baud']} baud: {summary['stream_bytes']} bytes to stream, prefill "

@@ -185,6 +185,17 @@ def test_a_job_too_big_for_the_8051_is_refused_with_sizes(tmp_path, capsys):
     assert not (tmp_path / "firmware.hex").exists()
 
 
+def test_plan_says_when_the_tables_alone_overflow_the_flash(capsys):
+    """`plan` tells before `build` does: the seed plotter set's tables are more than the AT89C52's code memory."""
+    job = ROOT / "examples" / "stream" / "plotter-set-seed51.yaml"
+    code, out, _ = run(capsys, "plan", job, "--json")
+    tables = json.loads(out)["table_bytes"]
+    assert code == 0 and tables > 8192
+    code, out, _ = run(capsys, "plan", job)
+    assert code == 0 and out.splitlines()[-1] == (f"  too big for a flash image: the tables alone are {tables} bytes, "
+                                                  "the at89c52 has 8192; stream the job (--stream)")
+
+
 def test_driver_timing_from_the_job_holds_in_the_simulator(tmp_path, capsys):
     job = tmp_path / "slow-drivers.yaml"
     job.write_text((ROOT / "examples" / "star.yaml").read_text().replace(
@@ -205,6 +216,7 @@ def test_sliced_benchy_plans_near_the_slicer_estimate_and_does_not_fit(tmp_path,
     slicer = 38 * 60 + 43  # "; estimated printing time (normal mode) = 38m 43s"
     assert abs(result["duration_s"] - slicer) <= 0.10 * slicer
     assert "warning: 'M73' ignored" in err
+    assert (result["mcu"], result["flash_bytes"]) == ("atmega2560", 262144) and result["table_bytes"] > 262144
     code, _, err = run(capsys, "build", job, "--out", tmp_path)
     assert code == 1
     assert "does not fit in flash" in err and "262144" in err and str(result["table_bytes"]) in err
