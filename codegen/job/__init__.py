@@ -129,6 +129,7 @@ def load_job(path: Path, target_override: str | None = None, program_required: b
         message = f"'{target_override}' is not one of {', '.join(TARGETS)}{suggest(target_override, TARGETS)}"
         raise JobError([Diagnostic(SourceRef("--target"), message)])
     data, marks, diagnostics = read_yaml(path)
+    read_problems = list(diagnostics)
     if not isinstance(data, dict):
         message = "expected a mapping with the keys machine and program (and optionally name, target, board)"
         raise JobError(diagnostics + [Diagnostic(marks.value(()), message)])
@@ -153,7 +154,9 @@ def load_job(path: Path, target_override: str | None = None, program_required: b
     if job is not None:
         diagnostics += _check_gcode_file(job, path, marks)
         diagnostics += [] if board_problems else _check_heaters(job, marks)
-    if diagnostics or job is None:
+    if diagnostics or job is None:  # a value YAML could not build has its message from the reading alone
+        later = [d for d in diagnostics[len(read_problems):] if (d.where.line, d.where.col) not in marks.unbuilt]
+        diagnostics = read_problems + later
         unique = {(d.where.line, d.where.col, d.message): d for d in diagnostics}
         raise JobError(sorted(unique.values(), key=lambda d: (d.where.line, d.where.col)))
     job.path = path.resolve()

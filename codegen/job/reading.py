@@ -46,6 +46,7 @@ class Marks:
     keys: dict[YPath, tuple[int, int]] = field(default_factory=dict)
     values: dict[YPath, tuple[int, int]] = field(default_factory=dict)
     styles: dict[YPath, tuple[str | None, bool]] = field(default_factory=dict)  # scalar style, single line?
+    unbuilt: set[tuple[int, int]] = field(default_factory=set)  # values YAML could not build (reported once)
 
     def _at(self, pos: tuple[int, int]) -> SourceRef:
         return SourceRef(self.file, pos[0], pos[1])
@@ -174,6 +175,7 @@ class _Builder:
         except (ValueError, OverflowError, KeyError, AttributeError, TypeError):  # `!!timestamp x`, `!!bool x`
             problem = f"'{node.value}' is not a valid {node.tag.rsplit(':', 1)[-1]}"
         self.error(node, f"{dotted(path) or 'job'}: {problem}")
+        self.marks.unbuilt.add((node.start_mark.line + 1, node.start_mark.column + 1))
         return None
 
 

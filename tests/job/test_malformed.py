@@ -137,7 +137,12 @@ def test_a_wrong_type_at_any_key_is_a_diagnostic_or_a_plan(tmp_path, example):
 @pytest.mark.parametrize("tag, kind", [("!!timestamp", "timestamp"), ("!!bool", "bool")])
 def test_a_tag_pyyaml_cannot_construct_is_an_error_at_its_value(tmp_path, tag, kind):
     """PyYAML raised AttributeError for `!!timestamp x` and KeyError for `!!bool x`."""
-    assert errors(job(tmp_path, gcode=f"{tag} x"))[0] == (8, 10, f"program.gcode: 'x' is not a valid {kind}")
+    assert errors(job(tmp_path, gcode=f"{tag} x")) == [(8, 10, f"program.gcode: 'x' is not a valid {kind}")]
+
+
+def test_a_value_yaml_cannot_build_has_one_message(tmp_path):
+    """The schema's own message at the same place ('expected a number') came beside the reading's."""
+    assert errors(job(tmp_path, gcode="!!int abc")) == [(8, 10, "program.gcode: 'abc' is not a valid int")]
 
 
 def test_half_a_surrogate_pair_and_control_characters_in_the_name_are_refused(tmp_path):
