@@ -49,7 +49,8 @@ def random_segments(n: int, delta: bool, seed: int = 1) -> Segments:
                     item=np.arange(n), accel=np.full(n, np.inf), axis_velocity=np.full((n, 4), np.inf),
                     axis_accel=np.full((n, 4), np.inf), jerk=np.full((n, 4), np.nan),
                     junction_deviation=np.full(n, np.nan), ref_kind=np.full(n, REF_LINE),
-                    ref_center=np.zeros((n, 2)), ref_radius=z, ref_plane=np.tile([0, 1], (n, 1)),
+                    ref_center=np.zeros((n, 2)), ref_radius=z, ref_angle=z, ref_growth=z,
+                    ref_plane=np.tile([0, 1], (n, 1)),
                     ref_fine=np.full(n, -1), fine=np.zeros((0, FINE_STEPS + 1, 3)))
 
 

@@ -5,7 +5,10 @@ Everything here is in the arc plane's own coordinates (u, v): G17 (x, y), G18 (z
 Grbl's rules (gcode.c, motion_control.c):
 - I/J/K form: the centre is the start plus the offsets. The end must lie on the same circle: a difference
   of the two radii over 0.005 mm is an error when it is also over 0.5 mm or over 0.1 % of the radius.
-  An end equal to the start is a full circle (sweep +-2 pi).
+  An end equal to the start is a full circle (sweep +-2 pi). An end off the circle by less is drawn as a
+  spiral, the radius going evenly with the angle from the start's to the end's (LinuxCNC's reading): Grbl and
+  Marlin keep the start's radius and close the gap on their last segment, a jog of up to 0.5 mm where the
+  program draws none.
 - R form: the centre is on the side that makes the arc shorter than half a turn for R > 0, longer for
   R < 0. An R smaller than half the chord is an error, and so is an end equal to the start. Unlike Grbl,
   an R short of half the chord by no more than the radius slack (0.005 mm, numbers rounded by the program's
@@ -44,6 +47,7 @@ class Circle(NamedTuple):
     radius: float  # mm, from the centre to the start
     start_angle: float  # rad, from the centre to the start
     sweep: float  # rad, > 0 counter-clockwise (G3), < 0 clockwise (G2)
+    radius_change: float = 0.0  # mm, from the centre to the end less `radius`: a spiral
 
 
 def mm(value: float) -> str:
@@ -94,7 +98,7 @@ def from_offsets(start: tuple[float, float], end: tuple[float, float], offset: t
                        f"at the end (a difference of {mm(delta)} mm; at most 0.005 mm, or 0.5 mm and 0.1 % "
                        f"of the radius)", letters[0])
     start_angle = math.atan2(start[1] - center[1], start[0] - center[0])
-    return Circle(center, r_start, start_angle, sweep_between(center, start, end, clockwise))
+    return Circle(center, r_start, start_angle, sweep_between(center, start, end, clockwise), r_end - r_start)
 
 
 def from_radius(start: tuple[float, float], end: tuple[float, float], r: float, clockwise: bool) -> Circle:

@@ -45,7 +45,7 @@ class Moves:
             elif it[0] == ARC:
                 _, a, b, c, plane, feed, tool, src, label, accel, power, dynamic = it
                 items.append(Arc(rows[a - base], rows[b - base], c.center, c.radius, c.start_angle, c.sweep, feed,
-                                 tool, src, plane, label, accel, power, dynamic))
+                                 tool, src, plane, label, accel, power, dynamic, c.radius_change))
             else:
                 _, axes, a, src = it
                 items.append(Home(axes, rows[a - base], src))

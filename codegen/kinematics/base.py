@@ -64,6 +64,12 @@ class Kinematics:
         """(N, M) |d^2 motor / ds^2| along straight lines: motor acceleration per (mm/s)^2 of constant speed."""
         return np.zeros((len(points), len(self.motors)))
 
+    def chord_kinks(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """(n - 1, M) at each vertex between consecutive straight pieces (`start[j + 1]` is `end[j]`): how much each
+        motor's velocity changes there, per mm/s of path speed, beyond what the path's own turn makes it (the
+        motors move linearly along every piece). Nothing where motors are linear in the axes."""
+        return np.zeros((max(len(start) - 1, 0), len(self.motors)))
+
     def path_quantum(self) -> float:
         """How far (mm) from the path stepping itself may put the tool: one step of the coarsest motor."""
         return float(self.step_reach().max())

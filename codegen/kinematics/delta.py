@@ -124,6 +124,21 @@ class Delta(Kinematics):
         bend = np.nan_to_num(bend, nan=np.inf)
         return np.concatenate([bend, np.zeros((len(points), 1))], axis=1) if self.has_e else bend
 
+    def chord_kinks(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """The carriages move linearly along each piece, so a carriage's speed per mm of path is the chord's
+        (c(end) - c(start)) / length there: along a straight line it changes at every cut by about the bend
+        (`motor_bend`) times the pieces' length, at once. What the effector's turn explains (the Jacobian at the
+        vertex times the change of direction) is the junction's own; this is the rest (0 beside a still piece)."""
+        start, end = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
+        length = np.linalg.norm(end[:, :3] - start[:, :3], axis=1, keepdims=True)
+        moving = length[:, 0] > 0.0
+        carriages = self.to_motor(end)[:, :3] - self.to_motor(start)[:, :3]
+        chord = np.divide(carriages, length, out=np.zeros_like(carriages), where=length > 0.0)
+        u = np.divide(end[:, :3] - start[:, :3], length, out=np.zeros_like(carriages), where=length > 0.0)
+        turn = np.einsum("nij,nj->ni", self._jacobian(*self._arms(start[1:, :2])), u[1:] - u[:-1])
+        kinks = np.abs(chord[1:] - chord[:-1] - turn) * (moving[1:] & moving[:-1])[:, None]
+        return np.concatenate([kinks, np.zeros((len(kinks), 1))], axis=1) if self.has_e else kinks
+
     def path_quantum(self) -> float:
         """Two carriages may each be half a step or more off their exact height, in opposite senses: the
         staircase allowance is the sum of the two largest single-step reaches."""

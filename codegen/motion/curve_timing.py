@@ -31,7 +31,7 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import Events
-from codegen.motion.planner import Plan, quantisation_factor
+from codegen.motion.planner import ACCEL_WINDOW_S, Plan, quantisation_factor
 from codegen.toolpath.segments import Segments
 
 # Of every motor's rate (the rest: the slaves' uneven steps where blocks meet, which the retimed curve does not see).
@@ -142,6 +142,12 @@ def _slope_extremes(m0, m1, secant, h):
     return least, bend
 
 
+def _path_accel(plan: Plan, seg) -> np.ndarray:
+    """The path's acceleration on each block: its segment's, unless the segment only cruises."""
+    changing = plan.s_acc[seg] + plan.s_cruise[seg] < plan.length[seg] * (1 - 1e-12)
+    return np.where((plan.s_acc[seg] > 0) | changing, plan.accel[seg], 0.0)
+
+
 def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, seg, kin: Kinematics,
                    rate_limit: np.ndarray):
     """Blocks whose curve timing keeps every motor's velocity and acceleration within its limits."""
@@ -151,8 +157,7 @@ def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, 
     du_ds = 1.0 / least  # the master's largest steps per mm of path on the piece
     d2u = bend / least ** 3  # |d2u/ds2| <= |d2s/du2| / (ds/du)^3
     v = plan.v_peak[seg]
-    changing = plan.s_acc[seg] + plan.s_cruise[seg] < plan.length[seg] * (1 - 1e-12)
-    a = np.where((plan.s_acc[seg] > 0) | changing, plan.accel[seg], 0.0)  # a block at cruise only: none
+    a = _path_accel(plan, seg)
     max_rate = rate_limit[None, :] * quantisation_factor(steps) * RATE_SHARE
     max_accel = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE
     velocity = (v * du_ds)[:, None] * ratio
@@ -163,11 +168,16 @@ def _within_limits(slope_in, slope_out, secant, span, ratio, steps, plan: Plan, 
 def _jumps_allowed(linked, rate, ratio, plan: Plan, seg, kin: Kinematics):
     """At each vertex: a slave's velocity jumps by v * du/ds * (change of its Bresenham ratio) on the curve,
     by v * (change of its steps per mm) on the chords. Joining is allowed where the curve's jump is no larger
-    than the chords', or within what the motor's acceleration gives over the shorter chord."""
+    than the chords', or within what the motor's acceleration gives over the shorter chord, or, where that is
+    longer than an acceleration window (the jump then falls whole between two windows), within one window's
+    acceleration beside the slave's along the path there."""
     v = plan.v_entry[seg[1:]]
     mean_rate = 0.5 * (rate[:-1] + rate[1:])
     curve = (v * mean_rate)[:, None] * np.abs(ratio[1:] - ratio[:-1])
     chord = v[:, None] * np.abs(ratio[1:] * rate[1:, None] - ratio[:-1] * rate[:-1, None])
+    max_accel = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE
     shorter = np.minimum(plan.duration[seg[:-1]], plan.duration[seg[1:]])
-    budget = (kin.limits.max_accel * kin.limits.steps_per_mm)[None, :] * ACCEL_SHARE * shorter[:, None]
-    return np.all((curve <= chord * (1 + 1e-9)) | (curve <= budget), axis=1) | ~linked
+    spread = curve <= max_accel * np.minimum(shorter, ACCEL_WINDOW_S)[:, None]
+    slave_accel = (_path_accel(plan, seg) * rate)[:, None] * ratio  # steps/s^2
+    beside = curve + np.maximum(slave_accel[:-1], slave_accel[1:]) * ACCEL_WINDOW_S <= max_accel * ACCEL_WINDOW_S
+    return np.all((curve <= chord * (1 + 1e-9)) | (spread & beside), axis=1) | ~linked

@@ -16,7 +16,7 @@ import numpy as np
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
 from codegen.motion.planner import segment_lengths
-from codegen.motion.staircase import refine, split_long
+from codegen.motion.staircase import refine, split_kinked, split_long
 from codegen.motion.stepgen import segment_steps
 from codegen.overlap import overlapped
 from codegen.program.program import Program
@@ -75,7 +75,8 @@ def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
             flattener.settings = []
             found = reach_problems(settings, kin, batch, first, segments)
             if not found:
-                segments = refine(split_long(kin.subdivide(segments, settings.tolerance_mm), kin), kin)
+                segments = kin.subdivide(segments, settings.tolerance_mm)
+                segments = refine(split_long(split_kinked(segments, kin), kin), kin)
                 found = reach_problems(settings, kin, batch, first, segments)  # a carriage may peak between samples
             problems += found
             parts = [] if problems or not len(segments) else _parts(segments, segment_steps(segments, kin))

@@ -131,6 +131,14 @@ def _axis_cap(per_axis: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.min(np.divide(per_axis, share, out=np.full_like(share, np.inf), where=share > 0), axis=1)
 
 
+def _bend_cap(budget: np.ndarray, sideways: np.ndarray, lumped: np.ndarray) -> np.ndarray:
+    """(n,) the largest v with v^2 * sideways + v * lumped <= budget for every motor (the quadratic's positive
+    root, written without cancellation; inf where neither term grows with v)."""
+    grows = lumped + np.sqrt(lumped * lumped + 4.0 * sideways * budget[None, :])
+    return np.min(np.divide(2.0 * budget[None, :], grows, out=np.full_like(grows, np.inf), where=grows > 0),
+                  axis=1)
+
+
 @dataclass
 class Profile:
     """The speed limits of a stretch of segments, before the passes: per segment and per junction (junction j
@@ -225,14 +233,19 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     # slow down along straight lines too.
     bend = np.maximum(kin.motor_bend(u, segments.start), kin.motor_bend(u, segments.end))
     sideways = kappa[:, None] * side + bend
-    w_curve = np.min(np.divide(limits.centripetal_share * amax, sideways, out=np.full_like(sideways, np.inf),
-                               where=sideways > 0), axis=1)
+    # Where motors move linearly along each piece (a delta's carriages), that bend comes at the pieces' ends as a
+    # velocity step of v * kink: within one acceleration window, v * kink / ACCEL_WINDOW_S more per mm/s.
+    kinks = kin.chord_kinks(segments.start, segments.end)
+    kink = np.zeros((n, len(motor.names)))
+    kink[:-1], kink[1:] = np.maximum(kink[:-1], kinks), np.maximum(kink[1:], kinks)
+    lumped = kink / ACCEL_WINDOW_S
+    v_curve = _bend_cap(limits.centripetal_share * amax, sideways, lumped)
     v_program = _axis_cap(segments.axis_velocity, u)
-    v_nominal = np.minimum.reduce([segments.feed, v_motor, v_events, np.sqrt(w_curve), v_program])
+    v_nominal = np.minimum.reduce([segments.feed, v_motor, v_events, v_curve, v_program])
     v_nominal = np.where(moving, v_nominal, 0.0)
     if np.any(~np.isfinite(v_nominal)):
         raise ValueError("a segment moves no motor: its speed is unbounded")
-    spare = amax[None, :] - v_nominal[:, None] ** 2 * sideways
+    spare = amax[None, :] - v_nominal[:, None] ** 2 * sideways - v_nominal[:, None] * lumped
     accel = np.min(np.divide(spare, factors, out=np.full_like(factors, np.inf), where=factors > 0), axis=1)
     accel = np.minimum.reduce([accel, segments.accel, _axis_cap(segments.axis_accel, u)])
     accel = np.where(moving, accel, 1.0)

@@ -3,7 +3,8 @@
 A block moves its slaves by Bresenham from rounded ends, so its staircase can stray from the exact segment by
 up to a step (more when rounding tilts a short block). `refine` cuts the segments whose staircase strays
 further than STAIRCASE_LIMIT steps: `staircase_bound` proves most of them close without enumerating events,
-`staircase_error` measures the others event by event. `split_long` cuts segments a block cannot hold.
+`staircase_error` measures the others event by event. `split_long` cuts segments a block cannot hold, and
+`split_kinked` a delta's pieces whose carriages' velocity would step too far where they meet.
 """
 
 from __future__ import annotations
@@ -14,12 +15,15 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import MAX_MODULUS, bresenham, bresenham_init
+from codegen.motion.planner import ACCEL_WINDOW_S, segment_lengths
 from codegen.motion.stepgen import segment_steps
 from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
 
 STAIRCASE_LIMIT = 0.85  # steps: blocks whose Bresenham staircase strays further from their segment are cut
 REFINE_ROUNDS = 4
+KINK_SHARE = 0.5  # of a motor's acceleration the velocity steps between a delta move's pieces may take
+KINK_LEAST_STEPS = 16  # master steps: split_kinked makes no shorter parts
 
 
 def refine(segments: Segments, kin: Kinematics) -> Segments:
@@ -41,6 +45,36 @@ def split_long(segments: Segments, kin: Kinematics) -> Segments:
     """Cut segments whose master motor would make more steps than a block holds into equal parts."""
     steps = np.abs(kin.to_steps(segments.end) - kin.to_steps(segments.start)).max(axis=1, initial=0)
     parts = np.maximum(1, -(-steps // (MAX_MODULUS - 1)))
+    if np.all(parts == 1):
+        return segments
+    owner = np.repeat(np.arange(len(parts)), parts)
+    rank = np.arange(len(owner)) - np.repeat(np.cumsum(parts) - parts, parts)
+    return _cut(segments, owner, rank / parts[owner], (rank + 1) / parts[owner])
+
+
+def split_kinked(segments: Segments, kin: Kinematics) -> Segments:
+    """Cut straight pieces where motors are not linear in the axes (a delta's carriages) into equal parts short
+    enough that the velocity step each motor makes where two parts meet (the bend times the parts' length, per
+    mm/s: the planner's `chord_kinks`) takes at most KINK_SHARE of its acceleration over one window, at the
+    fastest the piece may go (its feed, and every motor's velocity). Parts stay at least KINK_LEAST_STEPS of
+    the master long: near the region's edge the bend grows without bound."""
+    if kin.linear or not len(segments):
+        return segments
+    length, u = segment_lengths(segments)
+    middle = 0.5 * (segments.start + segments.end)
+    factors = np.max([kin.motor_factors(u, p) for p in (segments.start, middle, segments.end)], axis=0)
+    bend = np.max([kin.motor_bend(u, p) for p in (segments.start, middle, segments.end)], axis=0)
+    motor = kin.limits
+    v_motor = np.min(np.divide(motor.max_velocity, factors, out=np.full_like(factors, np.inf), where=factors > 0),
+                     axis=1)
+    speed = np.minimum(segments.feed, v_motor)
+    step_change = speed[:, None] * bend / ACCEL_WINDOW_S  # the motor acceleration per mm of part length
+    longest = np.min(np.divide(KINK_SHARE * motor.max_accel, step_change, out=np.full_like(bend, np.inf),
+                               where=step_change > 0), axis=1)
+    shortest = KINK_LEAST_STEPS / np.max(factors * motor.steps_per_mm, axis=1, initial=0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        parts = np.ceil(length / np.maximum(longest, shortest))
+    parts = np.where(np.isfinite(parts) & (parts > 1) & (segments.dwell <= 0), parts, 1).astype(np.int64)
     if np.all(parts == 1):
         return segments
     owner = np.repeat(np.arange(len(parts)), parts)

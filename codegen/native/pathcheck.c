@@ -1,7 +1,8 @@
 /* The path check's distances in one pass (codegen/tables/checks.py has the numpy version, which this must match to
  * rounding: tests/native/test_tables.py): from each tool position (xyz) to the job's path along its segment, lines
- * exactly, arcs by their radius, other curves by their samples; a position further than `near` from its own
- * segment is measured against either neighbour too (a step just past a corner is on the path it is on).
+ * exactly, arcs by their radius at the position's angle (a spiral's grows with it), other curves by their
+ * samples; a position further than `near` from its own segment is measured against either neighbour too (a step
+ * just past a corner is on the path it is on).
  *
  * Built at first use into the user's cache (codegen/native/__init__.py) and called through ctypes.
  */
@@ -9,12 +10,15 @@
 #include <stdint.h>
 
 #define REF_ARC 1
+#define TWO_PI 6.283185307179586
 
 struct path {
     const double *start, *end;  /* (S x 4) */
     const int64_t *kind;        /* (S) */
     const double *center;       /* (S x 2) */
-    const double *radius;       /* (S) */
+    const double *radius;       /* (S) at `angle` */
+    const double *angle;        /* (S) rad */
+    const double *growth;       /* (S) mm per rad */
     const int64_t *plane;       /* (S x 2) */
     const int64_t *fine_row;    /* (S), -1: none */
     const double *fine;         /* (F x samples x 3) */
@@ -59,8 +63,14 @@ static double to_reference(const double *p, int64_t s, const struct path *path)
     }
     if (path->kind[s] == REF_ARC) {
         const int64_t u = path->plane[2 * s], v = path->plane[2 * s + 1];
-        const double radial = fabs(hypot(p[u] - path->center[2 * s], p[v] - path->center[2 * s + 1])
-                                   - path->radius[s]);
+        const double pu = p[u] - path->center[2 * s], pv = p[v] - path->center[2 * s + 1];
+        double radius = path->radius[s];
+        if (path->growth[s] != 0.0) { /* a spiral */
+            double turn = atan2(pv, pu) - path->angle[s];
+            turn -= TWO_PI * nearbyint(turn / TWO_PI); /* within half a turn: the tool is near its chord */
+            radius += path->growth[s] * turn;
+        }
+        const double radial = fabs(hypot(pu, pv) - radius);
         double off2 = 0.0;
         for (int64_t i = 0; i < 3; i++)
             if (i != u && i != v)
@@ -76,9 +86,10 @@ static double to_reference(const double *p, int64_t s, const struct path *path)
 void path_errors(int64_t n, const double *points, const int64_t *steps, int64_t motors, const int64_t *origin,
                  const double *to_axes, const int64_t *seg, double near, int64_t segments, const double *start,
                  const double *end, const int64_t *kind, const double *center, const double *radius,
-                 const int64_t *plane, const int64_t *fine_row, const double *fine, int64_t samples, double *out)
+                 const double *angle, const double *growth, const int64_t *plane, const int64_t *fine_row,
+                 const double *fine, int64_t samples, double *out)
 {
-    const struct path path = {start, end, kind, center, radius, plane, fine_row, fine, samples};
+    const struct path path = {start, end, kind, center, radius, angle, growth, plane, fine_row, fine, samples};
     int driven[4];
     for (int a = 0; a < 4; a++) {
         driven[a] = 0;

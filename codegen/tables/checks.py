@@ -3,7 +3,8 @@
 The same functions judge the twin against the plan (`build`) and the simulated pulses (`verify`).
 - Positions: each motor's final position equals the job's end point rounded once.
 - Path: after every step the tool lies within 1 step + tolerance of the job's path (lines exactly, arcs by
-  their radius, other curves by the true curve sampled 16 times along every chord).
+  their radius at the tool's angle (a spiral's grows with it), other curves by the true curve sampled 16 times
+  along every chord).
 - Rate: over any 8 consecutive steps no motor exceeds max_velocity * steps_per_mm.
 - Acceleration: the velocity change between consecutive 20 ms windows stays within max_accel * 20 ms, plus the
   velocity jumps the junction model plans at corners inside those windows, plus one step of quantisation at
@@ -90,7 +91,10 @@ def reference_distance(p: np.ndarray, s: np.ndarray, segments: Segments) -> np.n
         rows = np.arange(len(arc))
         pu = p[arc, plane[:, 0]] - segments.ref_center[s[arc], 0]
         pv = p[arc, plane[:, 1]] - segments.ref_center[s[arc], 1]
-        radial = np.abs(np.hypot(pu, pv) - segments.ref_radius[s[arc]])
+        turn = np.arctan2(pv, pu) - segments.ref_angle[s[arc]]
+        turn -= 2.0 * np.pi * np.rint(turn / (2.0 * np.pi))  # within half a turn: the tool is near its chord
+        radius = segments.ref_radius[s[arc]] + segments.ref_growth[s[arc]] * turn
+        radial = np.abs(np.hypot(pu, pv) - radius)
         off_plane = p[arc] - on_chord[arc]
         off_plane[rows, plane[:, 0]] = 0.0
         off_plane[rows, plane[:, 1]] = 0.0
@@ -122,8 +126,9 @@ def step_path_errors(steps: np.ndarray, origin: np.ndarray, kin: Kinematics, seg
 
 
 def _native_path_errors(lib, axes, steps, seg, segments: Segments, near: float) -> np.ndarray:
-    start, end, center, radius, fine = contiguous(np.float64, segments.start, segments.end, segments.ref_center,
-                                                  segments.ref_radius, segments.fine)
+    start, end, center, radius, angle, growth, fine = contiguous(
+        np.float64, segments.start, segments.end, segments.ref_center, segments.ref_radius, segments.ref_angle,
+        segments.ref_growth, segments.fine)
     seg, kind, plane, fine_row = contiguous(np.int64, seg, segments.ref_kind, segments.ref_plane, segments.ref_fine)
     out = np.empty(len(seg))
     steps, origin, to_axes = (None, None, None) if steps is None else steps
@@ -132,7 +137,7 @@ def _native_path_errors(lib, axes, steps, seg, segments: Segments, near: float) 
     lib.path_errors(ctypes.c_int64(len(seg)), pointer(axes), pointer(steps), ctypes.c_int64(motors),
                     pointer(origin), pointer(to_axes), pointer(seg), ctypes.c_double(near),
                     ctypes.c_int64(len(segments)),
-                    *map(pointer, (start, end, kind, center, radius, plane, fine_row, fine)),
+                    *map(pointer, (start, end, kind, center, radius, angle, growth, plane, fine_row, fine)),
                     ctypes.c_int64(segments.fine.shape[1]), pointer(out))
     return out
 

@@ -87,7 +87,11 @@ def expanded(items: list) -> list:
 
 @dataclass(frozen=True)
 class Arc:
-    """A circular arc in the plane of axes (u, v) (0=x, 1=y, 2=z), optionally helical along the other axes."""
+    """A circular arc in the plane of axes (u, v) (0=x, 1=y, 2=z), optionally helical along the other axes.
+
+    A G-code arc whose end is a little off the circle of its start (within Grbl's limits, codegen/gcode/arcs.py)
+    is a spiral: its radius goes evenly with the angle from `radius` at the start to `radius + radius_change` at
+    the end, so the path reaches the program's end without a jog (LinuxCNC's reading)."""
 
     start: np.ndarray
     end: np.ndarray
@@ -103,14 +107,16 @@ class Arc:
     accel: float = math.inf
     power: float = 1.0
     dynamic: bool = False
+    radius_change: float = 0.0  # mm, the end's radius less the start's
 
     def points(self, angles: np.ndarray) -> np.ndarray:
-        """Points at the given angles; the axes outside the plane move linearly with the angle."""
+        """Points at the given angles; the radius and the axes outside the plane move linearly with the angle."""
         u, v = self.plane
         frac = (angles - self.start_angle) / self.sweep if self.sweep else np.zeros_like(angles)
         pts = self.start[None, :] + frac[:, None] * (self.end - self.start)[None, :]
-        pts[:, u] = self.center[0] + self.radius * np.cos(angles)
-        pts[:, v] = self.center[1] + self.radius * np.sin(angles)
+        radius = self.radius + self.radius_change * frac
+        pts[:, u] = self.center[0] + radius * np.cos(angles)
+        pts[:, v] = self.center[1] + radius * np.sin(angles)
         return pts
 
 

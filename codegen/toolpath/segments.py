@@ -2,7 +2,9 @@
 
 Arcs become equal chords within the machine's tolerance; curves arrive as chords already. Each piece keeps
 what the checks need to measure against the exact path (arc centre and radius, or samples of the true curve)
-and the limits the program set for it (G-code M201/M203/M204/M205).
+and the limits the program set for it (G-code M201/M203/M204/M205). An arc's radius is given at the angle of
+its piece's start, with how it grows per radian (a spiral's: a G-code end off the circle): a piece cut later
+(codegen/motion/staircase.py, the delta's cuts) keeps its chord's reference.
 """
 
 from __future__ import annotations
@@ -38,7 +40,9 @@ class Segments:
     junction_deviation: np.ndarray  # (n,) mm the program set (nan: the machine's)
     ref_kind: np.ndarray  # (n,) REF_LINE | REF_ARC | REF_CURVE
     ref_center: np.ndarray  # (n, 2) arc centre in its plane
-    ref_radius: np.ndarray  # (n,)
+    ref_radius: np.ndarray  # (n,) mm, the arc's radius at ref_angle
+    ref_angle: np.ndarray  # (n,) rad, the arc's angle at its chord's start
+    ref_growth: np.ndarray  # (n,) mm per rad the arc's radius grows with the angle (0: a circle)
     ref_plane: np.ndarray  # (n, 2) int axes of the arc plane
     ref_fine: np.ndarray  # (n,) row of `fine` holding the true curve along the chord, -1 for none
     fine: np.ndarray  # (k, FINE_STEPS + 1, 3) true-curve samples
@@ -73,7 +77,7 @@ def concat(*parts: Segments) -> Segments:
 
 
 def arc_chord_count(radius: float, sweep: float, tolerance: float) -> int:
-    """Fewest equal chords whose sagitta stays within `tolerance`."""
+    """Fewest equal chords whose sagitta stays within `tolerance` (`radius`: a spiral's larger)."""
     if radius <= tolerance:
         return max(1, math.ceil(abs(sweep) / (math.pi / 2)))
     max_angle = 2.0 * math.acos(1.0 - tolerance / radius)
@@ -152,17 +156,17 @@ class Flattener:
 
     def _pieces(self, item, fines: list) -> tuple:
         """The item's points and what its pieces share (a curve's samples go to `fines`)."""
-        ref = (REF_LINE, (0.0, 0.0), 0.0, (0, 1))
+        ref = (REF_LINE, (0.0, 0.0), 0.0, (0, 1), 0.0, 0.0, 0.0)
         if isinstance(item, Line):
             pts = (item.start, item.end)
         elif isinstance(item, Arc):
-            n = arc_chord_count(item.radius, item.sweep, self.tolerance)
+            n = arc_chord_count(max(item.radius, item.radius + item.radius_change), item.sweep, self.tolerance)
             pts = item.points(item.start_angle + item.sweep * np.arange(n + 1) / n)
             pts[0], pts[-1] = item.start, item.end
-            ref = (REF_ARC, item.center, item.radius, item.plane)
+            ref = (REF_ARC, item.center, item.radius, item.plane, item.start_angle, item.sweep, item.radius_change)
         elif isinstance(item, Curve):
             pts = item.points
-            ref = (REF_CURVE, (0.0, 0.0), 0.0, (0, 1))
+            ref = (REF_CURVE, (0.0, 0.0), 0.0, (0, 1), 0.0, 0.0, 0.0)
             fines.append(item.fine)
         else:  # a dwell
             pts = (self.position, self.position)
@@ -176,8 +180,8 @@ class Flattener:
 COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ()), ("tool", bool, ()),
            ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()),
            ("kind", np.int64, ()), ("center", float, (2,)),
-           ("radius", float, ()), ("plane", np.int64, (2,)), ("limits", np.int64, ()), ("fine", np.int64, ()),
-           ("line", np.int64, ()))
+           ("radius", float, ()), ("plane", np.int64, (2,)), ("angle", float, ()), ("sweep", float, ()),
+           ("change", float, ()), ("limits", np.int64, ()), ("fine", np.int64, ()), ("line", np.int64, ()))
 
 
 class _Single:
@@ -187,11 +191,11 @@ class _Single:
         self.points, self.rows, self.fine_count = [], [], 0
 
     def add(self, pieces: tuple, index: int, state: int, line: int) -> None:
-        pts, feed, tool, accel, power, dynamic, dwell, (kind, center, radius, plane) = pieces
+        pts, feed, tool, accel, power, dynamic, dwell, (kind, center, radius, plane, angle, sweep, change) = pieces
         count = len(pts) - 1
         self.points.append(pts)
-        self.rows.append((count, index, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
-                          self.fine_count if kind == REF_CURVE else -1, line))
+        self.rows.append((count, index, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, angle,
+                          sweep, change, state, self.fine_count if kind == REF_CURVE else -1, line))
         self.fine_count += count if kind == REF_CURVE else 0
 
     def take(self) -> list[tuple]:
@@ -209,7 +213,8 @@ def _lines_group(lines: Lines, index: int, state: int, in_gcode: bool) -> tuple:
     return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
             lines.feed, lines.tool, lines.accel, lines.power, lines.dynamic, np.zeros(n), np.full(n, REF_LINE),
             np.zeros((n, 2)), np.zeros(n),
-            np.tile(np.array([0, 1]), (n, 1)), np.full(n, state), np.full(n, -1),
+            np.tile(np.array([0, 1]), (n, 1)), np.zeros(n), np.zeros(n), np.zeros(n), np.full(n, state),
+            np.full(n, -1),
             lines.line if in_gcode else np.zeros(n, dtype=np.int64))
 
 
@@ -217,10 +222,12 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     """The groups' pieces as Segments: the items' columns repeated over their pieces."""
     if not groups:
         groups = [(np.zeros((0, 4)), np.zeros((0, 4)), *(np.zeros((0, *shape), dtype=t) for _, t, shape in COLUMNS))]
-    (starts, ends, counts, owners, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, state,
-     fine_rows, line) = (np.concatenate(c) for c in zip(*groups))
+    (starts, ends, counts, owners, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, angle, sweep,
+     change, state, fine_rows, line) = (np.concatenate(c) for c in zip(*groups))
     each = lambda values: np.repeat(values, counts, axis=0)  # noqa: E731
     rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    along = rank / each(counts)  # of the item, where each piece starts
+    growth = np.divide(change, sweep, out=np.zeros(len(sweep)), where=sweep != 0.0)
     first_fine = each(fine_rows)
     velocity, axis_accel, jerk, jd = limits.arrays(each(state))
     jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
@@ -229,7 +236,8 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
         dwell=each(dwell), item=each(owners), line=each(line),
         accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
         jerk=jerk.reshape(-1, 4), junction_deviation=jd, ref_kind=each(kind), ref_center=each(center).reshape(-1, 2),
-        ref_radius=each(radius), ref_plane=each(plane).reshape(-1, 2),
+        ref_radius=each(radius) + each(change) * along, ref_angle=each(angle) + each(sweep) * along,
+        ref_growth=each(growth), ref_plane=each(plane).reshape(-1, 2),
         ref_fine=np.where(first_fine >= 0, first_fine + rank, -1),
         fine=np.concatenate(fines) if fines else np.zeros((0, FINE_STEPS + 1, 3)),
     )

@@ -45,14 +45,14 @@ class Move:
     start: tuple[float, float, float]
     end: tuple[float, float, float]
     speed: float | None  # mm/s the move may not beat (None: G0, inverse time, or no F yet)
-    arc: tuple | None = None  # (centre (u, v), radius, plane (u, v) axes, clockwise, sweep rad)
+    arc: tuple | None = None  # (centre (u, v), radius, plane (u, v) axes, clockwise, sweep rad, end radius)
     offsets: tuple[float, float, float] = (0.0, 0.0, 0.0)  # mm where coordinate 0 is (G92, G54-G59, G43.1)
 
     def length(self) -> float:
         """mm along the path (nan with an unknown axis)."""
         if self.arc is None:
             return math.dist(self.start, self.end)
-        _, radius, plane, _, sweep = self.arc
+        _, radius, plane, _, sweep, _ = self.arc
         along = [self.end[i] - self.start[i] for i in range(3) if i not in plane]
         return math.hypot(radius * abs(sweep), math.hypot(*along))
 
@@ -244,7 +244,10 @@ def _number(text: str) -> str:
 
 
 def _arc(motion: str, plane: tuple[int, int], start, end, params: dict[str, float], unit: float) -> tuple | None:
-    """(centre, radius, plane, clockwise, sweep) of a G2/G3 in `plane`; None with an unknown end in the plane."""
+    """(centre, radius, plane, clockwise, sweep, end radius) of a G2/G3 in `plane`; None with an unknown end in the
+    plane. The radii are the start's and the end's distances from the centre: an end off the start's circle (as
+    Grbl lets an I/J arc's be, by up to 0.1 % of the radius) is reached along a spiral, as LinuxCNC draws it; an
+    R a little short of half the chord is the half circle on it."""
     u, v = plane
     (su, sv), (eu, ev) = (start[u], start[v]), (end[u], end[v])
     if any(math.isnan(c) for c in (su, sv, eu, ev)):
@@ -258,14 +261,13 @@ def _arc(motion: str, plane: tuple[int, int], start, end, params: dict[str, floa
         side = 1.0 if clockwise else -1.0  # clockwise: the centre right of the chord; R < 0: the longer arc
         side = -side if radius < 0 else side
         centre = (su + du / 2 + side * rise * dv, sv + dv / 2 - side * rise * du)
-        radius = abs(radius)
     else:
         letters = OFFSETS[plane]
         centre = (su + params.get(letters[0], 0.0) * unit, sv + params.get(letters[1], 0.0) * unit)
-        radius = math.hypot(su - centre[0], sv - centre[1])
     a0 = math.atan2(sv - centre[1], su - centre[0])
     a1 = math.atan2(ev - centre[1], eu - centre[0])
     turn = ((a0 - a1) if clockwise else (a1 - a0)) % (2 * math.pi)
     if turn < FULL_CIRCLE_RAD:  # the same start and end: a whole circle
         turn = 2 * math.pi
-    return centre, radius, plane, clockwise, -turn if clockwise else turn
+    radii = math.hypot(su - centre[0], sv - centre[1]), math.hypot(eu - centre[0], ev - centre[1])
+    return centre, radii[0], plane, clockwise, -turn if clockwise else turn, radii[1]

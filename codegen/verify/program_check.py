@@ -1,8 +1,9 @@
 """The played tables against the job's G-code, read a second time (codegen/verify/gcode_reference.py) and put
 through the machine's kinematics as JOB-FORMAT.md states them (not the planner's code): every line ends where the
-program says, no line is done faster than its feed allows, every arc stays on the program's circle and turns its
-way, every G4 dwells as long as it says. The front end and the planner are the code under test here: a reading of
-G20, G92, an R arc or an F word that both they and the twin share shows up nowhere else.
+program says, no line is done faster than its feed allows, every arc stays on the program's circle (a spiral
+from the start's radius to the end's where the end is off the circle) and turns its way, every G4 dwells as long
+as it says. The front end and the planner are the code under test here: a reading of G20, G92, an R arc or an F
+word that both they and the twin share shows up nowhere else.
 
 Each played event belongs to a segment and so to a G-code line (Segments.line). A line's last event is where its
 move ends (to a step: the stepper rounds each motor once); from the line's last event before it, the move takes at
@@ -165,19 +166,21 @@ class ProgramCheck:
         tool = self.geometry.tool(steps)
         if tool is None or any(math.isnan(v) for v in (*move.start, *move.end)):
             return
-        centre, radius, (u, v), _, sweep = move.arc
-        off = np.hypot(tool[:, u] - centre[0], tool[:, v] - centre[1]) - radius
+        centre, radius, (u, v), _, sweep, end_radius = move.arc
+        path = np.vstack([[move.start[u], move.start[v]], tool[:, [u, v]], [move.end[u], move.end[v]]])
+        angle = np.unwrap(np.arctan2(path[:, 1] - centre[1], path[:, 0] - centre[0]))
+        along = np.clip((angle[1:-1] - angle[0]) / sweep, 0.0, 1.0)  # of the sweep, where each event is
+        off = np.hypot(tool[:, u] - centre[0], tool[:, v] - centre[1]) - (radius + (end_radius - radius) * along)
         limit = self.tolerance + ARC_SLACK_STEPS / float(self.geometry.spm.min())
         self.checked["arcs"] += 1
         worst = int(np.argmax(np.abs(off)))
         if abs(off[worst]) > limit:
+            shape = f"radius {radius:.3f} mm" + (f" to {end_radius:.3f} mm" if end_radius != radius else "")
             self.problems.append(
                 f"{_at(move)}: the arc strays {abs(off[worst]):.4f} mm from the program's circle (centre "
-                f"{centre[0]:.3f}, {centre[1]:.3f}, radius {radius:.3f} mm; limit {limit:.4f} mm) at "
-                f"{_mm(tool[worst])}")
+                f"{centre[0]:.3f}, {centre[1]:.3f}, {shape}; limit {limit:.4f} mm) at {_mm(tool[worst])}")
             return
-        path = np.vstack([[move.start[u], move.start[v]], tool[:, [u, v]], [move.end[u], move.end[v]]])
-        turn = float(np.sum(np.diff(np.unwrap(np.arctan2(path[:, 1] - centre[1], path[:, 0] - centre[0])))))
+        turn = float(angle[-1] - angle[0])
         if abs(turn - sweep) > SWEEP_SLACK_RAD + limit / max(radius, 1e-9):
             self.problems.append(f"{_at(move)}: the arc turns {math.degrees(turn):.1f} degrees where the program's "
                                  f"turns {math.degrees(sweep):.1f}")

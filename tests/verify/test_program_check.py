@@ -90,6 +90,18 @@ def test_arc_centres(tmp_path, code, centre, turns):
     assert move.arc[4] == pytest.approx(turns * 2 * math.pi)
 
 
+def test_arc_radii_at_the_start_and_the_end(tmp_path):
+    """As the front end draws them (tests/gcode/test_arc_spiral.py): an I/J end off the start's circle is a spiral
+    to the end's radius; an R short of half the chord by the slack is the half circle on the chord."""
+    spiral, half = reading(tmp_path, "G0 X93 Y86.42\nG3 X100 Y85.352 I24 J127 F600\nG0 X0 Y0\nG2 X10 R4.996\n")[1::2]
+    assert spiral.arc[0] == pytest.approx((117, 213.42))
+    radii = math.hypot(24, 127), math.hypot(17, 128.068)
+    assert (spiral.arc[1], spiral.arc[5]) == (pytest.approx(radii[0]), pytest.approx(radii[1]))
+    assert spiral.arc[4] == pytest.approx(math.atan2(-128.068, -17) - math.atan2(-127, -24))
+    assert half.arc[0] == pytest.approx((5, 0)) and (half.arc[1], half.arc[5]) == (5, 5)
+    assert half.arc[4] == pytest.approx(-math.pi)
+
+
 def test_a_whole_circle_and_the_program_end(tmp_path):
     moves = reading(tmp_path, "G0 X10\n%\nG2 X10 Y0 I-10 J0 F600\nM2\nG1 X50\n")
     assert len(moves) == 2 and moves[1].arc[4] == pytest.approx(-2 * math.pi)
