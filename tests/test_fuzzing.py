@@ -11,9 +11,10 @@ import time
 from codegen.errors import BuildError, Diagnostic, JobError, SourceRef
 from tests.fuzzing.campaign import Budget, Settings, fuzz, shrink, table
 from tests.fuzzing.inputs import FuzzInput, make_input
-from tests.fuzzing.outcomes import (BUILD_FAILED, CRASH, HANG, MEMORY, OK, REFUSED, TRACEBACK, UNPOSITIONED, classify,
-                                    innermost_codegen_frame)
-from tests.fuzzing.pool import GiB, WorkerPool
+from tests.fuzzing.outcomes import (BUILD_FAILED, CRASH, HANG, LONG, LONG_EVENTS_PER_S, MEMORY, OK, REFUSED, TRACEBACK,
+                                    UNPOSITIONED, classify, innermost_codegen_frame, plan_file)
+from tests.fuzzing.pool import GiB, WorkerPool, _alarm
+from tests.helpers import EXAMPLES
 
 
 def _raise(error: BaseException):
@@ -124,3 +125,19 @@ def test_a_campaign_writes_each_signature_shrunk(tmp_path):
 def test_an_empty_campaign_has_no_table_rows(tmp_path):
     results = fuzz(Settings(count=0, out=tmp_path), gcode_is_a_bug, stream=io.StringIO())
     assert results.inputs == 0 and table(results).count("\n") == 0
+
+
+def test_a_plan_at_the_planners_pace_at_its_time_limit_is_long_not_a_hang():
+    """A job of millions of steps runs past the limit while planning as fast as it should: LONG. The same
+    interruption with nothing planned (a stage that never ends) is a hang."""
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 2.0)
+        outcome = classify(lambda: plan_file(EXAMPLES / "printers" / "benchy-mini.yaml"), 2.0)
+        signal.setitimer(signal.ITIMER_REAL, 0.5)
+        stuck = classify(lambda: time.sleep(5) or 0, 0.5)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert outcome.kind == LONG and int(outcome.detail.split()[0]) >= 2.0 * LONG_EVENTS_PER_S
+    assert (stuck.kind, stuck.signature) == (HANG, "hang in ?")

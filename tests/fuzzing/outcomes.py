@@ -1,5 +1,6 @@
 """One input's outcome and its signature. Acceptable: OK (the plan finished), REFUSED (JobError, every
-diagnostic at file:line:col), BUILD FAILED (BuildError). Failures: traceback, hang, memory, crash, a refusal
+diagnostic at file:line:col), BUILD FAILED (BuildError), LONG (a plan at its time limit that was still planning
+at the planner's pace). Failures: traceback, hang, memory, crash, a refusal
 without a line:col, a plan whose own checks failed. A failure's signature names the bug, not the input: the
 exception type and the innermost codegen frame, the stage a hang was in, a message with its numbers blanked.
 The pipeline is `printer-codegen plan JOB --json --quiet` in this process (plan_input)."""
@@ -20,10 +21,13 @@ from codegen.cli.main import parser
 from codegen.errors import BuildError, JobError
 from tests.fuzzing.inputs import FuzzInput
 
-OK, REFUSED, BUILD_FAILED = "ok", "refused", "build failed"
+OK, REFUSED, BUILD_FAILED, LONG = "ok", "refused", "build failed", "long"
 TRACEBACK, HANG, MEMORY, CRASH, UNPOSITIONED, CHECK = ("traceback", "hang", "memory", "crash", "unpositioned",
                                                        "check")
-ACCEPTABLE = (OK, REFUSED, BUILD_FAILED)
+ACCEPTABLE = (OK, REFUSED, BUILD_FAILED, LONG)
+# A plan still going at the time limit with at least this many events planned per second of it is a long job (a
+# mutated slicer file's 256 M extruder steps plan in 59 s), not a hang: the planner makes 1-3 M events a second.
+LONG_EVENTS_PER_S = 200_000
 CODEGEN_FRAME = re.compile(r'File "[^"]*/(codegen/[^"]+)", line \d+,? in (\S+)')
 DIGITS = re.compile(r"\d+(\.\d+)?(e[-+]?\d+)?")
 PREFIX = 60  # characters of a message kept in a signature
@@ -73,11 +77,22 @@ def _failure(kind: str, error: BaseException, prefix: str) -> Outcome:
     return Outcome(kind, f"{prefix} in {innermost_codegen_frame(stack)}", stack[-3000:])
 
 
-def classify(call: Callable[[], int]) -> Outcome:
+def events_planned(error: BaseException) -> int:
+    """The events the interrupted plan had made (codegen/pipeline/host.py `_host_build`'s stages), or 0."""
+    for frame, _ in traceback.walk_tb(error.__traceback__):
+        if frame.f_code.co_name == "_host_build" and frame.f_locals.get("stages") is not None:
+            return frame.f_locals["stages"].totals.events
+    return 0
+
+
+def classify(call: Callable[[], int], time_limit: float = 20.0) -> Outcome:
     """Run `call` (the pipeline on one input; returns the exit code) and name what happened."""
     try:
         code = call()
     except Hang as hang:
+        events = events_planned(hang)
+        if events >= LONG_EVENTS_PER_S * time_limit:
+            return Outcome(LONG, "", f"{events} events planned in {time_limit:g} s")
         return _failure(HANG, hang, "hang")
     except JobError as error:
         try:

@@ -49,7 +49,7 @@ def _serve(run: Callable[[Any], int], conn: Connection, folder: Path, dump_path:
         os.lseek(dump.fileno(), 0, os.SEEK_SET)
         faulthandler.dump_traceback_later(time_limit + WATCHDOG_S, exit=True, file=dump)
         signal.setitimer(signal.ITIMER_REAL, time_limit)
-        outcome = classify(lambda: run(item))
+        outcome = classify(lambda: run(item), time_limit)
         try:
             signal.setitimer(signal.ITIMER_REAL, 0)
         except Hang:  # the alarm went off just as the input finished
