@@ -161,7 +161,7 @@ class Stages:
         before = self.carried
         out = []
         played, carried, scale = self._attempt(window, after, last, before)
-        if scale is not None and self.open is not None:  # play the open window and this one again, as one
+        if scale is not None and scale[3] and self.open is not None:  # play the open window and this one again
             window, before = merge(self.open[0].window, window), self.open[1]
             self.open = None
             played, carried, scale = self._attempt(window, after, last, before)
@@ -216,7 +216,8 @@ class Stages:
     def _attempt(self, window: Window, after: Segments | None, last: bool, before: _Carried):
         """Play the window from what came before: its results, what it hands on, and how to slow it down where
         the checks found a motor over its limits or the ring runs short: each segment's share of its speed and
-        of its acceleration, and the ring's first Shortfall (None for a motor's limits); None: nowhere."""
+        of its acceleration, the ring's first Shortfall (None for a motor's limits), and whether the window before
+        is to be played again with it (a shortfall: always); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
         with watch("step times"):
             events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
@@ -275,8 +276,8 @@ class Stages:
             if scale is None and shortfalls:
                 record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
                 return played, carried, (*self._link_slow_down(window.plan, shortfalls, record_segment, sizes,
-                                                               ring.budget.rate), shortfalls[0])
-        return played, carried, None if scale is None else (*scale, None)
+                                                               ring.budget.rate), shortfalls[0], True)
+        return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
 
     @staticmethod
     def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,
@@ -332,6 +333,13 @@ class Stages:
         again = finish(prof, w, plan.t_start[0])
         again.corner[0], again.corner[-1] = plan.corner[0], plan.corner[-1]
         return replace(window, segments=slowed, plan=again), float(w[-1])
+
+
+def _reaches_back(hits: list, t0: float) -> bool:
+    """Whether a stretch over a limit begins before the window (at `t0`): its first of 8 steps, or its first
+    20 ms, in the window before. Only then is that window played again with this one: a stretch of this window's
+    own is slowed in it alone, so a long program whose every window is slowed once takes time in proportion."""
+    return any(np.any(rate_end < RATE_WINDOW) or np.any(begin < t0) for (rate_end, _), (begin, _) in hits)
 
 
 def _record_reads(schedule, pulses: Pulses, origin_fx: int, tick_hz: int):

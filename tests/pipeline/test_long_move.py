@@ -10,6 +10,8 @@ from codegen.job import load_job
 from codegen.motion.blocks import MAX_MODULUS
 from codegen.motion.planner import plan, profile
 from codegen.pipeline.host import host_build
+from codegen.pipeline.windows import Stages
+from tests.helpers import DATA
 from tests.motion.test_lookahead import planner_input, windowed
 
 JOB = """name: long
@@ -92,3 +94,20 @@ def test_a_split_move_plays_the_steps_and_times_of_the_whole_move(tmp_path, monk
     for host in (whole, split):
         assert np.abs(host.pulses.event_tick - host.events.time * tick_hz).max() <= host.totals.max_timing_error_ticks
     assert split.totals.max_timing_error_ticks == whole.totals.max_timing_error_ticks
+
+
+def test_a_window_slowed_for_a_stretch_of_its_own_is_played_again_alone(monkeypatch):
+    """Every window of a 10 km move is slowed once (coarse motor a 3 % over its rate where its Bresenham phase
+    restarts between pieces): each is planned again alone, not with every window before it (the time then grew
+    with the square of the move); only the last, whose stretch begins in the window before, is played with it."""
+    played = []
+    attempt = Stages._attempt
+
+    def counted(self, window, *rest):
+        played.append(len(window.segments))
+        return attempt(self, window, *rest)
+
+    monkeypatch.setattr(Stages, "_attempt", counted)
+    host = host_build(load_job(DATA / "jobs" / "found" / "corexy-long-move-slowed-every-window.yaml"))
+    assert host.findings.ok and host.totals.segments == 32
+    assert played == [1, 9, 9, 9, 9, 8, 8, 5, 8 + 5, 8 + 5]
