@@ -134,12 +134,12 @@ class Stages:
         """`settings`: the machine's tolerance and pulse timing; `keep`: the windows handed out keep their events
         and pulses (for `join`); `watch` times the stages; `tables` gets each final window's table records as it
         is made (a window ends at a block and a run start, so they join into the whole program's stream;
-        `finish` adds the end marker); `link`: the
-        stream's link, whose ring must never run dry (a stretch that needs more bytes than it carries slows);
-        `runtime`: the program's runtime records so far (codegen/tables/runtime.py), whose cost the blocks after them
-        get; `laser`: the laser's PWM, whose power records the runs get (codegen/tables/laser.py); `hold`: the feed hold,
-        whose ceiling records they get where its override goes above 100 % (codegen/tables/headroom.py); `observe`
-        gets each final window with its pulses (which it drops after unless `keep`)."""
+        `finish` adds the end marker); `link`: the stream's link, whose ring must never run dry (a stretch that
+        needs more bytes than it carries slows); `runtime`: the program's runtime records so far
+        (codegen/tables/runtime.py), whose cost the blocks after them get; `laser`: the laser's PWM, whose power
+        records the runs get (codegen/tables/laser.py); `hold`: the feed hold, whose ceiling records they get where
+        its override goes above 100 % (codegen/tables/headroom.py); `observe` gets each final window with its
+        pulses (which it drops after unless `keep`)."""
         self.kin, self.target, self.limits, self.lookahead = kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
