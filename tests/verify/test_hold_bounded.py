@@ -5,22 +5,26 @@ register writes come out the same read in pieces, and the laser's writes that no
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
 import pytest
 import yaml
 
+import codegen.cli.main
 import codegen.verify.chapters
 from codegen.cli.main import _build, main
 from codegen.job import load_job
 from codegen.report.summaries import write_trace
-from codegen.sim.avr import PHASE_RUN
+from codegen.sim.avr import PHASE_RUN, simulate
 from codegen.sim.avr_edges import DUTY_HIGH_PIN, DUTY_LOW_PIN, EDGE_RECORD, EdgeDecoder
 from codegen.tables.twin import Pulses
-from codegen.verify.compare import Comparison
+from codegen.verify.bounded import verify_flash
+from codegen.verify.compare import Comparison, compare, simulated_switches
 from codegen.verify.hold import hold_verify
 from codegen.verify.hold_limits import CeilingShares, ceiling_shares
+from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 from tests.helpers import ROOT
 from tests.verify.test_hold_heaters import PRINTER
@@ -156,3 +160,25 @@ def test_a_laser_overridden_a_chapter_at_a_time_keeps_a_chapter_s_power_writes(t
     monkeypatch.setattr(RunReader, "forget_duty", lambda reader: None)
     keeping, trace = hold_verify(tables, image, None, 50)
     assert len(trace.laser_duty) == 33342 and forgetting == keeping and forgetting["pass"]
+
+
+@needs_simavr
+def test_plain_verify_of_a_feed_hold_image_is_compared_a_chapter_at_a_time(star_flash, monkeypatch, capsys):
+    """No request and no M0/M1: the command line compares the star's image (it has feed_hold) as any other flash
+    image, beside the simulation (verify_flash), and says what the whole run's comparison says."""
+    host, image = star_flash
+    switches = simulated_switches(host)
+    trace = simulate(image.hex_path, host.firmware_config(), int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu),
+                     switches=switches)
+    whole = json.loads(json.dumps(verify_json(host, compare(host, trace, switches), image)))
+    compared = []
+
+    def spied(tables, *args, **kwargs):
+        result, found = verify_flash(tables, *args, **kwargs)
+        compared.append((tables.pulses, int((found.trace.step_phase == PHASE_RUN).sum())))
+        return result, found
+
+    monkeypatch.setattr(codegen.cli.main, "verify_flash", spied)
+    code = main(["verify", str(ROOT / "examples" / "star.yaml"), "--out", str(image.hex_path.parent), "--json"])
+    assert code == 0 and json.loads(capsys.readouterr().out) == whole and whole["pass"]
+    assert compared == [(None, 0)]  # the host kept its tables only; the trace, none of the table's 122852 pulses
