@@ -35,7 +35,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.kinematics.base import StepperLimits
-from codegen.tables.schedule import FRAC_BITS, RT_PAUSE, Schedule, in_force
+from codegen.tables.schedule import FRAC_BITS, RT_PAUSE, Schedule
 
 F_ONE = 128  # the feed factor 1 (100 %)
 F_MAX = 255  # the highest factor (199 %): the override's 200 % step
