@@ -146,8 +146,11 @@ def cmd_verify(args) -> int:
     host, image, out_dir = _build(job, args.out, reuse=True, strict=args.strict, keep="tables" if tables_only else True)
     faults = job_faults(args.fault, tuple(h.name for h in host.heaters))
     held = args.hold is not None or args.override is not None or pauses(host)
-    if tables_only and not held:  # no request, no M0/M1: the whole twin after all
-        host = _checked_host(job, args.strict)
+    if tables_only and not held:  # no request, no M0/M1: a chapter at a time, as an image without feed_hold
+        result, compared = verify_flash(host, image, faults, args.strict, cli_stream.run_outputs(args))
+        result = _shipped(host, image, result)
+        return _conclude_verify(args, host, result, compared.trace, _verify_headline(host, result, out_dir),
+                                compared.samples)
     if held:
         steps_csv = Path(args.trace) if tables_only and args.trace else None  # written as the run is compared
         args.trace = None if steps_csv else args.trace

@@ -167,6 +167,18 @@ class EdgeDecoder:
         """(K, 2) each compare register write: cycle, counts."""
         return np.concatenate(self._duty) if self._duty else np.zeros((0, 2), np.int64)
 
+    def forget_duty(self, start: int, upcoming: int) -> None:
+        """Drop the compare register's writes from cycle `start` on that come before the last one at or before
+        `upcoming`: a level at `upcoming` or later reads none of them (those before `start` stay)."""
+        duty = self.duty()
+        if len(duty) < 2:
+            return
+        cycle = duty[:, 0]
+        in_force = int(np.searchsorted(cycle, upcoming, side="right")) - 1
+        first = int(np.searchsorted(cycle, start, side="left"))
+        if in_force > first:
+            self._duty = [np.concatenate([duty[:first], duty[in_force:]])]
+
     def top(self) -> np.ndarray:
         """(K, 2) each TOP register write: cycle, counts."""
         return np.concatenate(self._top) if self._top else np.zeros((0, 2), np.int64)

@@ -35,7 +35,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.kinematics.base import StepperLimits
-from codegen.tables.schedule import FRAC_BITS, RT_PAUSE, Schedule, in_force
+from codegen.tables.schedule import FRAC_BITS, RT_PAUSE, Schedule
 
 F_ONE = 128  # the feed factor 1 (100 %)
 F_MAX = 255  # the highest factor (199 %): the override's 200 % step
@@ -49,6 +49,7 @@ PLAYER_MAX_OVERRIDE = {"avr": ("ATmega2560", 200), "mcs51": ("8051", 100)}  # % 
 # (the 8051's has no ceiling records)
 FRAC16 = 1 << 16
 PARKED = -1  # Dilation.factor after the event the player parked behind
+STRETCH = 1 << 16  # events of a steady stretch dilated at once
 
 
 def dilation_table(f_top: int = F_ONE) -> np.ndarray:
@@ -133,12 +134,24 @@ def plans_ramp_share(feed_hold: bool, kinematics: str, target: str) -> bool:
     return feed_hold and (kinematics == "delta" or target == "mcs51")
 
 
+def event_runs(schedule: Schedule) -> np.ndarray:
+    """(E,) int32: the rate run every event belongs to (a quarter of an int64 per event: dilate keeps it whole)."""
+    return np.repeat(np.arange(len(schedule.run_count), dtype=np.int32), schedule.run_count)
+
+
+def run_deltas(schedule: Schedule, run: np.ndarray) -> np.ndarray:
+    """Every event's undilated tick delta (1/256 tick), from its run (`run`: event_runs), built in place."""
+    delta = np.arange(len(run), dtype=np.int64)
+    delta -= (np.cumsum(schedule.run_count) - schedule.run_count)[run]  # k: the event's place in its run
+    delta *= schedule.run_add[run]
+    delta += schedule.run_interval[run]
+    return delta
+
+
 def event_deltas(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
     """Every event's undilated tick delta (1/256 tick) and the add of its rate run."""
-    n = schedule.run_count
-    run = np.repeat(np.arange(len(n)), n)
-    k = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
-    return schedule.run_interval[run] + k * schedule.run_add[run], schedule.run_add[run]
+    run = event_runs(schedule)
+    return run_deltas(schedule, run), schedule.run_add[run]
 
 
 @dataclass
@@ -149,7 +162,7 @@ class Dilation:
     whether an M0/M1 pause parked it)."""
 
     tick: np.ndarray  # (E,) int64
-    factor: np.ndarray  # (E,) int64, 0..F_ONE or PARKED
+    factor: np.ndarray  # (E,) int16, 0..F_MAX or PARKED
     parks: list[tuple[int, int, bool]]
 
 
@@ -174,10 +187,19 @@ def pause_events(schedule: Schedule) -> list[int]:
     return [int(first[b]) for b in blocks]
 
 
+def run_ceilings(schedule: Schedule) -> np.ndarray:
+    """(R,) the factor's ceiling in force over every rate run (F_ONE before the first record)."""
+    if not schedule.n_ceiling:
+        return np.full(len(schedule.run_count), F_ONE, dtype=np.int64)
+    has = schedule.run_ceiling >= 0
+    last = np.maximum.accumulate(np.where(has, np.arange(len(has)), -1))
+    return np.where(last >= 0, schedule.run_ceiling[np.maximum(last, 0)], F_ONE)
+
+
 def event_ceilings(schedule: Schedule) -> np.ndarray:
     """(E,) the factor's ceiling in force at every event's interrupt (F_ONE before the first record), from the
     schedule's ceiling records."""
-    return in_force(schedule, schedule.run_ceiling, F_ONE)
+    return run_ceilings(schedule)[event_runs(schedule)]
 
 
 def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
@@ -188,24 +210,24 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
     after a hold and at F_ONE after a pause; without one the rest never plays. A target above F_ONE is capped by
     the ceiling records. A per-event loop only where the factor ramps: elsewhere the deltas are summed (scaled
     where the factor is steady)."""
-    delta, add = event_deltas(schedule)
-    pos = np.zeros(len(delta) + 1, dtype=np.int64)
-    np.cumsum(delta, out=pos[1:])
-    out = pos[1:] >> FRAC_BITS
-    factor = np.full(len(delta), F_ONE, dtype=np.int64)  # event e's delta and ramp come in e - 1's interrupt
+    run = event_runs(schedule)  # an event's add and ceiling are its run's: no int64 array of each
+    delta = run_deltas(schedule, run)
+    out = np.cumsum(delta)  # 24.8 until the first change, then ticks
+    factor = np.full(len(delta), F_ONE, dtype=np.int16)  # event e's delta and ramp come in e - 1's interrupt
     pauses, pending, resumes = pause_events(schedule), list(changes), list(resumes)
     marks = sorted([e for e, _ in pending] + pauses)
     parks: list[tuple[int, int, bool]] = []
+    here = int(out[marks[0] - 1]) if marks and marks[0] else 0  # 24.8: where the event before the first mark played
+    np.right_shift(out, FRAC_BITS, out=out)
     if not marks:
         return Dilation(out, factor, parks)
-    ceiling = event_ceilings(schedule)
     run_first = np.cumsum(schedule.run_count) - schedule.run_count
     ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
     table, k = plan.table, plan.ramp_k
-    # the loop's scalars, fast, without a Python int per event: views of the arrays
-    deltas, adds, ceilings = (memoryview(np.ascontiguousarray(a, dtype=np.int64)) for a in (delta, add, ceiling))
+    # the loop's scalars, fast, without a Python int per event: a view of the deltas, the runs' adds and ceilings
+    deltas, runs = memoryview(delta), memoryview(run)
+    adds, ceilings = schedule.run_add.tolist(), run_ceilings(schedule).tolist()
     e = marks[0]
-    here = int(pos[e])  # 24.8: where event e - 1 played
     ffx, target, paused = F_ONE << 16, F_ONE, False
     while e < len(delta):
         while pending and pending[0][0] <= e:
@@ -214,7 +236,7 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
             pauses.pop(0)
             ffx, paused = ffx & 0xFFFF, True
         f, d = ffx >> 16, deltas[e]
-        goal = min(target, ceilings[e])
+        goal = min(target, ceilings[runs[e]])
         end = e
         if f == goal and f:  # a steady factor up to the next change (F_ONE: undilated)
             end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
@@ -222,12 +244,15 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
                 nxt = int(np.searchsorted(ceiling_marks, e, side="right"))
                 end = min(end, int(ceiling_marks[nxt]) if nxt < len(ceiling_marks) else end)
         if end > e:
-            d = delta[e:end]
-            step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
-            ends = here + np.cumsum(step)
-            out[e:end] = ends >> FRAC_BITS
+            for start in range(e, end, STRETCH):  # a piece at a time: the temporaries stay small
+                d = delta[start:min(start + STRETCH, end)]
+                step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
+                np.cumsum(step, out=step)
+                step += here
+                here = int(step[-1])
+                np.right_shift(step, FRAC_BITS, out=out[start:start + len(step)])
             factor[max(e - 1, 0):end - 1] = f
-            here, e = int(ends[-1]), end
+            e = end
             continue
         if d >= LONG:
             here += d  # a long wait: undilated, and no ramp
@@ -243,7 +268,7 @@ def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], r
         else:
             d = min((d * table[f]) >> 8, CLAMP)
             here += d
-            ffx = _ramp(ffx, goal, d >> FRAC_BITS, adds[e], k, plan.gate_above)
+            ffx = _ramp(ffx, goal, d >> FRAC_BITS, adds[runs[e]], k, plan.gate_above)
         if e and f:
             factor[e - 1] = ffx >> 16
         out[e] = here >> FRAC_BITS

@@ -109,6 +109,8 @@ class BoundedComparison:
             comparison.add(ch, sim, clock)
             if self.samples is not None:
                 self.samples.add(ch, sim, clock, reader.timer_start_cycle)
+            else:  # --report draws the laser's power from every write
+                reader.forget_duty()
             give_back_freed_memory()
 
         self.chapters = chapters = Chapters(chapter, self.chapter_pulses)

@@ -100,7 +100,8 @@ class Comparison:
 
     A streaming firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the
     machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
-    plan's times onto its clock (seconds to seconds); `dilation` (codegen/tables/hold.py) has its feed factors."""
+    plan's times onto its clock (seconds to seconds; it may know only the chapter being added's: it is called there);
+    `dilation` (codegen/tables/hold.py) has its feed factors."""
 
     def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None):
         """`levels`: the run's clock and slow outputs so far (timer_start_cycle, f_cpu, tool_edges, laser_duty: a
@@ -120,7 +121,7 @@ class Comparison:
         self.paired = True  # every chapter so far had, per motor, as many simulated pulses as the twin's
         self.span_s: list[float] = []  # the first and the last simulated run pulse (on the twin's clock)
         self.span_cycles: list[int] = []  # and as simulated
-        self.planned: list[float] = []  # the first and the last stepping event's planned time
+        self.planned: list[float] = []  # the first and the last stepping event's planned time (warped)
         self.events = 0  # simulated events so far
         self.problems: list[str] = []
         self.laser_parts: list[LaserVerdict] = []
@@ -159,6 +160,7 @@ class Comparison:
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
             times = chapter.events.time[twin.event[[0, -1]]]
+            times = times if self.warp is None else self.warp(times)  # a held run's chapter's clock: now
             self.planned = [self.planned[0] if self.planned else float(times[0]), float(times[1])]
         if len(sim_s):
             self.span_s = [self.span_s[0] if self.span_s else float(sim_s[0]), float(sim_s[-1])]
@@ -334,7 +336,7 @@ class Comparison:
         if not self.planned:
             return 0.0
         first, last = self.planned
-        return float(self.warp(last) - self.warp(first)) if self.warp else last - first
+        return last - first
 
 
 def chapter_view(host: HostBuild, chapter: Chapter) -> HostBuild:

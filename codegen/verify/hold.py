@@ -102,7 +102,7 @@ def _held_whole(host: HostBuild, runner, requests: Requests, presses: list[tuple
     twin = host.pulses
     dilated = dataclasses.replace(twin, tick=final.tick[twin.event], event_tick=final.tick, motor_tick=None,
                                   motor_dir=None, motor_first=None)
-    warp = dilated_clock(host.events.time, twin.event_tick, final, host.target.tick_hz)
+    warp = dilated_clock(host.events.time, twin.event_tick, final.tick, host.target.tick_hz)
     verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
                       dilation=final)
     return verdict, trace, final, resume_arrived, ceiling_shares(host)

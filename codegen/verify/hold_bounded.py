@@ -3,10 +3,12 @@
 
 The run with the requests is read twice while the harness's edges file is there, each time paired a chapter at a
 time with the twin planned again (codegen/verify/chapters.py, codegen/verify/run_reader.py): first for the cycle of
-every event's first pulse, all that placing the requests reads of the run (codegen/verify/hold_search.py), and the
-events' planned times; then compared with the dilated twin (codegen/verify/bounded.py BoundedComparison, its
-chapters on the clock the placing found). What it holds is a chapter of each and a few numbers per event of the
-tables (which flash bounds), whatever the print's length.
+every event's first pulse, all that placing the requests reads of the run (codegen/verify/hold_search.py); then
+compared with the dilated twin (codegen/verify/bounded.py BoundedComparison, its chapters on the clock the placing
+found, the plan's times taken onto it a chapter at a time). What it holds is a chapter of each, and per event of the
+print only what placing the requests needs: the first reading's cycle (8 bytes), then the dilation's tick and
+factor (10 bytes); the laser's power writes, one per event while the clock is dilated, are forgotten once no pulse
+to come reads them (RunReader.forget_duty).
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ import numpy as np
 from codegen.pipeline.host import HostBuild, host_build
 from codegen.sim.avr import SimTrace
 from codegen.tables.hold import Dilation
-from codegen.tables.twin import event_ticks
 from codegen.verify import chapters
 from codegen.verify.bounded import BoundedComparison, RunOutputs, give_back_freed_memory
 from codegen.verify.chapters import Chapter, Chapters
@@ -30,17 +31,20 @@ from codegen.verify.hold_limits import CeilingShares
 from codegen.verify.hold_search import Requests, dilated_clock
 from codegen.verify.run_reader import RunReader
 
+_NO_EVENT = (np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
 
 class FirstPulses:
     """The first reading: every twin event's first simulated pulse, its cycle on the twin's clock in `cycle` (-1
     for an event without one, or for all where the pulses do not pair up, per motor, with the twin's), every
-    event's planned time in `time`, and the ceilings' shares in `shares` (hold_limits.py)."""
+    chapter's first event's planned time and twin tick in `firsts` (by its index: the dilated clock of the
+    chapter before ends there), and the ceilings' shares in `shares` (hold_limits.py)."""
 
     def __init__(self, host: HostBuild, chapter_pulses: int):
         self.host, self.chapter_pulses = host, chapter_pulses
         events = int(host.schedule.run_count.sum())
         self.cycle = np.full(events, -1, dtype=np.int64)
-        self.time = np.zeros(events)
+        self.firsts: dict[int, tuple[float, int]] = {}
         self.shares = CeilingShares(host)
         self.paired = True
 
@@ -52,10 +56,12 @@ class FirstPulses:
 
         def chapter(ch: Chapter) -> None:
             pulses, first = ch.pulses, ch.first_event
-            self.time[first:first + len(pulses.event_tick)] = ch.events.time
+            if len(pulses.event_tick):
+                self.firsts[first] = (float(ch.events.time[0]), int(pulses.event_tick[0]))
             self.shares.add(pulses, first)
             counts = np.bincount(pulses.motor, minlength=motors)
             sim = reader.take(counts, self.chapter_pulses)
+            reader.forget_duty()  # the laser's power is the comparison's: it reads the run again
             self.paired = self.paired and np.array_equal(np.bincount(sim.motor, minlength=motors), counts)
             if self.paired:
                 clock = reader.clock(sim.cycle, waits)
@@ -75,20 +81,38 @@ class FirstPulses:
 
 
 class DilatedComparison(BoundedComparison):
-    """The second reading: the run compared with the twin's chapters on the dilated clock of `dilation`, `warp`
-    taking the plan's times onto it (both set once the requests are placed)."""
+    """The second reading: the run compared with the twin's chapters on the dilated clock of `dilation` (set once
+    the requests are placed, with `firsts`: FirstPulses'). The plan's times go onto it a chapter at a time
+    (`warp`): through the chapter's events, the last one before it and the first one after it, all that
+    interpolating between events reads of the times there."""
 
     def __init__(self, host: HostBuild, switches: dict, chapter_pulses: int, steps_csv: Path | None):
         super().__init__(host, False, None, switches, False, chapter_pulses, RunOutputs(steps_csv=steps_csv))
         self.dilation: Dilation | None = None
-        self.warp = None
+        self.firsts: dict[int, tuple[float, int]] = {}
+        self.before = _NO_EVENT  # the chapter before's last event: planned time, twin tick, dilated tick
+        self.chapter_warp: Callable | None = None
 
     def _comparison(self, reader: RunReader) -> Comparison:
         return Comparison(self.host, reader, self.streamed, self.warp, self.dilation)
 
+    def warp(self, t):
+        """The plan's times (s) onto the dilated clock, in the chapter being compared."""
+        return self.chapter_warp(t)
+
     def _twin(self, chapter: Chapter) -> Chapter:
         pulses, first = chapter.pulses, chapter.first_event
-        tick = self.dilation.tick[first:first + len(pulses.event_tick)]
+        end = first + len(pulses.event_tick)
+        tick = self.dilation.tick[first:end]
+        after = _NO_EVENT
+        if end in self.firsts:
+            (time, twin), dilated_tick = self.firsts[end], self.dilation.tick[end]
+            after = (np.array([time]), np.array([twin]), np.array([dilated_tick]))
+        ours = (chapter.events.time, pulses.event_tick, tick)
+        self.chapter_warp = dilated_clock(*(np.concatenate(parts) for parts in zip(self.before, ours, after)),
+                                          self.host.target.tick_hz)
+        if len(tick):
+            self.before = tuple(part[-1:] for part in ours)
         dilated = dataclasses.replace(pulses, tick=tick[pulses.event], event_tick=tick, motor_tick=None,
                                       motor_dir=None, motor_first=None)
         return dataclasses.replace(chapter, pulses=dilated)
@@ -109,8 +133,7 @@ def held_bounded(host: HostBuild, runner, requests: Requests, presses: list[tupl
         first.run(edges, ended)
         shares.update(first.shares.shares())
         comparison.dilation = requests.place(first.cycle, resume_arrived)
-        comparison.warp = dilated_clock(first.time, event_ticks(host.schedule), comparison.dilation,
-                                        host.target.tick_hz)
+        comparison.firsts = first.firsts
         del first  # placed: the pass's arrays go before the comparison's chapters come
         give_back_freed_memory()
         comparison.run(edges, lambda: True)  # the run has ended: its file is whole

@@ -19,7 +19,7 @@ import numpy as np
 
 from codegen.motion.planner import RATE_WINDOW
 from codegen.pipeline.host import HostBuild
-from codegen.tables.hold import F_ONE, PARKED, Dilation, event_ceilings
+from codegen.tables.hold import F_ONE, PARKED, Dilation, run_ceilings
 from codegen.tables.twin import Pulses
 
 RAMP_ACCEL_SHARE = 0.2  # of each motor's acceleration, at its top speed, that the factor's ramp may take
@@ -85,7 +85,10 @@ class CeilingShares:
     then `shares`. Each motor's last RATE_WINDOW steps go on to the next chapter: the windows that begin there."""
 
     def __init__(self, host: HostBuild):
-        self.ceiling = event_ceilings(host.schedule)
+        count = host.schedule.run_count
+        stepping = count > 0  # a ceiling is in force at an event through its run: the runs that have events
+        self.ceiling = run_ceilings(host.schedule)[stepping]
+        self.run_end = np.cumsum(count[stepping])  # one past each such run's last event
         self.active = bool(len(self.ceiling)) and int(self.ceiling.max()) > F_ONE
         steppers, self.names, self.tick_hz = host.job.machine.steppers, host.kin.motors, host.target.tick_hz
         self.rate = [steppers[name].max_velocity * steppers[name].steps_per_mm for name in self.names]
@@ -105,7 +108,8 @@ class CeilingShares:
             self.carried[m] = (tick[-RATE_WINDOW:], event[-RATE_WINDOW:])
             if len(tick) <= RATE_WINDOW:
                 continue
-            between = np.maximum(np.maximum.reduceat(ceiling, event)[:-1], ceiling[event[1:]])  # steps k to k + 1
+            run = np.searchsorted(self.run_end, event, side="right")  # each step's event's run: no array per event
+            between = np.maximum(np.maximum.reduceat(ceiling, run)[:-1], ceiling[run[1:]])  # steps k to k + 1
             highest = between[:len(between) - RATE_WINDOW + 1].copy()  # over the 8 steps from k
             for k in range(1, RATE_WINDOW):
                 np.maximum(highest, between[k:k + len(highest)], out=highest)

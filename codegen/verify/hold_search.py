@@ -79,7 +79,10 @@ class Requests:
     def cycles_of(self, d: Dilation) -> np.ndarray:
         """Every event's predicted cycle; one never played (after a park without its resume): the end of time, so
         that the predictions stay sorted for searchsorted."""
-        return np.where(d.tick >= 0, self.tick0 + d.tick * self.prescale + self.latency, np.iinfo(np.int64).max)
+        cycles = d.tick * self.prescale
+        cycles += self.tick0 + self.latency
+        cycles[d.tick < 0] = np.iinfo(np.int64).max
+        return cycles
 
     def presses(self) -> list[tuple[str, int]]:
         """Every press, (function, cycle): the keys', then the resume's after each park. Where each request is
@@ -119,7 +122,7 @@ class Requests:
         """The run as the player played it: each request's first dilated event (its action's `event`), the
         candidate that the pulses agree with, and each park's resume placed by the pulses after it. `sim`: every
         twin event's first simulated pulse cycle on the twin's clock (-1: none)."""
-        actions, index = self.actions, np.arange(len(sim))
+        actions = self.actions
 
         def resumed(events: list[int]) -> list[int]:
             """Each park's resumed tick: the one that puts the first pulses after its resume in place (everything
@@ -131,8 +134,9 @@ class Requests:
                 d = self.predict(actions[:len(events)], events, ticks + [provisional])
                 if r < 0 or len(d.parks) <= len(ticks):
                     break
+                park = d.parks[len(ticks)][0]
                 until = d.parks[len(ticks) + 1][0] if len(d.parks) > len(ticks) + 1 else len(sim)
-                after = np.flatnonzero((sim > r) & (index >= d.parks[len(ticks)][0]) & (index < until))[:RESUME_FIT]
+                after = park + np.flatnonzero(sim[park:until] > r)[:RESUME_FIT]
                 if not len(after):
                     break
                 late = (sim[after] - self.tick0 - self.least_latency) / self.prescale - d.tick[after]
@@ -148,7 +152,9 @@ class Requests:
             best, best_err = first + 1, None
             for n in range(first + 1, first + 1 + self.candidates):
                 d = self.predict(actions[:i + 1], chosen + [n], resumed(chosen + [n]))
-                err = int(np.abs(self.cycles_of(d)[before] - sim[before]).max()) if before.any() else 0
+                gap = self.cycles_of(d)
+                gap -= sim
+                err = int(np.abs(gap, out=gap).max(where=before, initial=0))  # in place: no copy per event
                 if best_err is None or err < best_err:
                     best, best_err = n, err
             chosen.append(best)
@@ -156,11 +162,12 @@ class Requests:
         return self.predict(actions, chosen, resumed(chosen))
 
 
-def dilated_clock(plan_time: np.ndarray, twin_tick: np.ndarray, final: Dilation, tick_hz: int):
-    """The plan's times (s) onto a held run's clock: every event moved by as much as the dilation moved its tick.
-    Where the delay stays the same (before the first request, after a resume's ramp) only the stretch's ends are
-    kept: interpolating between them gives it as it is."""
-    delay = (final.tick - twin_tick) / tick_hz
+def dilated_clock(plan_time: np.ndarray, twin_tick: np.ndarray, dilated_tick: np.ndarray, tick_hz: int):
+    """The plan's times (s) onto a held run's clock: every event (its planned time, its tick on the twin's clock and
+    on the dilated one) moved by as much as the dilation moved its tick. Where the delay stays the same (before the
+    first request, after a resume's ramp) only the stretch's ends are kept: interpolating between them gives it as
+    it is."""
+    delay = (dilated_tick - twin_tick) / tick_hz
     inside = np.zeros(len(delay), dtype=bool)  # within a stretch of the same delay
     inside[1:-1] = (delay[1:-1] == delay[:-2]) & (delay[1:-1] == delay[2:])
     plan_time, delay = plan_time[~inside], delay[~inside]

@@ -144,6 +144,15 @@ class RunReader:
         self.have -= np.bincount(out.motor, minlength=self.motors)
         return out
 
+    def forget_duty(self) -> None:
+        """Forget the laser's compare writes that no pulse still to come can read (a held run's player writes one
+        at every dilated event: the run's length of them); those before the table starts stay (pins.py checks
+        them), and so does every write where the player has not started."""
+        start = self.timer_start_cycle
+        if start is not None:
+            upcoming = int(self.buffer.cycle.min()) if len(self.buffer.cycle) else self.decoder.last_cycle
+            self.decoder.forget_duty(start, upcoming)
+
     def homing_steps(self) -> Steps:
         """The pulses before the player's first start (homing's), read so far."""
         return _cat(self.home) if self.home else Steps.empty()

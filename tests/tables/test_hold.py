@@ -15,6 +15,7 @@ import yaml
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+import codegen.tables.hold
 from codegen.cli.main import _build, main
 from codegen.errors import BuildError, JobError
 from codegen.firmware.avr.image import render_sources
@@ -23,7 +24,10 @@ from codegen.pipeline.host import host_build, trains_from
 from codegen.pipeline.streaming import stream_setup
 from codegen.sim.avr import simulate
 from codegen.tables.checks import check
-from codegen.tables.hold import F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, dilate, dilation_table, override_target
+from codegen.tables.hold import (F_MAX, F_ONE, RAMP_SHARE, RESUME_TICKS, STRETCH, dilate, dilation_table,
+                                 event_ceilings, event_runs, override_target, run_ceilings)
+from codegen.tables.schedule import in_force
+from codegen.tables.twin import event_ticks
 from codegen.verify.hold import hold_verify
 from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems
 from codegen.verify.hold_runs import FlashRun
@@ -245,3 +249,25 @@ def test_the_ramp_keeps_every_motor_within_its_limits_on_random_jobs(tmp_path_fa
     for name in host.kin.motors:
         assert findings.accel_ratio[name] <= max(1.0, host.findings.accel_ratio[name]) + 1e-9, findings.problems
         assert findings.rate_ratio[name] <= max(1.0, host.findings.rate_ratio[name]) + 1e-9, findings.problems
+
+
+def test_a_steady_stretch_dilated_in_pieces_is_the_twin_s_clock(star_host, monkeypatch):
+    """dilate sums a steady stretch STRETCH events at a time: at 100 % from the first event (the star's 83261 events:
+    two pieces) every tick is the twin's; overridden to 50 %, pieces of 1000 events give every tick and factor
+    that pieces of STRETCH give."""
+    schedule, plan = star_host.schedule, star_host.hold_plan
+    assert int(schedule.run_count.sum()) == 83261 > STRETCH
+    assert np.array_equal(dilate(schedule, plan, [(0, F_ONE)]).tick, event_ticks(schedule))
+    half = dilate(schedule, plan, [(0, 64)])
+    assert half.factor.dtype == np.int16 and (half.factor == 64).sum() > 80000  # all but the ramp's
+    monkeypatch.setattr(codegen.tables.hold, "STRETCH", 1000)
+    small = dilate(schedule, plan, [(0, 64)])
+    assert np.array_equal(small.tick, half.tick) and np.array_equal(small.factor, half.factor)
+
+
+def test_event_ceilings_come_from_the_runs_as_the_schedule_s_records_are_in_force(star_host):
+    """The ceiling at every event through its run (an int32 run index per event) is in_force's over the events."""
+    schedule = star_host.schedule
+    assert schedule.n_ceiling == 16
+    assert np.array_equal(event_ceilings(schedule), in_force(schedule, schedule.run_ceiling, F_ONE))
+    assert len(run_ceilings(schedule)) == len(schedule.run_count) and event_runs(schedule).dtype == np.int32

@@ -173,8 +173,8 @@ def test_a_hold_above_100_percent_comes_to_rest_and_resumes_exact(plotter):
 def test_a_twin_that_ignores_the_ceilings_does_not_pass(plotter, monkeypatch):
     """The comparison can fail: a player whose factor went up to the override whatever the ceilings is found out."""
     host, image = plotter
-    monkeypatch.setattr(codegen.tables.hold, "event_ceilings",
-                        lambda schedule: np.full(int(schedule.run_count.sum()), override_target(20)))
+    monkeypatch.setattr(codegen.tables.hold, "run_ceilings",
+                        lambda schedule: np.full(len(schedule.run_count), override_target(20)))
     result, _ = hold_verify(host, image, None, 200)
     assert not result["pass"]
     assert any("away from its predicted time" in p for p in result["problems"])

@@ -1,25 +1,31 @@
 """verify --hold/--override of an ATmega2560 flash image in bounded memory (codegen/verify/hold_bounded.py): with a
 host build that keeps only its tables, the run is read beside the simulation a chapter at a time, never as one
 trace of every pulse, and gives the verdict the whole run's comparison gives; the ceilings' shares and the edges'
-register writes come out the same read in pieces."""
+register writes come out the same read in pieces, and the laser's writes that no pulse to come reads are forgotten."""
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
 import pytest
+import yaml
 
+import codegen.cli.main
 import codegen.verify.chapters
 from codegen.cli.main import _build, main
 from codegen.job import load_job
 from codegen.report.summaries import write_trace
-from codegen.sim.avr import PHASE_RUN
+from codegen.sim.avr import PHASE_RUN, simulate
 from codegen.sim.avr_edges import DUTY_HIGH_PIN, DUTY_LOW_PIN, EDGE_RECORD, EdgeDecoder
 from codegen.tables.twin import Pulses
-from codegen.verify.compare import Comparison
+from codegen.verify.bounded import verify_flash
+from codegen.verify.compare import Comparison, compare, simulated_switches
 from codegen.verify.hold import hold_verify
 from codegen.verify.hold_limits import CeilingShares, ceiling_shares
+from codegen.verify.results import verify_json
+from codegen.verify.run_reader import RunReader
 from tests.helpers import ROOT
 from tests.verify.test_hold_heaters import PRINTER
 
@@ -116,3 +122,63 @@ def test_a_register_write_split_between_two_pieces_decodes_whole():
     for piece in (records[:1], records[1:3], records[3:]):
         pieces.feed(piece)
     assert pieces.duty().tolist() == whole.duty().tolist() == [[100, 0x1234], [200, 0x578]]
+
+
+def test_the_reader_forgets_the_laser_writes_no_pulse_to_come_reads():
+    """A held run's player writes the laser's power at every dilated event: the reader keeps the writes before the
+    table starts and from the one in force at the next pulse on, and every level from there reads the same."""
+    records = np.zeros(12, EDGE_RECORD)
+    records["cycle"] = np.repeat([50, 100, 200, 300, 400, 500], 2)
+    records["pin"] = [DUTY_LOW_PIN, DUTY_HIGH_PIN] * 6
+    records["level"] = [7, 0, 1, 0, 2, 0, 3, 0, 4, 0, 5, 0]
+    decoder = EdgeDecoder([False], [])
+    decoder.feed(records)
+    whole = decoder.duty()
+    decoder.forget_duty(start=80, upcoming=350)
+    assert decoder.duty().tolist() == [[50, 7], [300, 3], [400, 4], [500, 5]]
+    later = np.array([350, 399, 400, 450, 10**6])
+    assert np.array_equal(whole[np.searchsorted(whole[:, 0], later, side="right") - 1],
+                          decoder.duty()[np.searchsorted(decoder.duty()[:, 0], later, side="right") - 1])
+
+
+@needs_simavr
+def test_a_laser_overridden_a_chapter_at_a_time_keeps_a_chapter_s_power_writes(tmp_path, monkeypatch):
+    """At 50 % the player writes the laser's power at every event (33342 writes): the chapters' comparison forgets
+    those no pulse to come reads, ends holding two (reset's and the last), and its verdict is the one it gives
+    keeping every write."""
+    job = yaml.safe_load((ROOT / "examples" / "laser" / "power.yaml").read_text())
+    job["machine"]["feed_hold"] = {}
+    path = tmp_path / "laser-hold.yaml"
+    path.write_text(yaml.safe_dump(job, sort_keys=False))
+    host, image, _ = _build(load_job(path), str(tmp_path / "out"), reuse=False, strict=False)
+    whole, whole_trace = hold_verify(host, image, None, 50)
+    assert whole["pass"] and len(whole_trace.laser_duty) == 33342
+    monkeypatch.setattr(codegen.verify.chapters, "CHAPTER_PULSES", 4096)  # the laser's 41600 pulses: two chapters
+    tables = _tables_only(path, tmp_path / "out")[0]
+    forgetting, trace = hold_verify(tables, image, None, 50)
+    assert trace.laser_duty.tolist() == [whole_trace.laser_duty[0].tolist(), whole_trace.laser_duty[-1].tolist()]
+    monkeypatch.setattr(RunReader, "forget_duty", lambda reader: None)
+    keeping, trace = hold_verify(tables, image, None, 50)
+    assert len(trace.laser_duty) == 33342 and forgetting == keeping and forgetting["pass"]
+
+
+@needs_simavr
+def test_plain_verify_of_a_feed_hold_image_is_compared_a_chapter_at_a_time(star_flash, monkeypatch, capsys):
+    """No request and no M0/M1: the command line compares the star's image (it has feed_hold) as any other flash
+    image, beside the simulation (verify_flash), and says what the whole run's comparison says."""
+    host, image = star_flash
+    switches = simulated_switches(host)
+    trace = simulate(image.hex_path, host.firmware_config(), int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu),
+                     switches=switches)
+    whole = json.loads(json.dumps(verify_json(host, compare(host, trace, switches), image)))
+    compared = []
+
+    def spied(tables, *args, **kwargs):
+        result, found = verify_flash(tables, *args, **kwargs)
+        compared.append((tables.pulses, int((found.trace.step_phase == PHASE_RUN).sum())))
+        return result, found
+
+    monkeypatch.setattr(codegen.cli.main, "verify_flash", spied)
+    code = main(["verify", str(ROOT / "examples" / "star.yaml"), "--out", str(image.hex_path.parent), "--json"])
+    assert code == 0 and json.loads(capsys.readouterr().out) == whole and whole["pass"]
+    assert compared == [(None, 0)]  # the host kept its tables only; the trace, none of the table's 122852 pulses
