@@ -125,7 +125,7 @@ class Comparison:
         self.events = 0  # simulated events so far
         self.problems: list[str] = []
         self.laser_parts: list[LaserVerdict] = []
-        self.tool_on = False  # at the last chapter's last event
+        self.open_cut = None  # the laser's cut the last chapter left on
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
@@ -240,12 +240,10 @@ class Comparison:
         view = chapter_view(host, chapter)
         self.tool_events(view, event_cycle, twin_event)
         laser = laser_verdict(view, self.levels, event_cycle, twin_event, _chapter_dilation(self.dilation, chapter),
-                              chapter.laser_before, self.tool_on, chapter.last)
-        pulses = chapter.pulses
-        if len(pulses.event_block):  # the tool at the chapter's last event: a cut may go on into the next
-            self.tool_on = bool(chapter.schedule.block_tool[pulses.event_block[-1]])
-        if laser is not None:
+                              chapter.laser_before, self.open_cut, chapter.last)
+        if laser is not None:  # a cut left on goes on into the next chapter
             self.laser_parts.append(laser)
+            self.open_cut = laser.open_cut
         self.events += len(event_cycle)
 
     def tool_events(self, view: HostBuild, event_cycle: np.ndarray, twin_event: np.ndarray | None) -> None:

@@ -30,12 +30,25 @@ MAX_POWER_ERROR = 0.01  # of full scale: the issue's bound, at every step
 
 
 @dataclass
+class OpenCut:
+    """A cut still on at the end of a stretch of the run: its energies so far (simulated, planned) and its last
+    event's power and times, so that the next stretch judges the cut whole."""
+    sim: float
+    plan: float
+    played: float
+    ideal: float
+    seconds: float
+    planned_s: float
+
+
+@dataclass
 class LaserVerdict:
     pwm_hz: float
     max_power_error: float  # of full scale: the played power against the plan's, over every simulated event
     cuts: int  # stretches of tool-on events
     max_energy_error: float  # relative: each cut's energy per mm, simulated against planned
     problems: list[str] = field(default_factory=list)
+    open_cut: OpenCut | None = None  # the cut going on into the next stretch
 
     def as_json(self) -> dict:
         return {"pwm_hz": round(self.pwm_hz, 3), "max_power_error_pct": round(100 * self.max_power_error, 4),
@@ -43,13 +56,13 @@ class LaserVerdict:
 
 
 def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray | None,
-                  dilation=None, counts_before: int = 0, cut_open: bool = False,
+                  dilation=None, counts_before: int = 0, cut_before: OpenCut | None = None,
                   ends_run: bool = True) -> LaserVerdict | None:
     """The laser's figures from a stretch of a run (a chapter's: codegen/verify/chapters.py) whose simulated events
     (their first STEP edge, `event_cycle`) are paired with the twin's events (`twin_event`; None: they could not be
     paired); `dilation`: a held or overridden run's (codegen/tables/hold.py Dilation); `counts_before`: the PWM
-    counts the tables had set before the stretch; `cut_open`: the tool was on at the end of the stretch before (its
-    first cut goes on, and is counted there); `ends_run`: the stretch is the run's last (a held run's dilation
+    counts the tables had set before the stretch; `cut_before`: the cut the stretch before left on (its first cut
+    goes on: counted there, judged whole where it ends); `ends_run`: the stretch is the run's last (a held run's dilation
     has the event after any other's last). `merge_laser` joins the stretches' figures."""
     laser = host.laser
     if laser is None:
@@ -90,8 +103,8 @@ def laser_verdict(host, trace, event_cycle: np.ndarray, twin_event: np.ndarray |
     verdict.problems += steady_power_problems(host, twin_event, played, records, factor)
     seconds = (event_cycle - (trace.timer_start_cycle or 0)) / trace.f_cpu
     twin_s = host.events.time if dilation is None else dilation.tick / host.target.tick_hz
-    verdict.cuts, verdict.max_energy_error = _energy(host, twin_event, seconds, played / laser.top, ideal, twin_s,
-                                                     cut_open)
+    verdict.cuts, verdict.max_energy_error, verdict.open_cut = _energy(
+        host, twin_event, seconds, played / laser.top, ideal, twin_s[twin_event], cut_before, ends_run)
     return verdict
 
 
@@ -134,19 +147,32 @@ def merge_laser(parts: list[LaserVerdict], duty: np.ndarray, top: np.ndarray, pl
 
 
 def _energy(host, twin_event: np.ndarray, seconds: np.ndarray, played: np.ndarray, ideal: np.ndarray,
-            twin_s: np.ndarray, cut_open: bool = False):
-    """Cuts (stretches of tool-on events; one going on from before, `cut_open`, not counted again) and the largest
-    relative difference of a cut's energy per mm, simulated (the played power over the simulated times) against
-    planned (the ideal power over the plan's times): the path is the same, so the energies' ratio is that of their
-    energy per mm."""
+            planned_s: np.ndarray, before: OpenCut | None, ends_run: bool) -> tuple[int, float, OpenCut | None]:
+    """Cuts (stretches of tool-on events; one going on from before not counted again), the largest relative
+    difference of a cut's energy per mm, simulated (the played power over the simulated times) against planned
+    (the ideal power over the plan's times), and the cut left on at the stretch's end (judged where it ends, or
+    here at the run's end): the path is the same, so the energies' ratio is that of their energy per mm."""
     on = host.schedule.block_tool[host.pulses.event_block[twin_event]].astype(bool)
+    if not len(on):
+        return 0, 0.0, before
+    going_on = before is not None and bool(on[0])
+    if going_on:  # the interval from the cut's last event before to this stretch's first is the cut's too
+        on = np.concatenate([[True], on])
+        seconds, played = np.concatenate([[before.seconds], seconds]), np.concatenate([[before.played], played])
+        ideal, planned_s = np.concatenate([[before.ideal], ideal]), np.concatenate([[before.planned_s], planned_s])
     if not on.any():
-        return 0, 0.0
+        return 0, 0.0, None
     cut = np.cumsum(np.diff(np.concatenate([[0], on.astype(np.int8)])) == 1) - 1
     inside = on[:-1] & on[1:] & (cut[:-1] == cut[1:])  # the time from one event to the next within a cut
     n = int(cut[-1]) + 1
-    planned_s = twin_s[twin_event]
     sim = np.bincount(cut[:-1][inside], weights=(played[:-1] * np.diff(seconds))[inside], minlength=n)
     plan = np.bincount(cut[:-1][inside], weights=(ideal[:-1] * np.diff(planned_s))[inside], minlength=n)
+    if going_on:
+        sim[0], plan[0] = sim[0] + before.sim, plan[0] + before.plan
+    left_on = None
+    if on[-1] and not ends_run:
+        left_on = OpenCut(float(sim[-1]), float(plan[-1]), float(played[-1]), float(ideal[-1]), float(seconds[-1]),
+                          float(planned_s[-1]))
+        sim, plan = sim[:-1], plan[:-1]
     lit = plan > 0
-    return n - int(cut_open and on[0]), float(np.max(np.abs(sim[lit] - plan[lit]) / plan[lit], initial=0.0))
+    return n - int(going_on), float(np.max(np.abs(sim[lit] - plan[lit]) / plan[lit], initial=0.0)), left_on
