@@ -11,7 +11,8 @@ import math
 
 import numpy as np
 
-REACH_MM = 1e5  # 100 m from the origin: beyond any machine, and far inside the planner's float precision
+from codegen.job.schema.fields import REACH_MM
+
 POSITION_STEPS = 2**31 - 1  # the firmware's positions in steps are int32
 LONGEST_MOVE_S = 86_400.0  # a day: no real move is slower; the host plans (and the twin plays) every event of it
 LONGEST_DWELL_S = 86_400.0  # a day: a dwell is planned as events of the longest interval, so its length costs

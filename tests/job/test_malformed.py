@@ -151,3 +151,14 @@ def test_half_a_surrogate_pair_and_control_characters_in_the_name_are_refused(tm
         (1, 7, "name: \\uD800 is half of a UTF-16 surrogate pair, not a character; write the character itself or "
                "its \\U00XXXXXX escape")]
     assert errors(job(tmp_path, name='"\\e[31mred"')) == [(1, 7, "name: must be printable text (no control characters)")]
+
+
+def test_a_range_beyond_the_reach_is_refused_at_the_range(tmp_path):
+    """The long fuzz run's one traceback: `range: [0, 1e308]` made homing's travel infinite (OverflowError in
+    program/homing.py)."""
+    text = ("machine:\n  kinematics: cartesian\n  steppers:\n"
+            "    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000, range: [0, 1.0e+308]}\n"
+            "    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000, range: [-100000, 100000]}\n"
+            "program:\n  home: true\n  gcode: G1 X1 F600\n")
+    assert errors(job(tmp_path, text=text)) == [
+        (4, 70, "machine.steppers.x.range: must be within 100000 mm of the origin (100 m is beyond any machine)")]

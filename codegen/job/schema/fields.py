@@ -101,6 +101,7 @@ def _within(low: float, high: float, below: str, above: str = "") -> AfterValida
 
 
 # Machine numbers beyond these make the host's work grow with the number, not with the job's steps.
+REACH_MM = 1e5  # 100 m from the origin: beyond any machine, and far inside the planner's float precision
 STEPS_PER_MM = _within(0.1, 1e5, "a step longer than 10 mm is no stepper drive's",
                        "a step finer than 10 nm is finer than any drive; positions in steps are int32")
 # the planner cuts curves into pieces within the tolerance: a tolerance of atoms makes countless pieces

@@ -8,8 +8,8 @@ from pydantic import BeforeValidator, Field, PrivateAttr, ValidationInfo, field_
 
 from codegen.errors import SourceRef
 from codegen.job.schema.fields import (BACKOFF, DELTA_SIZE, HOMING_SPEED, JUNCTION, KINEMATICS, LEAST_ACCEL, MOTORS,
-                                       SLOWEST_TOP_SPEED, STEPS_PER_MM, TOLERANCE, XY, Angles, Flag, Model, Positive,
-                                       choice, fail, number_value)
+                                       REACH_MM, SLOWEST_TOP_SPEED, STEPS_PER_MM, TOLERANCE, XY, Angles, Flag, Model,
+                                       Positive, choice, fail, number_value)
 from codegen.job.schema.heaters import Heater
 
 
@@ -35,6 +35,8 @@ class Stepper(Model):
     def _ordered(cls, v: Optional[tuple[float, float]]) -> Optional[tuple[float, float]]:
         if v is not None and not v[0] < v[1]:
             raise fail("range", "must be [min, max] with min < max")
+        if v is not None and not -REACH_MM <= v[0] < v[1] <= REACH_MM:  # homing's travel is a range's length
+            raise fail("range", f"must be within {REACH_MM:g} mm of the origin (100 m is beyond any machine)")
         return v
 
 
