@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from codegen.shapes.context import Pen
+from codegen.shapes.context import Pen, within_a_turn
 from codegen.toolpath.items import Arc, Item
 
 
@@ -21,6 +21,7 @@ def circle(shape, pen: Pen) -> list[Item]:
 
 
 def _arc(shape, pen: Pen, start_deg: float, sweep_deg: float) -> list[Item]:
+    start_deg = within_a_turn(start_deg)
     cx, cy = float(shape.center[0]), float(shape.center[1])
     r = float(shape.radius)
     z = pen.z(shape)

@@ -95,6 +95,12 @@ class Pen:
         return items
 
 
+def within_a_turn(degrees: float) -> float:
+    """An angle in degrees brought within (-360, 360), exactly (fmod is exact and 360 is a float): a start angle
+    or phase of 1e18 degrees would otherwise swallow the sweep added to it and every x in sin(omega x + phase)."""
+    return math.fmod(float(degrees), 360.0)
+
+
 def max_cos(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """The exact largest cos(u) for u in each [lo_i, hi_i]."""
     turn = 2.0 * math.pi

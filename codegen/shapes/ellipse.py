@@ -10,14 +10,14 @@ import math
 
 import numpy as np
 
-from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, max_cos, split_chords
+from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, max_cos, split_chords, within_a_turn
 from codegen.toolpath.items import Item
 
 
 def ellipse(shape, pen: Pen) -> list[Item]:
     a, b = float(shape.a), float(shape.b)
-    rotation = math.radians(shape.rotation)
-    start_deg, sweep_deg = float(shape.start), float(shape.sweep)
+    rotation = math.radians(within_a_turn(shape.rotation))
+    start_deg, sweep_deg = within_a_turn(shape.start), float(shape.sweep)
     start, end = math.radians(start_deg), math.radians(start_deg + sweep_deg)
     mean, half = (a * a + b * b) / 2.0, (a * a - b * b) / 2.0
     shift = 0.0 if half >= 0.0 else math.pi  # the largest of -|half| cos u is where cos(u - pi) is largest

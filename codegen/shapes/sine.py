@@ -10,14 +10,14 @@ import math
 
 import numpy as np
 
-from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, max_cos, split_chords
+from codegen.shapes.context import MAX_CHORDS, ChordError, Pen, max_cos, split_chords, within_a_turn
 from codegen.toolpath.items import Item
 
 
 def sine(shape, pen: Pen) -> list[Item]:
     x0, y0 = float(shape.origin[0]), float(shape.origin[1])
     amplitude, omega = float(shape.amplitude), float(shape.omega)
-    phase = math.radians(shape.phase)
+    phase = math.radians(within_a_turn(shape.phase))
     x1 = x0 + float(shape.length)
     peak = abs(amplitude) * omega * omega
 

@@ -162,3 +162,13 @@ def test_a_range_beyond_the_reach_is_refused_at_the_range(tmp_path):
             "program:\n  home: true\n  gcode: G1 X1 F600\n")
     assert errors(job(tmp_path, text=text)) == [
         (4, 70, "machine.steppers.x.range: must be within 100000 mm of the origin (100 m is beyond any machine)")]
+
+
+def test_a_start_beyond_the_reach_is_refused_at_the_start(tmp_path):
+    """The long fuzz run: `start: [10, 1e20]` planned relative moves from there and failed its own checks."""
+    text = ("machine:\n  kinematics: cartesian\n  steppers:\n"
+            "    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+            "    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+            "program:\n  start: [10, 1.0e+20]\n  gcode: G91 G1 X1 F600\n")
+    assert errors(job(tmp_path, text=text)) == [
+        (7, 10, "program.start: must be within 100000 mm of the origin (100 m is beyond any machine)")]

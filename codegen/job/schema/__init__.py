@@ -17,8 +17,8 @@ from typing import Annotated, Any, Optional
 from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from codegen.errors import SourceRef
-from codegen.job.schema.fields import (DEFAULT_BOARDS, KINEMATICS, MOTORS, REQUIRED_MOTORS, TARGETS, Flag, Model, Point,
-                                       Positive, Text, choice, fail)
+from codegen.job.schema.fields import (DEFAULT_BOARDS, KINEMATICS, MOTORS, REACH_MM, REQUIRED_MOTORS, TARGETS, Flag,
+                                       Model, Point, Positive, Text, choice, fail)
 from codegen.job.schema.heaters import (DEFAULT_MAX_TEMP_C, DEFAULT_SENSOR, HEATERS, BangBang, Control, CustomSensor,
                                         Heater, PidGains, PlantOverrides)
 from codegen.job.schema.machine import Delta, FeedHold, Homing, Jog, Laser, Link, Machine, Stepper
@@ -53,6 +53,13 @@ class Program(Model):
     @start_source.setter
     def start_source(self, value: Optional[SourceRef]) -> None:
         self._start_source = value
+
+    @field_validator("start")
+    @classmethod
+    def _within_reach(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if any(not abs(c) <= REACH_MM for c in v):  # every position the program reaches from it is checked so
+            raise fail("range", f"must be within {REACH_MM:g} mm of the origin (100 m is beyond any machine)")
+        return v
 
     @property
     def gcode_source(self) -> SourceRef:
