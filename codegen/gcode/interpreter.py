@@ -288,7 +288,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         (explicit or modal) and the supported codes by name (None: the line does nothing more)."""
         names: dict[str, int] = {}
         groups: dict[str, str] = {}
-        motion, taker, harmless = None, None, []
+        motion, taker, harmless, takes = None, None, [], []
         for name, k in codes:
             group = group_of(name)
             if group in groups:
@@ -333,9 +333,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                     k = min(self.word_index(block, a) for a in (*AXIS_LETTERS, *"IJKR") if a in params)
                     problems.append((k, f"'{block.words[k][0]}{block.words[k][1]}': G80 on this line cancels the "
                                      "motion mode; axis words need G0, G1, G2 or G3"))
-        used = set("FS")
-        for name, k, _ in harmless:  # the rest of the line keeps its meaning: G64 X5 moves in the modal motion
-            used.update(self.harmless_takes(block, name, k))
+        used = set("FS").union(*takes)  # the rest of the line keeps its meaning: G64 X5 moves in the modal motion
         for name in names:
             used.update(PARAMS[name])
         if motion is not None:

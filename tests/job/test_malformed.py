@@ -153,22 +153,23 @@ def test_half_a_surrogate_pair_and_control_characters_in_the_name_are_refused(tm
     assert errors(job(tmp_path, name='"\\e[31mred"')) == [(1, 7, "name: must be printable text (no control characters)")]
 
 
+def xy_job(x_extra: str = "", y_extra: str = "", program: str = "  gcode: G1 X1 F600\n") -> str:
+    """A cartesian x, y job's text; `x_extra`, `y_extra`: more fields of each stepper's mapping."""
+    stepper = "{{steps_per_mm: 80, max_velocity: 200, max_accel: 3000{}}}"
+    return (f"machine:\n  kinematics: cartesian\n  steppers:\n    x: {stepper.format(x_extra)}\n"
+            f"    y: {stepper.format(y_extra)}\nprogram:\n{program}")
+
+
 def test_a_range_beyond_the_reach_is_refused_at_the_range(tmp_path):
     """The long fuzz run's one traceback: `range: [0, 1e308]` made homing's travel infinite (OverflowError in
     program/homing.py)."""
-    text = ("machine:\n  kinematics: cartesian\n  steppers:\n"
-            "    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000, range: [0, 1.0e+308]}\n"
-            "    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000, range: [-100000, 100000]}\n"
-            "program:\n  home: true\n  gcode: G1 X1 F600\n")
+    text = xy_job(", range: [0, 1.0e+308]", ", range: [-100000, 100000]", "  home: true\n  gcode: G1 X1 F600\n")
     assert errors(job(tmp_path, text=text)) == [
         (4, 70, "machine.steppers.x.range: must be within 100000 mm of the origin (100 m is beyond any machine)")]
 
 
 def test_a_start_beyond_the_reach_is_refused_at_the_start(tmp_path):
     """The long fuzz run: `start: [10, 1e20]` planned relative moves from there and failed its own checks."""
-    text = ("machine:\n  kinematics: cartesian\n  steppers:\n"
-            "    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
-            "    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
-            "program:\n  start: [10, 1.0e+20]\n  gcode: G91 G1 X1 F600\n")
+    text = xy_job(program="  start: [10, 1.0e+20]\n  gcode: G91 G1 X1 F600\n")
     assert errors(job(tmp_path, text=text)) == [
         (7, 10, "program.start: must be within 100000 mm of the origin (100 m is beyond any machine)")]
