@@ -47,16 +47,22 @@ def test_signature_is_the_innermost_codegen_frame():
 
 
 def fake_pipeline(item: FuzzInput) -> int:
-    """Fails on the words in its G-code: BOOM raises, SLEEP hangs, MASKED hangs with SIGALRM blocked (only the
-    watchdog ends it), GREEDY asks for 2 GiB, SEGV dies by a signal."""
+    """Fails on the words in its G-code: BOOM raises, SPIN works forever, MASKED does with SIGPROF blocked (only
+    the watchdog ends it), SLEEP waits forever (the wall clock's watchdog ends it), NAP waits longer than the CPU
+    time limit but works little (a worker sharing its core: not a hang), GREEDY asks for 2 GiB, SEGV dies by a
+    signal."""
     gcode = item.gcode or b""
     if b"BOOM" in gcode:
         raise ValueError("boom")
     if b"MASKED" in gcode:
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
-        time.sleep(30)
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGPROF})
+        _spin()
+    if b"SPIN" in gcode:
+        _spin()
     if b"SLEEP" in gcode:
-        time.sleep(30)
+        time.sleep(60)
+    if b"NAP" in gcode:
+        time.sleep(1.0)
     if b"GREEDY" in gcode:
         bytearray(2 * GiB)
     if b"SEGV" in gcode:
@@ -64,15 +70,21 @@ def fake_pipeline(item: FuzzInput) -> int:
     return 0
 
 
+def _spin() -> None:
+    while True:
+        pass
+
+
 def test_pool_classifies_hangs_memory_and_crashes_and_replaces_workers():
-    words = [b"G1 X1", b"SLEEP", b"GREEDY", b"SEGV", b"MASKED", b"BOOM", b"G0"]
+    words = [b"G1 X1", b"SPIN", b"NAP", b"GREEDY", b"SEGV", b"MASKED", b"SLEEP", b"BOOM", b"G0"]
     with WorkerPool(fake_pipeline, jobs=2, time_limit=0.5, memory_bytes=1 * GiB) as pool:
         outcomes = dict(pool.imap((w, FuzzInput(b"", w)) for w in words))
     kinds = {word: outcome.kind for word, outcome in outcomes.items()}
-    assert kinds == {b"G1 X1": OK, b"SLEEP": HANG, b"GREEDY": MEMORY, b"SEGV": CRASH, b"MASKED": HANG,
-                     b"BOOM": TRACEBACK, b"G0": OK}
+    assert kinds == {b"G1 X1": OK, b"SPIN": HANG, b"NAP": OK, b"GREEDY": MEMORY, b"SEGV": CRASH, b"MASKED": HANG,
+                     b"SLEEP": HANG, b"BOOM": TRACEBACK, b"G0": OK}
     assert outcomes[b"SEGV"].signature.startswith("crash by SIGSEGV")
-    assert "Timeout (" in outcomes[b"MASKED"].detail  # the watchdog's stack, not the alarm's
+    assert "Timeout (" not in outcomes[b"SPIN"].detail  # the CPU time limit's Hang
+    assert "Timeout (" in outcomes[b"MASKED"].detail and "Timeout (" in outcomes[b"SLEEP"].detail  # the watchdog's
 
 
 def test_shrink_keeps_the_smallest_input_that_fails_the_same_way():
@@ -130,14 +142,14 @@ def test_an_empty_campaign_has_no_table_rows(tmp_path):
 def test_a_plan_at_the_planners_pace_at_its_time_limit_is_long_not_a_hang():
     """A job of millions of steps runs past the limit while planning as fast as it should: LONG. The same
     interruption with nothing planned (a stage that never ends) is a hang."""
-    previous = signal.signal(signal.SIGALRM, _alarm)
+    previous = signal.signal(signal.SIGPROF, _alarm)  # the pool's CPU time limit
     try:
-        signal.setitimer(signal.ITIMER_REAL, 2.0)
+        signal.setitimer(signal.ITIMER_PROF, 2.0)
         outcome = classify(lambda: plan_file(EXAMPLES / "printers" / "benchy-mini.yaml"), 2.0)
-        signal.setitimer(signal.ITIMER_REAL, 0.5)
-        stuck = classify(lambda: time.sleep(5) or 0, 0.5)
+        signal.setitimer(signal.ITIMER_PROF, 0.5)
+        stuck = classify(lambda: _spin() or 0, 0.5)
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        signal.signal(signal.SIGPROF, previous)
     assert outcome.kind == LONG and int(outcome.detail.split()[0]) >= 2.0 * LONG_EVENTS_PER_S
     assert (stuck.kind, stuck.signature) == (HANG, "hang in ?")

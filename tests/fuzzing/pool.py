@@ -1,6 +1,7 @@
-"""Forked workers that run inputs in-process under a time limit (SIGALRM raising Hang; faulthandler's watchdog
-dumps the stack and exits where a C loop never returns to Python; the parent kills after that) and a memory
-limit (RLIMIT_AS). Forked from a parent that has imported codegen, so no worker imports it again; a worker
+"""Forked workers that run inputs in-process under a time limit of CPU seconds (SIGPROF raising Hang: a worker
+that shares its core with other work is not cut short; faulthandler's watchdog dumps the stack and exits, by the
+wall clock, where a C loop never returns to Python or the worker waits without working; the parent kills after
+that) and a memory limit (RLIMIT_AS). Forked from a parent that has imported codegen, so no worker imports it again; a worker
 that dies is replaced, and so is one that hit a limit (its state may be half changed)."""
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from typing import Any, Callable, Iterable, Iterator
 
 from tests.fuzzing.outcomes import HANG, MEMORY, Hang, Outcome, classify, died
 
-WATCHDOG_S = 3.0  # after the time limit: faulthandler dumps the stack and ends the worker
-KILL_S = 6.0  # after the time limit: the parent kills the worker
+WALL_FACTOR = 4  # the wall clock's limit, in CPU time limits: a worker may get a quarter of a core
+WATCHDOG_S = 3.0  # after the wall's limit: faulthandler dumps the stack and ends the worker
+KILL_S = 6.0  # after the wall's limit: the parent kills the worker
 GiB = 1 << 30
 
 
@@ -36,7 +38,7 @@ def _serve(run: Callable[[Any], int], conn: Connection, folder: Path, dump_path:
     resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
     dump = open(dump_path, "w+")
     faulthandler.enable(dump)  # a segfault's stack goes to the dump, for the parent's signature
-    signal.signal(signal.SIGALRM, _alarm)
+    signal.signal(signal.SIGPROF, _alarm)
     while True:
         try:
             message = conn.recv()
@@ -47,11 +49,11 @@ def _serve(run: Callable[[Any], int], conn: Connection, folder: Path, dump_path:
         key, item = message
         os.ftruncate(dump.fileno(), 0)
         os.lseek(dump.fileno(), 0, os.SEEK_SET)
-        faulthandler.dump_traceback_later(time_limit + WATCHDOG_S, exit=True, file=dump)
-        signal.setitimer(signal.ITIMER_REAL, time_limit)
+        faulthandler.dump_traceback_later(WALL_FACTOR * time_limit + WATCHDOG_S, exit=True, file=dump)
+        signal.setitimer(signal.ITIMER_PROF, time_limit)  # CPU seconds, this process's threads all counted
         outcome = classify(lambda: run(item), time_limit)
         try:
-            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.setitimer(signal.ITIMER_PROF, 0)
         except Hang:  # the alarm went off just as the input finished
             pass
         faulthandler.cancel_dump_traceback_later()
@@ -130,7 +132,7 @@ class WorkerPool:
                         exhausted = True
                         break
                     worker.conn.send((worker.key, item))
-                    worker.busy, worker.deadline = True, time.monotonic() + self.time_limit + KILL_S
+                    worker.busy, worker.deadline = True, time.monotonic() + WALL_FACTOR * self.time_limit + KILL_S
             busy = [w for w in self.workers if w.busy]
             if not busy:
                 return
