@@ -86,15 +86,22 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, lis
     setup = stream_setup(job, args.baud)
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
-    samples, result = None, None
+    samples, result, held = None, None, args.hold is not None or args.override is not None
     if bounded(args, setup.target.target, job, streamed=True):
         with tempfile.NamedTemporaryFile(prefix="table-", suffix=".bin") as table:  # the comparison reads it too
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
-            if not runtime_pauses(host):  # M0/M1 wait for resume frames: verified whole (hold_verify), below
+            held = runtime_pauses(host)  # M0/M1 wait for resume frames: hold_verify, below
+            if not held:
                 result, compared = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
                                                            outputs=run_outputs(args))
                 trace, samples = compared.trace, compared.samples
-    if result is None:  # kept whole: --hold, --override, M0/M1 or an 8051's --vcd
+    if held and setup.target.target == "avr" and not (args.report or args.vcd):
+        # --hold, --override or M0/M1 on an ATmega2560: its tables only, compared a chapter at a time
+        host = _checked(streamed_host(job, setup, args.strict, keep="tables"))
+        steps_csv = Path(args.trace) if args.trace else None  # written as the run is compared
+        args.trace = None
+        result, trace = hold_verify(host, image, args.hold, args.override, setup, steps_csv)
+    if result is None:  # kept whole: an 8051's, or --report's and --vcd's
         host = _checked(streamed_host(job, setup, args.strict, keep=True))
         if args.hold is not None or args.override is not None or pauses(host):
             result, trace = hold_verify(host, image, args.hold, args.override, setup)

@@ -8,8 +8,9 @@ The run is simulated twice: first as it is (where the job's first event falls: t
 pressed and placed as codegen/verify/hold_search.py says: each request's first dilated event is the candidate the
 simulated pulses agree with, and reported. Everything after follows from it: the times of every pulse, where the
 machine comes to rest, and the limits over the whole run (checks.py); the ramp and the ceilings are held to their own
-rules, from the job's settings (hold_limits.py). An ATmega2560's flash image is compared a chapter at a time, in
-memory that does not grow with the print (codegen/verify/hold_bounded.py), where its host keeps only its tables."""
+rules, from the job's settings (hold_limits.py). An ATmega2560's flash image or stream is compared a chapter at a
+time, in memory that does not grow with the print (codegen/verify/hold_bounded.py), where its host keeps only its
+tables."""
 
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
                 steps_csv: Path | None = None) -> tuple[dict, object]:
     """The verdict (verify's JSON, with `hold`; a stream's with `link`) and the run's trace. `setup`: the
     streaming firmware's (codegen/pipeline/streaming.py), else the flash image. A host that keeps only its tables
-    (host_build keep="tables": an ATmega2560's flash image) is compared in bounded memory
+    (host_build keep="tables": an ATmega2560's flash image or stream) is compared in bounded memory
     (codegen/verify/hold_bounded.py): its trace has no table pulses, and `steps_csv` gets --trace's rows as they
     are compared."""
     if host.hold_plan is None:
@@ -74,8 +75,9 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     presses = requests.presses()
     slower = 1.0 if override is None else 11.0
     held = held_bounded if host.pulses is None else _held_whole
-    verdict, trace, ramp, parks, resume_arrived, shares = held(host, runner, requests, presses, slower, steps_csv)
-    result = runner.result(verdict, trace)
+    compared, ramp, parks, resume_arrived, shares = held(host, runner, requests, presses, slower, steps_csv)
+    trace = compared.trace
+    result = runner.result(compared.verdict, trace, compared if host.pulses is None else None)
     result["hold"] = _report(host, actions, parks, ramp.highest_factor, tick0, resume_arrived, override, shares)
     limits = ramp_problems(host, ramp) + ceiling_problems(shares)  # the dilated twin shares these: first
     result["problems"][:0] = limits
@@ -107,7 +109,15 @@ def _held_whole(host: HostBuild, runner, requests: Requests, presses: list[tuple
                       dilation=final)
     ramp = ramp_watch(host)
     ramp.add(final, 0)
-    return verdict, trace, ramp, final.parks, resume_arrived, ceiling_shares(host)
+    return WholeRun(verdict, trace), ramp, final.parks, resume_arrived, ceiling_shares(host)
+
+
+@dataclasses.dataclass
+class WholeRun:
+    """What _held_whole's comparison found: its verdict and the trace with every pulse."""
+
+    verdict: object
+    trace: object
 
 
 def pauses(host: HostBuild) -> bool:

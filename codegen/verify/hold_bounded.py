@@ -20,12 +20,11 @@ from typing import Callable
 import numpy as np
 
 from codegen.pipeline.host import HostBuild, host_build
-from codegen.sim.avr import SimTrace
 from codegen.tables.hold import Dilator
 from codegen.verify import chapters
-from codegen.verify.bounded import BoundedComparison, RunOutputs, give_back_freed_memory
+from codegen.verify.bounded import BoundedComparison, Compared, RunOutputs, give_back_freed_memory
 from codegen.verify.chapters import Chapter, Chapters
-from codegen.verify.compare import Comparison, Verdict
+from codegen.verify.compare import Comparison
 from codegen.verify.heaters import host_timeline
 from codegen.verify.hold_limits import CeilingShares, RampWatch, ramp_watch
 from codegen.verify.hold_search import FirstCycles, NearRequests, Requests, dilated_clock
@@ -40,8 +39,8 @@ class FirstPulses:
     chapter's first event's planned time and twin tick in `firsts` (by its index: the dilated clock of the
     chapter before ends there), and the ceilings' shares in `shares` (hold_limits.py)."""
 
-    def __init__(self, host: HostBuild, chapter_pulses: int, near: NearRequests):
-        self.host, self.chapter_pulses, self.near = host, chapter_pulses, near
+    def __init__(self, host: HostBuild, chapter_pulses: int, near: NearRequests, link=None):
+        self.host, self.chapter_pulses, self.near, self.link = host, chapter_pulses, near, link
         self.events: list[np.ndarray] = []
         self.cycles: list[np.ndarray] = []
         self.firsts: dict[int, tuple[float, int]] = {}
@@ -75,7 +74,7 @@ class FirstPulses:
             give_back_freed_memory()
 
         sink = Chapters(chapter, self.chapter_pulses)
-        host_build(host.job, keep=False, observe=sink)
+        host_build(host.job, keep=False, link=self.link, observe=sink)
         sink.close()
         self.paired = self.paired and not len(reader.rest().cycle)
 
@@ -93,8 +92,9 @@ class DilatedComparison(BoundedComparison):
     (`ramp`). The plan's times go onto it a chapter at a time (`warp`): through the chapter's events, the last one
     before it and the first one after it, all that interpolating between events reads of the times there."""
 
-    def __init__(self, host: HostBuild, switches: dict, chapter_pulses: int, steps_csv: Path | None):
-        super().__init__(host, False, None, switches, False, chapter_pulses, RunOutputs(steps_csv=steps_csv))
+    def __init__(self, host: HostBuild, switches: dict, chapter_pulses: int, steps_csv: Path | None, link=None):
+        super().__init__(host, False, link, switches, link is not None, chapter_pulses,
+                         RunOutputs(steps_csv=steps_csv))
         self.dilation: Dilator | None = None
         self.firsts: dict[int, tuple[float, int]] = {}
         self.before = _NO_EVENT  # the chapter before's last event: planned time, twin tick, dilated tick
@@ -129,19 +129,24 @@ class DilatedComparison(BoundedComparison):
 
 
 def held_bounded(host: HostBuild, runner, requests: Requests, presses: list[tuple[str, int]], slower: float,
-                 steps_csv: Path | None = None) -> tuple[Verdict, SimTrace, RampWatch, list, list[int], dict]:
-    """hold_verify's run of a flash image (`runner`: hold_runs.py's FlashRun or HeatedRun, whose keys reach the
-    firmware as they are pressed) read beside the simulation: the verdict, the trace (without the table's pulses),
-    the ramp's watch, the parks, the resumes' presses and the ceilings' shares."""
-    chapter_pulses = chapters.CHAPTER_PULSES
-    comparison = DilatedComparison(host, runner.switches, chapter_pulses, steps_csv)
-    resume_arrived = [cycle for function, cycle in presses if function == "resume"]
+                 steps_csv: Path | None = None) -> tuple[Compared, RampWatch, list, list[int], dict]:
+    """hold_verify's run of a flash image or an ATmega2560's stream (`runner`: hold_runs.py's FlashRun, HeatedRun or
+    StreamRun, with its stream's `link_budget`) read beside the simulation: what the comparison found (its
+    trace without the table's pulses), the ramp's watch, the parks, the resumes' arrivals and the ceilings'
+    shares."""
+    chapter_pulses, link = chapters.CHAPTER_PULSES, runner.link_budget
+    comparison = DilatedComparison(host, runner.switches, chapter_pulses, steps_csv, link)
+    resume_arrived: list[int] = []
     shares: dict = {}  # the first reading's
 
     def beside(edges: Path, ended: Callable[[], bool]) -> None:
-        first = FirstPulses(host, chapter_pulses, requests.near(presses))
+        first = FirstPulses(host, chapter_pulses, requests.near(presses), link)
         first.run(edges, ended)
         shares.update(first.shares.shares())
+        arrived = runner.arrivals(presses)  # a frame reaches the firmware when its last byte has arrived
+        for a, when in zip(requests.actions, arrived):
+            a.press = when
+        resume_arrived.extend(arrived[len(requests.actions):])
         comparison.dilation = requests.place(first.first_cycles(), resume_arrived)
         comparison.firsts = first.firsts
         del first  # placed: the pass's arrays go before the comparison's chapters come
@@ -151,5 +156,4 @@ def held_bounded(host: HostBuild, runner, requests: Requests, presses: list[tupl
     give_back_freed_memory()  # the requests' placing before the run
     end, _ = runner.run(presses, slower, beside)
     compared = comparison.finish(end)
-    parks = comparison.dilation.parks
-    return compared.verdict, compared.trace, comparison.ramp, parks, resume_arrived, shares
+    return compared, comparison.ramp, comparison.dilation.parks, resume_arrived, shares

@@ -1,6 +1,7 @@
 """verify --stream picks its comparison: a job with machine.feed_hold and no request is compared a chapter at a
-time like any other (codegen/verify/bounded.py), with the verdict the whole run gives; one with M0/M1 (whose
-pauses wait for resume frames) and one with --hold are simulated whole (codegen/verify/hold.py)."""
+time like any other (codegen/verify/bounded.py); one with M0/M1 (whose pauses wait for resume frames) or --hold
+on an ATmega2560 goes to codegen/verify/hold.py with a build that keeps only its tables, compared a chapter at a
+time too (codegen/verify/hold_bounded.py); each with the verdict the whole run gives."""
 
 from __future__ import annotations
 
@@ -42,10 +43,19 @@ def test_a_feed_hold_stream_without_requests_is_compared_a_chapter_at_a_time(tak
     assert taken[1:] == ["simulate_stream"] and json.loads(capsys.readouterr().out) == bounded
 
 
-def test_m0_and_hold_requests_are_simulated_whole(taken, tmp_path, capsys):
-    pen_change = str(ROOT / "examples" / "gcode" / "pen-change.yaml")
-    assert main(["verify", pen_change, "--stream", "--out", str(tmp_path)]) == 0
-    assert "M0/M1 pause: at rest" in capsys.readouterr().out
-    assert main(["verify", str(ROOT / "examples" / "star.yaml"), "--stream", "--hold", "1.0", "--out",
-                 str(tmp_path / "star")]) == 0
-    assert taken == ["hold_verify", "hold_verify"]
+@pytest.mark.parametrize("example, options", [("gcode/pen-change.yaml", []), ("star.yaml", ["--hold", "1.0"]),
+                                              ("star.yaml", ["--override", "50"])])
+def test_m0_and_requests_on_a_stream_are_compared_a_chapter_at_a_time(taken, tmp_path, capsys, monkeypatch,
+                                                                       example, options):
+    hosts = []
+    hold_verify = codegen.cli.stream.hold_verify
+    monkeypatch.setattr(codegen.cli.stream, "hold_verify", lambda host, *a, **kw: hosts.append(host) or
+                        hold_verify(host, *a, **kw))
+    command = ["verify", str(ROOT / "examples" / example), "--stream", "--json", "--out", str(tmp_path), *options]
+    assert main(command) == 0
+    bounded = json.loads(capsys.readouterr().out)
+    assert hosts[0].pulses is None and bounded["pass"]  # the tables only
+    streamed_host = codegen.cli.stream.streamed_host
+    monkeypatch.setattr(codegen.cli.stream, "streamed_host", lambda *a, keep, **kw: streamed_host(*a, keep=True, **kw))
+    assert main(command) == 0
+    assert hosts[1].pulses is not None and json.loads(capsys.readouterr().out) == bounded
