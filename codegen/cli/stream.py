@@ -17,6 +17,7 @@ from codegen.pipeline.host import HostBuild, host_build
 from codegen.pipeline.normalized import job_fingerprint
 from codegen.pipeline.streaming import StreamSetup, build_stream_firmware, stream_chunks, stream_setup
 from codegen.report.summaries import human_plan, plan_summary, write_json
+from codegen.tables.schedule import RT_PAUSE
 from codegen.verify.bounded import RunOutputs
 from codegen.verify.heaters import job_faults
 from codegen.verify.hold import hold_verify, pauses
@@ -85,14 +86,22 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, lis
     setup = stream_setup(job, args.baud)
     faults = job_faults(args.fault, tuple(h.name for h in setup.config.heaters))
     image, out_dir = _firmware(job, setup, args.out)
-    samples = None
+    samples, result, held = None, None, args.hold is not None or args.override is not None
     if bounded(args, setup.target.target, job, streamed=True):
         with tempfile.NamedTemporaryFile(prefix="table-", suffix=".bin") as table:  # the comparison reads it too
             host = _checked(streamed_host(job, setup, args.strict, keep=False, tables_out=table))
-            result, compared = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
-                                                       outputs=run_outputs(args))
-            trace, samples = compared.trace, compared.samples
-    else:
+            held = runtime_pauses(host)  # M0/M1 wait for resume frames: hold_verify, below
+            if not held:
+                result, compared = simulate_stream_bounded(host, setup, image, faults, table, args.strict,
+                                                           outputs=run_outputs(args))
+                trace, samples = compared.trace, compared.samples
+    if held and setup.target.target == "avr" and not (args.report or args.vcd):
+        # --hold, --override or M0/M1 on an ATmega2560: its tables only, compared a chapter at a time
+        host = _checked(streamed_host(job, setup, args.strict, keep="tables"))
+        steps_csv = Path(args.trace) if args.trace else None  # written as the run is compared
+        args.trace = None
+        result, trace = hold_verify(host, image, args.hold, args.override, setup, steps_csv)
+    if result is None:  # kept whole: an 8051's, or --report's and --vcd's
         host = _checked(streamed_host(job, setup, args.strict, keep=True))
         if args.hold is not None or args.override is not None or pauses(host):
             result, trace = hold_verify(host, image, args.hold, args.override, setup)
@@ -109,11 +118,19 @@ def verify_stream(args) -> tuple[HostBuild, dict, object, RunSamples | None, lis
 
 
 def bounded(args, target: str, job, streamed: bool = False) -> bool:
-    """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's run without a feed hold (its
-    outputs written or gathered as it is compared: run_outputs), or an 8051's stream without one (and without
-    --vcd: the waveform is written from the simavr harness's records)."""
-    plain = job.machine.feed_hold is None and args.hold is None and args.override is None
-    return plain and (target == "avr" or (target == "mcs51" and streamed and not args.vcd))
+    """verify compares in bounded memory (codegen/verify/bounded.py): an ATmega2560's flash image without a feed
+    hold (its outputs written or gathered as it is compared: run_outputs; one with a feed hold: cmd_verify's
+    tables-only path), or a stream with no --hold or --override (an 8051's without --vcd: the waveform is written
+    from the simavr harness's records; one with M0/M1 waits for resume frames: runtime_pauses)."""
+    requests = args.hold is not None or args.override is not None
+    if streamed:
+        return not requests and (target == "avr" or (target == "mcs51" and not args.vcd))
+    return job.machine.feed_hold is None and not requests and target == "avr"
+
+
+def runtime_pauses(host: HostBuild) -> bool:
+    """The job has M0/M1 pauses among its runtime records (known to a build that keeps nothing else)."""
+    return host.runtime is not None and bool((host.runtime.command == RT_PAUSE).any())
 
 
 def run_outputs(args) -> RunOutputs:

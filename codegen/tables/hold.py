@@ -139,9 +139,10 @@ def event_runs(schedule: Schedule) -> np.ndarray:
     return np.repeat(np.arange(len(schedule.run_count), dtype=np.int32), schedule.run_count)
 
 
-def run_deltas(schedule: Schedule, run: np.ndarray) -> np.ndarray:
-    """Every event's undilated tick delta (1/256 tick), from its run (`run`: event_runs), built in place."""
-    delta = np.arange(len(run), dtype=np.int64)
+def run_deltas(schedule: Schedule, run: np.ndarray, first: int = 0) -> np.ndarray:
+    """The undilated tick delta (1/256 tick) of every event from `first` on, from its run (`run`: event_runs, or a
+    stretch of it), built in place."""
+    delta = np.arange(first, first + len(run), dtype=np.int64)
     delta -= (np.cumsum(schedule.run_count) - schedule.run_count)[run]  # k: the event's place in its run
     delta *= schedule.run_add[run]
     delta += schedule.run_interval[run]
@@ -164,6 +165,10 @@ class Dilation:
     tick: np.ndarray  # (E,) int64
     factor: np.ndarray  # (E,) int16, 0..F_MAX or PARKED
     parks: list[tuple[int, int, bool]]
+
+    def window(self, first: int, end: int) -> Dilation:
+        """Events first..end - 1 (as Dilator.window)."""
+        return Dilation(self.tick[first:end], self.factor[first:end], self.parks)
 
 
 def _ramp(ffx: int, target: int, ticks: int, add: int, k: int, gate_above: int) -> int:
@@ -202,75 +207,165 @@ def event_ceilings(schedule: Schedule) -> np.ndarray:
     return run_ceilings(schedule)[event_runs(schedule)]
 
 
-def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
-           resume_target: int = F_ONE) -> Dilation:
-    """Event ticks under `changes`: (event, target F) in order, each seen first by the interrupt that computes
-    that event's delta, and the schedule's pauses. After each park the player goes on at the next of `resumes`
-    (the simulator's tick of the parked event: main re-armed the timer there) towards `resume_target`, at F 1
-    after a hold and at F_ONE after a pause; without one the rest never plays. A target above F_ONE is capped by
-    the ceiling records. A per-event loop only where the factor ramps: elsewhere the deltas are summed (scaled
-    where the factor is steady)."""
-    run = event_runs(schedule)  # an event's add and ceiling are its run's: no int64 array of each
-    delta = run_deltas(schedule, run)
-    out = np.cumsum(delta)  # 24.8 until the first change, then ticks
-    factor = np.full(len(delta), F_ONE, dtype=np.int16)  # event e's delta and ramp come in e - 1's interrupt
-    pauses, pending, resumes = pause_events(schedule), list(changes), list(resumes)
-    marks = sorted([e for e, _ in pending] + pauses)
-    parks: list[tuple[int, int, bool]] = []
-    here = int(out[marks[0] - 1]) if marks and marks[0] else 0  # 24.8: where the event before the first mark played
-    np.right_shift(out, FRAC_BITS, out=out)
-    if not marks:
-        return Dilation(out, factor, parks)
-    run_first = np.cumsum(schedule.run_count) - schedule.run_count
-    ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, dtype=np.int64)
-    table, k = plan.table, plan.ramp_k
-    # the loop's scalars, fast, without a Python int per event: a view of the deltas, the runs' adds and ceilings
-    deltas, runs = memoryview(delta), memoryview(run)
-    adds, ceilings = schedule.run_add.tolist(), run_ceilings(schedule).tolist()
-    e = marks[0]
-    ffx, target, paused = F_ONE << 16, F_ONE, False
-    while e < len(delta):
-        while pending and pending[0][0] <= e:
-            target = pending.pop(0)[1]
-        if pauses and pauses[0] <= e:  # the record comes with this event's block: F 0
-            pauses.pop(0)
-            ffx, paused = ffx & 0xFFFF, True
-        f, d = ffx >> 16, deltas[e]
-        goal = min(target, ceilings[runs[e]])
-        end = e
-        if f == goal and f:  # a steady factor up to the next change (F_ONE: undilated)
-            end = min([pending[0][0] if pending else len(delta)] + pauses[:1])
-            if target > F_ONE:  # the goal may change at the next ceiling record
-                nxt = int(np.searchsorted(ceiling_marks, e, side="right"))
-                end = min(end, int(ceiling_marks[nxt]) if nxt < len(ceiling_marks) else end)
-        if end > e:
-            for start in range(e, end, STRETCH):  # a piece at a time: the temporaries stay small
-                d = delta[start:min(start + STRETCH, end)]
+class Dilator:
+    """The player's dilated clock over the events in order, a piece of STRETCH events at a time, in memory that does
+    not grow with the run: the events' ticks and factors as `dilate` gives them (Dilation), asked for in order
+    (`window`), and the parks as they come. `changes`: (event, target F) in order, each seen first by the interrupt
+    that computes that event's delta; after each park the player goes on at the next of `resumes` (the simulator's
+    tick of the parked event: main re-armed the timer there) towards `resume_target`, at F 1 after a hold and at
+    F_ONE after a pause; without one the rest never plays. A target above F_ONE is capped by the ceiling records. A
+    per-event loop only where the factor ramps: elsewhere the deltas are summed (scaled where the factor is steady)."""
+
+    def __init__(self, schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
+                 resume_target: int = F_ONE):
+        self.schedule, self.plan, self.resume_target = schedule, plan, resume_target
+        self.events = int(schedule.run_count.sum())
+        self.run_end = np.cumsum(schedule.run_count)
+        self.pending, self.pauses, self.resumes = list(changes), pause_events(schedule), list(resumes)
+        marks = sorted([e for e, _ in self.pending] + self.pauses)
+        self.free_until = marks[0] if marks else self.events  # undilated (and no factor moves) before the first mark
+        run_first = self.run_end - schedule.run_count
+        self.ceiling_marks = run_first[schedule.run_ceiling >= 0] if schedule.n_ceiling else np.zeros(0, np.int64)
+        self.adds, self.ceilings = schedule.run_add.tolist(), run_ceilings(schedule).tolist()
+        self.e, self.here = 0, 0  # the next event to play; the tick (24.8) of the one played last
+        self.ffx, self.target, self.paused, self.stopped = F_ONE << 16, F_ONE, False, False
+        self.parks: list[tuple[int, int, bool]] = []
+        self.pieces: list[tuple[int, np.ndarray, np.ndarray]] = []  # (first event, tick, factor) not yet let go
+
+    def window(self, first: int, end: int) -> Dilation:
+        """Events first..end - 1 (`first` never below an earlier window's): their ticks and factors, and the parks
+        so far. An event's factor is final once the event after it has played."""
+        self.play(min(end + 1, self.events))
+        self.pieces = [p for p in self.pieces if p[0] + len(p[1]) > first or p is self.pieces[-1]]
+        parts = [(max(first - p0, 0), min(end - p0, len(tick)), tick, factor) for p0, tick, factor in self.pieces]
+        parts = [(a, b, tick, factor) for a, b, tick, factor in parts if b > a]
+        tick = np.concatenate([t[a:b] for a, b, t, _ in parts] or [np.zeros(0, np.int64)])
+        factor = np.concatenate([f[a:b] for a, b, _, f in parts] or [np.zeros(0, np.int16)])
+        return Dilation(tick, factor, list(self.parks))
+
+    def ticks_at(self, events: np.ndarray) -> np.ndarray:
+        """The ticks of `events` (sorted, none before an earlier call's), playing on as far as the last; the pieces
+        read are let go (a Dilator asked this is asked for no window)."""
+        out = np.empty(len(events), dtype=np.int64)
+        i = 0
+        while i < len(events):
+            while self.e <= events[i]:
+                self.pieces = self.pieces[-1:]  # read: let go (the last stays for its last factor)
+                self._piece()
+            first, tick, _ = next(p for p in self.pieces if events[i] < p[0] + len(p[1]))
+            j = int(np.searchsorted(events, first + len(tick)))
+            out[i:j] = tick[events[i:j] - first]
+            i = j
+        self.pieces = self.pieces[-1:]
+        return out
+
+    def first_from(self, tick: int) -> int:
+        """The first event whose tick is at least `tick`, or that never plays (self.events if none), from where the
+        last such question left off."""
+        while True:
+            for first, ticks, _ in self.pieces:
+                hit = np.flatnonzero((ticks >= tick) | (ticks < 0))
+                if len(hit):
+                    return first + int(hit[0])
+            if self.e >= self.events:
+                return self.events
+            self.pieces = []
+            self._piece()
+
+    def park(self, k: int) -> tuple[int, int, bool] | None:
+        """The k-th park (from 0), playing on until it comes; None where the run ends before."""
+        while len(self.parks) <= k and self.e < self.events and not self.stopped:
+            self.pieces = self.pieces[-1:]
+            self._piece()
+        return self.parks[k] if len(self.parks) > k else None
+
+    def play(self, end: int) -> None:
+        """Play on until every event before `end` has played (a piece at a time)."""
+        while self.e < end:
+            self._piece()
+
+    def _set_factor(self, event: int, value: int, start: int, factor: np.ndarray) -> None:
+        """factor[event] = value in the piece from `start`, or the piece before's last."""
+        if event >= start:
+            factor[event - start] = value
+        elif len(self.pieces) > 1:
+            self.pieces[-2][2][-1] = value
+
+    def _piece(self) -> None:
+        start = self.e
+        end = min(self.events, start + STRETCH)
+        run = np.searchsorted(self.run_end, np.arange(start, end), side="right").astype(np.int32)
+        delta = run_deltas(self.schedule, run, start)
+        tick = np.empty(end - start, dtype=np.int64)
+        factor = np.full(end - start, F_ONE, dtype=np.int16)  # event e's delta and ramp come in e - 1's interrupt
+        self.pieces.append((start, tick, factor))
+        self.e = end
+        if self.stopped:  # parked without a resume: the rest never plays
+            tick[:], factor[:] = -1, PARKED
+            return
+        e, here = start, self.here
+        if e < self.free_until:
+            free = min(end, self.free_until) - start
+            steps = np.cumsum(delta[:free])
+            steps += here
+            here = int(steps[-1])
+            np.right_shift(steps, FRAC_BITS, out=tick[:free])
+            e += free
+        table, k, gate = self.plan.table, self.plan.ramp_k, self.plan.gate_above
+        # the loop's scalars, fast, without a Python int per event: a view of the deltas, the runs' adds and ceilings
+        deltas, runs, adds, ceilings = memoryview(delta), memoryview(run), self.adds, self.ceilings
+        pending, pauses, resumes = self.pending, self.pauses, self.resumes
+        ffx, target, paused = self.ffx, self.target, self.paused
+        while e < end:
+            while pending and pending[0][0] <= e:
+                target = pending.pop(0)[1]
+            if pauses and pauses[0] <= e:  # the record comes with this event's block: F 0
+                pauses.pop(0)
+                ffx, paused = ffx & 0xFFFF, True
+            i, f = e - start, ffx >> 16
+            d, goal = deltas[i], min(target, ceilings[runs[i]])
+            steady = e
+            if f == goal and f:  # a steady factor up to the next change (F_ONE: undilated)
+                steady = min([pending[0][0] if pending else end, end] + pauses[:1])
+                if target > F_ONE:  # the goal may change at the next ceiling record
+                    nxt = int(np.searchsorted(self.ceiling_marks, e, side="right"))
+                    steady = min(steady, int(self.ceiling_marks[nxt]) if nxt < len(self.ceiling_marks) else steady)
+            if steady > e:
+                d = delta[i:steady - start]
                 step = np.where(d >= LONG, d, np.minimum((d * table[f]) >> 8, CLAMP))
                 np.cumsum(step, out=step)
                 step += here
                 here = int(step[-1])
-                np.right_shift(step, FRAC_BITS, out=out[start:start + len(step)])
-            factor[max(e - 1, 0):end - 1] = f
-            e = end
-            continue
-        if d >= LONG:
-            here += d  # a long wait: undilated, and no ramp
-        elif f == 0:
-            parks.append((e, here >> FRAC_BITS, paused))
-            factor[max(e - 1, 0)] = PARKED
-            if not resumes:
-                out[e:] = -1
-                factor[e:] = PARKED
-                break
-            here = resumes.pop(0) << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
-            ffx, target, paused = (F_ONE if paused else 1) << 16, resume_target, False
-        else:
-            d = min((d * table[f]) >> 8, CLAMP)
-            here += d
-            ffx = _ramp(ffx, goal, d >> FRAC_BITS, adds[runs[e]], k, plan.gate_above)
-        if e and f:
-            factor[e - 1] = ffx >> 16
-        out[e] = here >> FRAC_BITS
-        e += 1
-    return Dilation(out, factor, parks)
+                np.right_shift(step, FRAC_BITS, out=tick[i:steady - start])
+                if e:
+                    self._set_factor(e - 1, f, start, factor)
+                factor[i:steady - start - 1] = f
+                e = steady
+                continue
+            if d >= LONG:
+                here += d  # a long wait: undilated, and no ramp
+            elif f == 0:
+                self.parks.append((e, here >> FRAC_BITS, paused))
+                self._set_factor(max(e - 1, 0), PARKED, start, factor)
+                if not resumes:
+                    tick[i:], factor[i:] = -1, PARKED
+                    self.stopped = True
+                    break
+                here = resumes.pop(0) << FRAC_BITS | here & 0xFF  # main re-arms the compare; the fraction stays
+                ffx, target, paused = (F_ONE if paused else 1) << 16, self.resume_target, False
+            else:
+                d = min((d * table[f]) >> 8, CLAMP)
+                here += d
+                ffx = _ramp(ffx, goal, d >> FRAC_BITS, adds[runs[i]], k, gate)
+            if e and f:
+                self._set_factor(e - 1, ffx >> 16, start, factor)
+            tick[i] = here >> FRAC_BITS
+            e += 1
+        self.here, self.ffx, self.target, self.paused = here, ffx, target, paused
+
+
+def dilate(schedule: Schedule, plan: HoldPlan, changes: list[tuple[int, int]], resumes: list[int] = (),
+           resume_target: int = F_ONE) -> Dilation:
+    """Every event's tick and factor under `changes` and the schedule's pauses, and the parks (Dilator, whole)."""
+    dilator = Dilator(schedule, plan, changes, resumes, resume_target)
+    return dilator.window(0, dilator.events)

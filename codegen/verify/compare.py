@@ -349,8 +349,7 @@ def _chapter_dilation(dilation: Dilation | None, chapter: Chapter) -> Dilation |
     counted from the chapter's first."""
     if dilation is None:
         return None
-    span = slice(chapter.first_event, chapter.first_event + len(chapter.pulses.event_tick) + 1)
-    return Dilation(dilation.tick[span], dilation.factor[span], [])
+    return dilation.window(chapter.first_event, chapter.first_event + len(chapter.pulses.event_tick) + 1)
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,

@@ -8,8 +8,9 @@ The run is simulated twice: first as it is (where the job's first event falls: t
 pressed and placed as codegen/verify/hold_search.py says: each request's first dilated event is the candidate the
 simulated pulses agree with, and reported. Everything after follows from it: the times of every pulse, where the
 machine comes to rest, and the limits over the whole run (checks.py); the ramp and the ceilings are held to their own
-rules, from the job's settings (hold_limits.py). An ATmega2560's flash image is compared a chapter at a time, in
-memory that does not grow with the print (codegen/verify/hold_bounded.py), where its host keeps only its tables."""
+rules, from the job's settings (hold_limits.py). An ATmega2560's flash image or stream is compared a chapter at a
+time, in memory that does not grow with the print (codegen/verify/hold_bounded.py), where its host keeps only its
+tables."""
 
 from __future__ import annotations
 
@@ -20,12 +21,12 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.pipeline.host import HostBuild
-from codegen.tables.hold import F_ONE, Dilation, override_target, pause_events
+from codegen.tables.hold import F_ONE, override_target, pause_events
 from codegen.verify.compare import compare
 from codegen.verify.hold_bounded import held_bounded
-from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems
+from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_problems, ramp_watch
 from codegen.verify.hold_runs import FlashRun, HeatedRun, S51FlashRun, StreamRun
-from codegen.verify.hold_search import CANDIDATES, KeyAction, Requests, dilated_clock, key_actions
+from codegen.verify.hold_search import CANDIDATES, FirstCycles, KeyAction, Requests, dilated_clock, key_actions
 
 
 def _event_cycles(host: HostBuild, trace) -> np.ndarray:
@@ -50,7 +51,7 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
                 steps_csv: Path | None = None) -> tuple[dict, object]:
     """The verdict (verify's JSON, with `hold`; a stream's with `link`) and the run's trace. `setup`: the
     streaming firmware's (codegen/pipeline/streaming.py), else the flash image. A host that keeps only its tables
-    (host_build keep="tables": an ATmega2560's flash image) is compared in bounded memory
+    (host_build keep="tables": an ATmega2560's flash image or stream) is compared in bounded memory
     (codegen/verify/hold_bounded.py): its trace has no table pulses, and `steps_csv` gets --trace's rows as they
     are compared."""
     if host.hold_plan is None:
@@ -73,39 +74,50 @@ def hold_verify(host: HostBuild, image, hold_s: float | None, override: int | No
     requests = Requests(host, tick0, actions, resume_target, runner.candidates or CANDIDATES)
     presses = requests.presses()
     slower = 1.0 if override is None else 11.0
-    if host.pulses is None:
-        verdict, trace, final, resume_arrived, shares = held_bounded(host, runner, requests, presses, slower,
-                                                                     steps_csv)
-    else:
-        verdict, trace, final, resume_arrived, shares = _held_whole(host, runner, requests, presses, slower)
-    result = runner.result(verdict, trace)
-    result["hold"] = _report(host, actions, final, tick0, resume_arrived, override, shares)
-    limits = ramp_problems(host, final) + ceiling_problems(shares)  # the dilated twin shares these: first
+    held = held_bounded if host.pulses is None else _held_whole
+    compared, ramp, parks, resume_arrived, shares = held(host, runner, requests, presses, slower, steps_csv)
+    trace = compared.trace
+    result = runner.result(compared.verdict, trace, compared if host.pulses is None else None)
+    result["hold"] = _report(host, actions, parks, ramp.highest_factor, tick0, resume_arrived, override, shares)
+    limits = ramp_problems(host, ramp) + ceiling_problems(shares)  # the dilated twin shares these: first
     result["problems"][:0] = limits
     result["pass"] = result["pass"] and not limits
     expected = sum(function == "resume" for function, _ in presses)
-    if len(final.parks) != expected:
-        result["problems"].append(f"the machine came to rest {len(final.parks)} times, "
+    if len(parks) != expected:
+        result["problems"].append(f"the machine came to rest {len(parks)} times, "
                                   f"{expected} expected (the hold and every M0/M1)")
         result["pass"] = False
     return result, trace
 
 
-def _held_whole(host: HostBuild, runner, requests: Requests, presses: list[tuple[str, int]], slower: float):
-    """The run simulated into one trace with every pulse, compared with the whole dilated twin at once: the verdict,
-    the trace, the dilation, the resumes' arrivals and the ceilings' shares."""
+def _held_whole(host: HostBuild, runner, requests: Requests, presses: list[tuple[str, int]], slower: float,
+                steps_csv: Path | None = None):
+    """The run simulated into one trace with every pulse, compared with the whole dilated twin at once (held_bounded's
+    answer; `steps_csv` is written by the caller)."""
     trace, arrived = runner.run(presses, slower)
     for a, when in zip(requests.actions, arrived):
         a.press = when  # a frame reaches the firmware when its last byte has arrived
     resume_arrived = arrived[len(requests.actions):]
-    final = requests.place(_event_cycles(host, trace.run_only()), resume_arrived)  # homing steps are not the table's
+    sim = FirstCycles.whole(_event_cycles(host, trace.run_only()))  # homing steps are not the table's
+    dilator = requests.place(sim, resume_arrived)
+    final = dilator.window(0, dilator.events)
     twin = host.pulses
     dilated = dataclasses.replace(twin, tick=final.tick[twin.event], event_tick=final.tick, motor_tick=None,
                                   motor_dir=None, motor_first=None)
     warp = dilated_clock(host.events.time, twin.event_tick, final.tick, host.target.tick_hz)
     verdict = compare(host, trace, runner.switches, streamed=runner.streamed, dilated=dilated, warp=warp,
                       dilation=final)
-    return verdict, trace, final, resume_arrived, ceiling_shares(host)
+    ramp = ramp_watch(host)
+    ramp.add(final, 0)
+    return WholeRun(verdict, trace), ramp, final.parks, resume_arrived, ceiling_shares(host)
+
+
+@dataclasses.dataclass
+class WholeRun:
+    """What _held_whole's comparison found: its verdict and the trace with every pulse."""
+
+    verdict: object
+    trace: object
 
 
 def pauses(host: HostBuild) -> bool:
@@ -133,9 +145,10 @@ def hold_lines(hold: dict) -> list[str]:
     return lines
 
 
-def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: int, resume_presses: list[int],
-            override: int | None, shares: dict) -> dict:
-    """The hold's figures; `shares`: ceiling_shares."""
+def _report(host: HostBuild, actions: list[KeyAction], parks: list, highest_factor: int, tick0: int,
+            resume_presses: list[int], override: int | None, shares: dict) -> dict:
+    """The hold's figures; `parks`: the dilation's, `highest_factor` the highest it played, `shares`:
+    ceiling_shares."""
     f_cpu, tick_hz = host.target.f_cpu, host.target.tick_hz
 
     def seconds(cycles: int) -> float:  # from the job's tick 0
@@ -143,10 +156,9 @@ def _report(host: HostBuild, actions: list[KeyAction], final: Dilation, tick0: i
 
     rests = [{"kind": "pause" if paused else "hold", "at_rest_s": round(tick / tick_hz, 6),
               "parked_event": event, "resume_s": seconds(press)}
-             for (event, tick, paused), press in zip(final.parks, resume_presses)]
-    played = final.factor[final.factor >= 0]
+             for (event, tick, paused), press in zip(parks, resume_presses)]
     out: dict = {"override_pct": override, "factor_full_scale": F_ONE, "rests": rests,
-                 "highest_factor_pct": round(100 * int(played.max(initial=0)) / F_ONE, 1),
+                 "highest_factor_pct": round(100 * highest_factor / F_ONE, 1),
                  "ceiling_records": host.schedule.n_ceiling,
                  "ceiling_rate_ratio": round(max((s[0] for s in shares.values()), default=0.0), 4),
                  "ramp_s": round(host.hold_plan.ramp_seconds(tick_hz), 6), "keys": [

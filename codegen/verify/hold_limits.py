@@ -34,37 +34,77 @@ def ramp_limit(host: HostBuild) -> tuple[float, str]:
     return RAMP_ACCEL_SHARE * steppers[name].max_accel / steppers[name].max_velocity, name
 
 
+class RampWatch:
+    """The most the factor moved beyond `per_tick` (F per tick) between two events of one stretch between rests, over
+    a held run's dilation fed a window at a time (`add`): (|F_j - F_i| - per_tick x (t_j - t_i), i, j) in `excess`,
+    F_i the factor event i's interrupt left and t_i the tick of the event after it ((0, 0, 0) where nothing moved),
+    and (F_i, F_j, t_i, t_j) there in `at`."""
+
+    def __init__(self, per_tick: float):
+        self.per_tick = per_tick
+        self.excess, self.at = (0.0, 0, 0), (0, 0, 0, 0)
+        self.lowest: list[tuple[float, int, int, int]] | None = None  # rise's and fall's, in the stretch going on
+        self.highest_factor = 0  # the highest factor played
+
+    def add(self, window: Dilation, first: int) -> None:
+        """Events first.. of the dilation, with the one after the last unless the run ends there (the windows
+        overlap by that one)."""
+        factor, tick = window.factor[:-1], window.tick[1:]
+        played = (factor != PARKED) & (tick >= 0)
+        self.highest_factor = max(self.highest_factor, int(window.factor[window.factor >= 0].max(initial=0)))
+        cuts = np.flatnonzero(~played)
+        for a, b in zip(np.concatenate([[0], cuts + 1]), np.concatenate([cuts, [len(factor)]])):
+            if a > 0:
+                self.lowest = None  # a rest: the stretch ends
+            if b > a:
+                self._stretch(factor[a:b].astype(np.float64), tick[a:b].astype(np.float64), first + a)
+
+    def _stretch(self, f: np.ndarray, t: np.ndarray, first: int) -> None:
+        carried = self.lowest or [None, None]
+        lowest = []
+        for side, gain in enumerate((f - self.per_tick * t, -(f + self.per_tick * t))):  # a rise, then a fall
+            event = first + np.arange(len(gain))
+            fs, ts = f, t
+            if carried[side] is not None:  # the lowest before, in the stretch going on
+                g0, e0, f0, t0 = carried[side]
+                gain, event = np.concatenate([[g0], gain]), np.concatenate([[e0], event])
+                fs, ts = np.concatenate([[f0], f]), np.concatenate([[t0], t])
+            low = np.minimum.accumulate(gain)  # how far each event got from the lowest before it
+            j = int(np.argmax(gain - low))
+            excess = float(gain[j] - low[j])
+            if excess > self.excess[0]:
+                i = int(np.argmin(gain[:j + 1]))
+                self.excess = (excess, int(event[i]), int(event[j]))
+                self.at = (int(fs[i]), int(fs[j]), int(ts[i]), int(ts[j]))
+            m = int(np.argmin(gain))
+            lowest.append((float(gain[m]), int(event[m]), float(fs[m]), float(ts[m])))
+        self.lowest = lowest
+
+
 def ramp_excess(dilation: Dilation, per_tick: float) -> tuple[float, int, int]:
-    """The most the factor moved beyond `per_tick` (F per tick) between two events of one stretch between rests:
-    (|F_j - F_i| - per_tick x (t_j - t_i), i, j), F_i the factor event i's interrupt left and t_i the tick of
-    the event after it; (0, 0, 0) where nothing moved."""
-    factor, tick = dilation.factor[:-1], dilation.tick[1:]
-    played = (factor != PARKED) & (tick >= 0)
-    best = (0.0, 0, 0)
-    for stretch in np.split(np.arange(len(factor)), np.flatnonzero(~played)):
-        stretch = stretch[played[stretch]]
-        if len(stretch) < 2:
-            continue
-        f, t = factor[stretch].astype(np.float64), tick[stretch].astype(np.float64)
-        for gain in (f - per_tick * t, -(f + per_tick * t)):  # a rise, then a fall: beyond the limit's ...
-            lowest = np.minimum.accumulate(gain)  # ... how far each event got from the lowest before it
-            j = int(np.argmax(gain - lowest))
-            excess = float(gain[j] - lowest[j])
-            if excess > best[0]:
-                best = (excess, int(stretch[np.argmin(gain[:j + 1])]), int(stretch[j]))
-    return best
+    """RampWatch's excess over a whole dilation."""
+    watch = RampWatch(per_tick)
+    watch.add(dilation, 0)
+    return watch.excess
 
 
-def ramp_problems(host: HostBuild, dilation: Dilation) -> list[str]:
-    """The run's factor changed faster than the ramp's rule lets it."""
-    tick_hz = host.target.tick_hz
+def ramp_watch(host: HostBuild) -> RampWatch:
+    """A RampWatch at the ramp's limit (ramp_limit)."""
+    return RampWatch(ramp_limit(host)[0] * F_ONE / host.target.tick_hz)
+
+
+def ramp_problems(host: HostBuild, ramp: Dilation | RampWatch) -> list[str]:
+    """The run's factor changed faster than the ramp's rule lets it (`ramp`: the run's dilation, or a RampWatch
+    that has seen it a window at a time)."""
+    if isinstance(ramp, Dilation):
+        dilation, ramp = ramp, ramp_watch(host)
+        ramp.add(dilation, 0)
     limit, name = ramp_limit(host)
-    excess, i, j = ramp_excess(dilation, limit * F_ONE / tick_hz)
+    (excess, i, j), (f_i, f_j, t_i, t_j) = ramp.excess, ramp.at
     if excess <= RAMP_ROUNDING:
         return []
-    f = dilation.factor
-    seconds = (dilation.tick[j + 1] - dilation.tick[i + 1]) / tick_hz
-    return [f"the feed factor ramps from {100 * f[i] / F_ONE:.1f} % to {100 * f[j] / F_ONE:.1f} % in "
+    seconds = (t_j - t_i) / host.target.tick_hz
+    return [f"the feed factor ramps from {100 * f_i / F_ONE:.1f} % to {100 * f_j / F_ONE:.1f} % in "
             f"{1e3 * seconds:.1f} ms (after events {i} to {j}): faster than the hold's ramp may, "
             f"{100 * limit:.1f} % per second ({100 * RAMP_ACCEL_SHARE:.0f} % of stepper {name}'s acceleration at its "
             f"top speed)"]

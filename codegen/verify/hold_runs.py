@@ -16,6 +16,7 @@ from codegen.link import protocol
 from codegen.pipeline.host import HostBuild
 from codegen.pipeline.streaming import SIM_MODULES
 from codegen.sim.avr import simulate
+from codegen.sim.avr_link import StreamSim, heater_run
 from codegen.sim.avr_plant import simulate_heaters
 from codegen.sim.mcs51 import simulate as simulate_51
 from codegen.sim.mcs51_keys import seen_at
@@ -44,6 +45,7 @@ class FlashRun:
         self.f_cpu = host.target.f_cpu
         self.budget = int((host.totals.duration_s * 1.2 + 1.0) * self.f_cpu)
         self.streamed = False
+        self.link_budget = None  # a stream's (its chapters are planned again with it)
         self.candidates = None  # verify_hold's CANDIDATES
 
     def tick0(self, pauses: bool) -> int:
@@ -60,9 +62,15 @@ class FlashRun:
         budget = int(self.budget * slower) + max((c for _, c in presses), default=0) + int(2 * self.f_cpu)
         trace = simulate(self.image.hex_path, self.config, budget, switches=self.switches, presses=keys,
                          beside=beside)
-        return trace, [cycle for _, cycle in presses]
+        return trace, self.arrivals(presses)
 
-    def result(self, verdict, trace) -> dict:
+    def arrivals(self, presses: list[tuple[str, int]]) -> list[int]:
+        """When each press reached the firmware (a key: as it is pressed); a run read beside (`run`'s `beside`)
+        knows them by the time it has ended."""
+        return [cycle for _, cycle in presses]
+
+    def result(self, verdict, trace, compared=None) -> dict:
+        """verify's result (`compared`: what a run read beside found, codegen/verify/bounded.py Compared)."""
         return verify_json(self.host, verdict, self.image)
 
 
@@ -122,9 +130,9 @@ class HeatedRun(FlashRun):
         keys = [(pins[function], cycle + self.shift, cycle + self.shift + hold) for function, cycle in presses]
         self.heated = self._run(keys, slower + max((c for _, c in presses), default=0) / self.f_cpu, beside)
         self.heated.steps = on_twin_clock(self.heated.steps, self.waits, self.cycles_per_tick)
-        return self.heated.steps, [cycle for _, cycle in presses]
+        return self.heated.steps, self.arrivals(presses)
 
-    def result(self, verdict, trace) -> dict:
+    def result(self, verdict, trace, compared=None) -> dict:
         return with_heaters(verify_json(self.host, verdict, self.image), self.host, self.heated, self.timeline)
 
 
@@ -178,11 +186,12 @@ class StreamRun:
 
     def __init__(self, host: HostBuild, image, setup):
         self.host, self.image, self.setup = host, image, setup
+        self.link_budget = setup.budget
         self.switches = simulated_switches(host)
         self.f_cpu = host.target.f_cpu
         self.streamed = True
         self.candidates = MAIN_TURN_CANDIDATES if setup.target.target == "mcs51" else None
-        self.link = self.figures = self.heated = None
+        self.link = self.figures = self.heated = self.scripted = None
         self.waits = self.timeline = None
         if host.heaters:
             self.timeline = host_timeline(host)
@@ -190,21 +199,31 @@ class StreamRun:
         self.cycles_per_tick = self.f_cpu // host.target.tick_hz
         self.start = self.shift = self.after = 0  # as HeatedRun's
 
-    def _session(self, scripted: Scripted, slower: float):
+    def _session(self, scripted: Scripted, slower: float, beside=None):
+        """The session's trace and the link's figures; with `beside(edges, ended)` (an ATmega2560's), the records
+        are left to it, read once the session has ended, and the trace has no pulses."""
         simulator = importlib.import_module(SIM_MODULES[self.setup.target.target])
         budget = int(session_budget_s(self.host, self.setup) * slower * self.f_cpu)
         config = self.setup.config
+        plants = None if self.waits is None else job_plants(self.host.job, config)
         with progress.stage("stream (simulated)", self.host.link_plan.stream_bytes, "bytes") as bar:
             shown = ShownSession(scripted, bar)
-            if self.waits is None:
+            if beside is not None:
+                with StreamSim(self.image.hex_path, config, self.switches, plants) as sim:
+                    trace, figures = sim.session(shown, budget, decode=False)
+                    if plants is not None:
+                        self.heated = heater_run(sim, scripted.link, trace)
+                    beside(sim.edges, lambda: True)
+                return trace, figures
+            if plants is None:
                 return simulator.simulate_stream(self.image.hex_path, config, shown, budget, switches=self.switches)
             self.heated, figures = simulator.simulate_stream_heaters(self.image.hex_path, config, shown, budget,
-                                                                     job_plants(self.host.job, config), (),
-                                                                     self.switches)
+                                                                     plants, (), self.switches)
         return self.heated.steps, figures
 
     def _scripted(self, script: list[tuple[int, int]], resume_every: float | None = None) -> Scripted:
-        return Scripted(new_link(self.host, self.setup), script, self.f_cpu, resume_every)
+        self.scripted = Scripted(new_link(self.host, self.setup), script, self.f_cpu, resume_every)
+        return self.scripted
 
     def tick0(self, pauses: bool) -> int:
         scripted = self._scripted([], RESUME_EVERY_S if pauses else None)
@@ -216,22 +235,31 @@ class StreamRun:
             self.after, self.shift = waits_shift(trace, self.waits, self.cycles_per_tick)
         return self.start
 
-    def run(self, presses: list[tuple[str, int]], slower: float) -> tuple[object, list[int]]:
+    def run(self, presses: list[tuple[str, int]], slower: float, beside=None) -> tuple[object, list[int]]:
+        """As FlashRun's; `beside` reads the records once the session has ended (an ATmega2560's stream)."""
         refuse_before(presses, self.start, self.after, self.f_cpu)
         order = sorted(range(len(presses)), key=lambda i: presses[i][1])  # the line sends them one after another
         scripted = self._scripted([(presses[i][1] + self.shift, KINDS[presses[i][0]]) for i in order])
-        trace, self.figures = self._session(scripted, slower + sum(c for _, c in presses) / self.f_cpu)
+        trace, self.figures = self._session(scripted, slower + sum(c for _, c in presses) / self.f_cpu, beside)
         self.link = scripted.link
-        arrived = [-1] * len(presses)
-        for i, cycle in zip(order, scripted.arrived):
-            arrived[i] = cycle - self.shift
         if self.heated is not None:
-                trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
-        return trace, arrived
+            trace = self.heated.steps = on_twin_clock(trace, self.waits, self.cycles_per_tick)
+        return trace, self.arrivals(presses)
 
-    def result(self, verdict, trace) -> dict:
+    def arrivals(self, presses: list[tuple[str, int]]) -> list[int]:
+        """When each request's frame had arrived (its last byte), in the order of `presses` (once sent)."""
+        order = sorted(range(len(presses)), key=lambda i: presses[i][1])
+        arrived = [-1] * len(presses)
+        for i, cycle in zip(order, self.scripted.arrived):
+            arrived[i] = cycle - self.shift
+        return arrived
+
+    def result(self, verdict, trace, compared=None) -> dict:
+        motors = len(self.host.kin.motors)
+        expected, made = ((self.host.pulses.final_positions(), made_positions(trace, motors)) if compared is None
+                          else (compared.twin_final, compared.made_position))
         result = stream_result(self.host, self.link, self.figures, verify_json(self.host, verdict, self.image),
-                               self.host.pulses.final_positions(), made_positions(trace, len(self.host.kin.motors)))
+                               expected, made)
         return result if self.heated is None else with_heaters(result, self.host, self.heated, self.timeline)
 
 

@@ -6,7 +6,8 @@ The override requests (feed- or feed+, one per 10 %) come from 10 ms into the jo
 SECONDS into the job; resume once the twin says the machine is at rest (REST_S after its park). A request is seen
 by main's poll after a step interrupt, and that event's next interrupt dilates the event after it: which event that
 is depends on cycles the twin does not count, so each request's first dilated event is chosen among a few
-(CANDIDATES) as the one the simulated pulses agree with. All it reads of the run is one cycle per event."""
+(CANDIDATES) as the one the simulated pulses agree with. All it reads of the run is the first cycle of the
+events near the requests (NearRequests), and the twin's dilated clock is played, not kept (Dilator)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.pipeline.host import HostBuild
-from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilation, dilate, override_target
+from codegen.tables.hold import F_ONE, RESUME_TICKS, Dilator, override_target
 
 OVERRIDE_FIRST_S, OVERRIDE_EVERY_S = 0.01, 0.1  # the override key presses from the job's start
 REST_S = 0.02  # from the park the twin predicts to the resume key
@@ -24,6 +25,8 @@ POLL_CYCLES = 400  # a step interrupt and main's poll: a key pressed this long b
 CANDIDATES = 5  # events, after the first one within POLL_CYCLES of the press, that may be the key's first
 # (a runner may need more: its `candidates`)
 RESUME_FIT = 32  # events after a resume whose earliest pulse places it (some may come late behind a link interrupt)
+NEAR_BEFORE_S, NEAR_AFTER_S = 0.01, 0.1  # what placing reads of the run around a press: from before it to after it
+NEAR_EVENTS = 4 * RESUME_FIT  # events from a press on that placing reads, however long they take
 
 
 @dataclasses.dataclass
@@ -53,6 +56,43 @@ def key_actions(host: HostBuild, tick0: int, hold_s: float | None, override: int
 
 
 @dataclasses.dataclass
+class FirstCycles:
+    """The simulated run as placing the requests reads it: the first pulse's cycle (on the twin's clock) of the
+    events in `event` (sorted): every event with a pulse, or those near a request (NearRequests)."""
+
+    event: np.ndarray  # (K,) int64
+    cycle: np.ndarray  # (K,) int64
+
+    @classmethod
+    def whole(cls, cycles: np.ndarray) -> FirstCycles:
+        """From every twin event's first cycle (-1: none)."""
+        stepping = np.flatnonzero(cycles >= 0)
+        return cls(stepping, cycles[stepping])
+
+
+class NearRequests:
+    """Which events' first pulses placing the requests reads (FirstCycles): those from NEAR_BEFORE_S before any
+    press to `after_s` after it, and the first NEAR_EVENTS from each press on (a slow stretch has few). Fed with
+    the events in order (`keep`), a chapter at a time."""
+
+    def __init__(self, presses: list[int], f_cpu: int, after_s: float):
+        self.press = np.array(sorted(presses), dtype=np.int64)
+        self.low = self.press - POLL_CYCLES - int(NEAR_BEFORE_S * f_cpu)
+        self.high = self.press + int(after_s * f_cpu)
+        self.counted = np.zeros(len(self.press), dtype=np.int64)  # events kept from each press on, so far
+
+    def keep(self, cycle: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of these events (their first cycles, in order, -1: none) to keep."""
+        keep = np.zeros(len(cycle), dtype=bool)
+        for k, press in enumerate(self.press):
+            keep |= (cycle >= self.low[k]) & (cycle < self.high[k])
+            after = np.flatnonzero(cycle >= press)[:max(NEAR_EVENTS - int(self.counted[k]), 0)]
+            keep[after] = True
+            self.counted[k] += len(after)
+        return keep
+
+
+@dataclasses.dataclass
 class Requests:
     """A run's requests on the twin's clock: `tick0` (the job's tick 0, cycles from reset), the keys' `actions`, the
     factor a resume goes on to, and how many events may be a request's first (`candidates`)."""
@@ -69,20 +109,32 @@ class Requests:
         self.latency = int(target.mcu_data.get("isr_latency_cycles", 0))
         self.least_latency = int(target.mcu_data.get("isr_latency_min_cycles", self.latency))
 
-    def predict(self, actions: list[KeyAction], events: list[int], resumes: list[int]) -> Dilation:
-        """The twin on the dilated clock; an image that starts below 100 % dilates from its first event on."""
+    def predict(self, actions: list[KeyAction], events: list[int], resumes: list[int]) -> Dilator:
+        """The twin on the dilated clock, to be played; an image that starts below 100 % dilates from its first
+        event on."""
         host = self.host
         start = override_target(host.job.machine.feed_hold.override // 10)
         changes = ([(0, start)] if start != F_ONE else []) + [(e, a.target) for a, e in zip(actions, events)]
-        return dilate(host.schedule, host.hold_plan, changes, resumes, self.resume_target)
+        return Dilator(host.schedule, host.hold_plan, changes, resumes, self.resume_target)
 
-    def cycles_of(self, d: Dilation) -> np.ndarray:
-        """Every event's predicted cycle; one never played (after a park without its resume): the end of time, so
-        that the predictions stay sorted for searchsorted."""
-        cycles = d.tick * self.prescale
+    def cycles_of(self, tick: np.ndarray) -> np.ndarray:
+        """Predicted cycles of events from their ticks; one never played (after a park without its resume): the
+        end of time."""
+        cycles = tick * self.prescale
         cycles += self.tick0 + self.latency
-        cycles[d.tick < 0] = np.iinfo(np.int64).max
+        cycles[tick < 0] = np.iinfo(np.int64).max
         return cycles
+
+    def first_seen(self, d: Dilator, press: int) -> int:
+        """The first event predicted within POLL_CYCLES before `press` or after it."""
+        return d.first_from(-(-(press - POLL_CYCLES - self.tick0 - self.latency) // self.prescale))
+
+    def near(self, presses: list[tuple[str, int]]) -> NearRequests:
+        """The events a placing of these presses reads: near each, for twice the ramp from 100 % to rest and a
+        tenth of a second more (a request's first event and the ramp it starts tell the candidates apart)."""
+        target = self.host.target
+        after_s = 2 * self.host.hold_plan.ramp_seconds(target.tick_hz) + NEAR_AFTER_S
+        return NearRequests([cycle for _, cycle in presses], target.f_cpu, after_s)
 
     def presses(self) -> list[tuple[str, int]]:
         """Every press, (function, cycle): the keys', then the resume's after each park. Where each request is
@@ -92,8 +144,7 @@ class Requests:
         for a in self.actions:
             done = self.actions[:len(guess)]
             resumes = [(r - self.tick0) // self.prescale + RESUME_TICKS for r in self.resume_presses(done, guess)]
-            pred = self.cycles_of(self.predict(done, guess, resumes))
-            first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
+            first = self.first_seen(self.predict(done, guess, resumes), a.press)
             guess.append(first + self.candidates // 2 + 1)
         return ([(a.function, a.press) for a in self.actions]
                 + [("resume", r) for r in self.resume_presses(self.actions, guess)])
@@ -104,24 +155,23 @@ class Requests:
         f_cpu, presses, resumes, k_mid = self.host.target.f_cpu, [], [], self.candidates // 2
         hold = next((i for i, a in enumerate(actions) if a.function == "hold"), None)
         while True:
-            d = self.predict(actions, guess, resumes)
-            if len(d.parks) <= len(resumes):
+            park = self.predict(actions, guess, resumes).park(len(resumes))
+            if park is None:
                 return presses
-            event, tick, paused = d.parks[len(resumes)]
+            event, tick, paused = park
             if not paused and hold is not None:  # the hold's park: the latest of its candidates
                 for k in range(self.candidates):
                     other = guess[:hold] + [guess[hold] - k_mid + k] + guess[hold + 1:]
-                    parks = self.predict(actions, other, resumes).parks
-                    if len(parks) > len(resumes):
-                        tick = max(tick, parks[len(resumes)][1])
+                    other_park = self.predict(actions, other, resumes).park(len(resumes))
+                    if other_park is not None:
+                        tick = max(tick, other_park[1])
             press = self.tick0 + tick * self.prescale + int(REST_S * f_cpu)
             presses.append(press)
             resumes.append((press - self.tick0) // self.prescale + RESUME_TICKS)
 
-    def place(self, sim: np.ndarray, resume_arrived: list[int]) -> Dilation:
-        """The run as the player played it: each request's first dilated event (its action's `event`), the
-        candidate that the pulses agree with, and each park's resume placed by the pulses after it. `sim`: every
-        twin event's first simulated pulse cycle on the twin's clock (-1: none)."""
+    def place(self, sim: FirstCycles, resume_arrived: list[int]) -> Dilator:
+        """The run as the player played it, to be played: each request's first dilated event (its action's
+        `event`), the candidate that the pulses agree with, and each park's resume placed by the pulses after it."""
         actions = self.actions
 
         def resumed(events: list[int]) -> list[int]:
@@ -132,29 +182,34 @@ class Requests:
             for r in resume_arrived:
                 provisional = (r - self.tick0) // self.prescale + RESUME_TICKS
                 d = self.predict(actions[:len(events)], events, ticks + [provisional])
-                if r < 0 or len(d.parks) <= len(ticks):
+                park = d.park(len(ticks))
+                if r < 0 or park is None:
                     break
-                park = d.parks[len(ticks)][0]
-                until = d.parks[len(ticks) + 1][0] if len(d.parks) > len(ticks) + 1 else len(sim)
-                after = park + np.flatnonzero(sim[park:until] > r)[:RESUME_FIT]
+                after = np.flatnonzero((sim.event >= park[0]) & (sim.cycle > r))[:RESUME_FIT]
                 if not len(after):
                     break
-                late = (sim[after] - self.tick0 - self.least_latency) / self.prescale - d.tick[after]
+                predicted = d.ticks_at(sim.event[after])
+                if len(d.parks) > len(ticks) + 1:  # the next park comes first
+                    before_next = sim.event[after] < d.parks[len(ticks) + 1][0]
+                    after, predicted = after[before_next], predicted[before_next]
+                    if not len(after):
+                        break
+                late = (sim.cycle[after] - self.tick0 - self.least_latency) / self.prescale - predicted
                 ticks.append(provisional + int(round(float(late.min()))))
             return ticks
 
         chosen: list[int] = []
         for i, a in enumerate(actions):
-            pred = self.cycles_of(self.predict(actions[:i], chosen, resumed(chosen)))
-            first = int(np.searchsorted(pred, a.press - POLL_CYCLES))
+            first = self.first_seen(self.predict(actions[:i], chosen, resumed(chosen)), a.press)
             # the pulses before the next request can tell (it has not come yet)
-            before = (sim >= 0) & (sim < (actions[i + 1].press if i + 1 < len(actions) else np.inf))
+            before = sim.cycle < (actions[i + 1].press if i + 1 < len(actions) else np.inf)
+            events, cycles = sim.event[before], sim.cycle[before]
             best, best_err = first + 1, None
             for n in range(first + 1, first + 1 + self.candidates):
-                d = self.predict(actions[:i + 1], chosen + [n], resumed(chosen + [n]))
-                gap = self.cycles_of(d)
-                gap -= sim
-                err = int(np.abs(gap, out=gap).max(where=before, initial=0))  # in place: no copy per event
+                gap = self.cycles_of(self.predict(actions[:i + 1], chosen + [n], resumed(chosen + [n]))
+                                     .ticks_at(events))
+                gap -= cycles
+                err = int(np.abs(gap, out=gap).max(initial=0))
                 if best_err is None or err < best_err:
                     best, best_err = n, err
             chosen.append(best)

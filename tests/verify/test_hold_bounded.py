@@ -24,6 +24,7 @@ from codegen.verify.bounded import verify_flash
 from codegen.verify.compare import Comparison, compare, simulated_switches
 from codegen.verify.hold import hold_verify
 from codegen.verify.hold_limits import CeilingShares, ceiling_shares
+from codegen.verify.hold_search import Requests
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 from tests.helpers import ROOT
@@ -57,7 +58,16 @@ def _tables_only(job_path, out) -> tuple:
 
 @needs_simavr
 @pytest.mark.parametrize("hold_s, override", [(1.0, None), (0.6, 150)])
-def test_the_star_held_a_chapter_at_a_time_has_the_whole_run_s_verdict(star_flash, chapters_seen, hold_s, override):
+def test_the_star_held_a_chapter_at_a_time_has_the_whole_run_s_verdict(star_flash, chapters_seen, monkeypatch,
+                                                                        hold_s, override):
+    read = []  # the events placing the requests reads, whole and bounded
+    place = Requests.place
+
+    def spied(self, sim, resume_arrived):
+        read.append(len(sim.event))
+        return place(self, sim, resume_arrived)
+
+    monkeypatch.setattr(Requests, "place", spied)
     host, image = star_flash
     whole, whole_trace = hold_verify(host, image, hold_s, override)
     assert len(chapters_seen) == 1 and whole["pass"]  # the whole run: one chapter of every pulse
@@ -65,6 +75,7 @@ def test_the_star_held_a_chapter_at_a_time_has_the_whole_run_s_verdict(star_flas
     tables, _ = _tables_only(ROOT / "examples" / "star.yaml", image.hex_path.parent)
     bounded, trace = hold_verify(tables, image, hold_s, override)
     assert bounded == whole
+    assert read[0] > 80_000 and read[1] < read[0] / 2  # only the events near the requests: not one per event
     assert len(chapters_seen) == 2 and sum(chapters_seen) == len(host.pulses.tick) == 122852
     assert max(chapters_seen) < len(host.pulses.tick)
     # the trace holds no pulse of the table: they were read and dropped a chapter at a time
