@@ -9,9 +9,11 @@ steps are paired by their crossing:
    coordinate on a half step that one side rounds up and the other down, then turns back) shifts the count of
    that boundary for the rest of the print;
 2. so the pairs of (1) only measure the drift between the two clocks (the median of ours minus Klipper's
-   time in bins of BIN_S of our time, `Drift`), and each of our steps is then paired with Klipper's crossing
-   of the same boundary in the same direction nearest to its time less the drift. A Klipper step claimed
-   twice keeps the nearer of ours; the rest stay unpaired (the step counts' difference, and more).
+   time in bins of 1 s of our time, `Drift`), and each of our steps is then paired with Klipper's crossing
+   of the same boundary in the same direction nearest to its time less the drift; these pairs measure the
+   drift again in bins of 0.1 s (an infill line crosses a boundary again a line later: the drift must be
+   known closer than that), and the pairing is done once more. A Klipper step claimed twice keeps the
+   nearer of ours; the rest stay unpaired (the step counts' difference, and a few more).
 
 Times are seconds from the first step of any motor on each side. "global" differences are ours minus
 Klipper's time as they stand; "local" ones less the drift at that time: what the steps do apart from the
@@ -26,7 +28,7 @@ from functools import cached_property
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-BIN_S = 1.0  # drift bins: long beside a move, short beside the print
+BINS_S = (1.0, 0.1)  # the drift's bins: from the occurrence pairs, then from the nearest pairs it gave
 DRIFT_SAMPLE = 16  # every 16th occurrence pair is enough for a bin's median
 TREND_HALF = 8  # local differences: less the median of the 2 * 8 + 1 pairs around each
 TICK_HZ = 16_000_000  # the common integer clock of the pairing (Klipper's MCU clock)
@@ -54,7 +56,7 @@ class Train:
 
 @dataclass
 class Drift:
-    """Ours minus Klipper's time, as a function of our time (medians of paired steps in BIN_S bins)."""
+    """Ours minus Klipper's time, as a function of our time (medians of paired steps in bins)."""
 
     at: np.ndarray  # bin centres, s of our time
     offset: np.ndarray  # s
@@ -82,22 +84,24 @@ def occurrence_pairs(ours: Train, theirs: Train) -> tuple[np.ndarray, np.ndarray
     return mine, other
 
 
-def drift_of(paired_ours_time: np.ndarray, paired_offset: np.ndarray) -> Drift:
+def drift_of(paired_ours_time: np.ndarray, paired_offset: np.ndarray, bin_s: float) -> Drift:
     """The median offset per bin of our time (pairs of every motor together)."""
     if not len(paired_ours_time):
         return Drift(np.empty(0), np.empty(0))
     paired_ours_time, paired_offset = paired_ours_time[::DRIFT_SAMPLE], paired_offset[::DRIFT_SAMPLE]
-    bins = np.floor(paired_ours_time / BIN_S).astype(np.int64)
+    bins = np.floor(paired_ours_time / bin_s).astype(np.int64)
     order = np.lexsort((paired_offset, bins))
     bins, offset = bins[order], paired_offset[order]
     first = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
     size = np.diff(np.r_[first, len(bins)])
-    return Drift((bins[first] + 0.5) * BIN_S, offset[first + size // 2])
+    return Drift((bins[first] + 0.5) * bin_s, offset[first + size // 2])
 
 
 def nearest_pairs(ours: Train, theirs: Train, drift: Drift) -> tuple[np.ndarray, np.ndarray]:
     """Indices (ours, theirs): each of our steps with Klipper's crossing of the same boundary in the same
     direction nearest to its time less the drift; a Klipper step claimed twice keeps the nearer."""
+    if not len(ours.time) or not len(theirs.time):
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
     key_k = theirs.crossing
     order = np.argsort(key_k, kind="stable")
     groups, group_of_k = np.unique(key_k[order], return_inverse=True)
@@ -142,6 +146,8 @@ def trend(values: np.ndarray) -> np.ndarray:
 
 def position_at(train: Train, times: np.ndarray) -> np.ndarray:
     """The train's position just after `times` (steps at that very time included)."""
+    if not len(train.time):
+        return np.full(len(times), train.start)
     made = np.searchsorted(train.time, times, side="right")
     return np.where(made > 0, train.position[np.maximum(made - 1, 0)], train.start)
 

@@ -58,8 +58,8 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from klipper_compare import (Drift, Spread, Train, drift_of, nearest_pairs, occurrence_pairs,  # noqa: E402
-                             position_at, trend)
+from klipper_compare import (BINS_S, Drift, Spread, Train, drift_of, nearest_pairs,  # noqa: E402
+                             occurrence_pairs, position_at, trend)
 from klipper_decode import decode  # noqa: E402
 from klipper_ref import CONFIG, find_klipper, run_klipper  # noqa: E402
 
@@ -156,8 +156,8 @@ def klipper_trains(serial: Path, dictionary: Path, config: Path, steps_per_mm: d
     return trains
 
 
-def compare_motor(ours: Train, lines: np.ndarray, theirs: Train, drift: Drift) -> dict:
-    mine, other = nearest_pairs(ours, theirs, drift)
+def compare_motor(ours: Train, lines: np.ndarray, theirs: Train, pairs: tuple[np.ndarray, np.ndarray]) -> dict:
+    mine, other = pairs
     dt = ours.time[mine] - theirs.time[other]
     smooth = trend(dt)
     spreads = {name: Spread.of(values * 1e6, LIMIT_US) for name, values in (("global", dt), ("local", dt - smooth))}
@@ -178,22 +178,25 @@ def compare_motor(ours: Train, lines: np.ndarray, theirs: Train, drift: Drift) -
     for name, at in (("global", theirs.time), ("local", theirs.time + offset)):
         gap = position_at(ours, at) - theirs.position
         spread = Spread.of(gap.astype(float), 1.0)
-        near = np.clip(np.searchsorted(ours.time, at[max(spread.at, 0)]), 0, max(len(ours.time) - 1, 0))
-        out[f"position_{name}_steps"] = {
-            "max": spread.max, "p99": spread.p99, "mean": spread.mean, "over_1_step": spread.over,
-            "max_at": {} if spread.at < 0 else {"klipper_s": float(theirs.time[spread.at]),
-                                               "line": int(lines[near]) if len(lines) else 0}}
+        where = {}
+        if spread.at >= 0:
+            near = min(int(np.searchsorted(ours.time, at[spread.at])), len(ours.time) - 1)
+            where = {"klipper_s": float(theirs.time[spread.at]), "line": int(lines[near]) if near >= 0 else 0}
+        out[f"position_{name}_steps"] = {"max": spread.max, "p99": spread.p99, "mean": spread.mean,
+                                         "over_1_step": spread.over, "max_at": where}
     return out
 
 
 def compare(ours: dict, theirs: dict) -> tuple[dict, Drift]:
-    paired_time, paired_offset = [], []
-    for motor, (train, _) in ours.items():
-        mine, other = occurrence_pairs(train, theirs[motor])
-        paired_time.append(train.time[mine])
-        paired_offset.append(train.time[mine] - theirs[motor].time[other])
-    drift = drift_of(np.concatenate(paired_time), np.concatenate(paired_offset))
-    return {motor: compare_motor(train, lines, theirs[motor], drift) for motor, (train, lines) in ours.items()}, drift
+    """Every motor compared, with the drift of the two clocks that paired their steps."""
+    pairs = {motor: occurrence_pairs(train, theirs[motor]) for motor, (train, _) in ours.items()}
+    for bin_s in BINS_S:
+        paired_time = np.concatenate([ours[m][0].time[mine] for m, (mine, _) in pairs.items()])
+        offset = np.concatenate([ours[m][0].time[mine] - theirs[m].time[other] for m, (mine, other) in pairs.items()])
+        drift = drift_of(paired_time, offset, bin_s)
+        pairs = {motor: nearest_pairs(train, theirs[motor], drift) for motor, (train, _) in ours.items()}
+    return {motor: compare_motor(train, lines, theirs[motor], pairs[motor])
+            for motor, (train, lines) in ours.items()}, drift
 
 
 def print_table(result: dict) -> None:

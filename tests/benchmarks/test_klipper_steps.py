@@ -127,7 +127,7 @@ def test_pairs_survive_drift_and_an_extra_step_pair():
     ours_time = np.concatenate([theirs.time[:extra], theirs.time[extra - 1] + [0.003, 0.006], theirs.time[extra:]])
     ours = Train(0.3 + ours_time * 1.02, ours_dir, 0)
     mine, other = occurrence_pairs(ours, theirs)
-    drift = drift_of(ours.time[mine], ours.time[mine] - theirs.time[other])
+    drift = drift_of(ours.time[mine], ours.time[mine] - theirs.time[other], 1.0)
     mine, other = nearest_pairs(ours, theirs, drift)
     assert len(mine) == len(theirs.time) and len(ours.time) - len(mine) == 2
     assert (ours.position[mine] == theirs.position[other]).all() and (ours.dir[mine] == theirs.dir[other]).all()
