@@ -53,6 +53,11 @@ class Train:
         """A key per step: its half-step boundary and its direction."""
         return (2 * self.position - self.dir) * 2 + (self.dir > 0)
 
+    @cached_property
+    def by_crossing(self) -> np.ndarray:
+        """The steps in order of their crossing key, in time order within a key."""
+        return np.argsort(self.crossing, kind="stable")
+
 
 @dataclass
 class Drift:
@@ -71,8 +76,7 @@ def occurrence_pairs(ours: Train, theirs: Train) -> tuple[np.ndarray, np.ndarray
     """Indices (ours, theirs) of the n-th crossing of each boundary in each direction on both sides."""
 
     def keyed(train: Train) -> np.ndarray:
-        key = train.crossing
-        order = np.argsort(key, kind="stable")  # time order within a key
+        key, order = train.crossing, train.by_crossing
         sorted_key = key[order]
         group_first = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
         rank = np.arange(len(key)) - np.repeat(group_first, np.diff(np.r_[group_first, len(key)]))
@@ -102,9 +106,10 @@ def nearest_pairs(ours: Train, theirs: Train, drift: Drift) -> tuple[np.ndarray,
     direction nearest to its time less the drift; a Klipper step claimed twice keeps the nearer."""
     if not len(ours.time) or not len(theirs.time):
         return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
-    key_k = theirs.crossing
-    order = np.argsort(key_k, kind="stable")
-    groups, group_of_k = np.unique(key_k[order], return_inverse=True)
+    order = theirs.by_crossing
+    sorted_key = theirs.crossing[order]
+    group_of_k = np.cumsum(np.r_[False, sorted_key[1:] != sorted_key[:-1]])
+    groups = sorted_key[np.r_[True, sorted_key[1:] != sorted_key[:-1]]]
     ticks_k = np.round(theirs.time[order] * TICK_HZ).astype(np.int64)
     sort_k = group_of_k * GROUP_SHIFT + ticks_k + GROUP_SHIFT // 2
     key_o = ours.crossing

@@ -203,6 +203,34 @@ def stepper_steps(messages: Messages, oid: int, name: str, invert_dir: bool = Fa
     return StepperSteps(name, oid, clock, np.where(forward[run], 1, -1).astype(np.int8), q_where[run])
 
 
+def homing_end(messages: Messages, steppers: dict[str, StepperSteps], pause_s: float = 0.1) -> int:
+    """The clock at which the last homing pass (G28) ends: steps after it are the program's; -1 without
+    homing. Each endstop_home that starts a pass names a trsync, which stepper_stop_on_trigger ties to the
+    steppers it stops; a pass is the stepper's steps from that clock on in one direction, none `pause_s`
+    apart. (Found by clocks: Klipper's batch mode writes a message that needs no clock, as the end of a
+    homing pass, when it sends it, which may be after the next moves' steps.)"""
+    start_where, start = messages.of("endstop_home")
+    _, stops = messages.of("stepper_stop_on_trigger")
+    by_oid = {steps.oid: steps for steps in steppers.values()}
+    end = -1
+    for where, clock, trsync in zip(start_where.tolist(), start["clock"].tolist(), start["trsync_oid"].tolist()):
+        if clock == 0:  # the end of a pass: the endstop stops watching
+            continue
+        for oid in set(stops["oid"][stops["trsync_oid"] == trsync].tolist()) & by_oid.keys():
+            steps = by_oid[oid]
+            before = steps.clock[steps.message < where]
+            near = int(before[-1]) if len(before) else 0  # a 64-bit clock near the pass's start
+            first_clock = near + (clock - near + 2**31) % 2**32 - 2**31
+            first = int(np.searchsorted(steps.clock, first_clock))
+            if first == len(steps.clock):
+                continue
+            pause = int(pause_s * messages.dictionary.clock_hz)
+            turn = (steps.dir[first:] != steps.dir[first]) | (np.diff(steps.clock[first:], prepend=first_clock) > pause)
+            last = first + (int(np.argmax(turn[1:])) if turn[1:].any() else len(turn) - 1)
+            end = max(end, int(steps.clock[last]))
+    return end
+
+
 def decode(serial: str | Path, dictionary: str | Path, step_pins: dict[str, tuple[str, bool]]) -> \
         tuple[dict[str, StepperSteps], Messages]:
     """Each configured stepper's steps, by its printer.cfg section. `step_pins`: section -> (its step pin,

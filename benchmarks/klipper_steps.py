@@ -8,37 +8,62 @@ every step, or every difference explained").
 Klipper's batch mode (benchmarks/klipper_ref.py) runs on the job's G-code with benchmarks/klipper/printer.cfg
 plus [gcode_arcs] and, from the options, [input_shaper] and the extruder's pressure_advance (the job must say
 the same for our side: `machine.input_shaper`, `machine.pressure_advance`). Its out.serial is decoded by
-benchmarks/klipper_decode.py; steps queued before its last endstop_home are its G28 homing (our firmware
-homes before the tables) and are left out. Both sides' times count from the first step of any motor;
+benchmarks/klipper_decode.py; the steps up to the end of its last homing pass are its G28 homing (our
+firmware homes before the tables) and are left out. Both sides' times count from the first step of any motor;
 positions from where homing leaves each side (Klipper: position_endstop; ours: the program's start). Steps
 are paired by the half-step boundary they cross (benchmarks/klipper_compare.py), so the figures hold
 although the two plans drift apart. Printed per motor: step counts, per-step time differences (global: as
 they stand; local: less the drift of the two clocks), and our position minus Klipper's at each of Klipper's
 steps (global, and at our time matching Klipper's by the drift).
 
-What the differences are (Benchy: examples/printers/benchy-mini.yaml, PrusaSlicer, 12.5 M steps; small:
-a few moves and two arcs, tests/benchmarks/klipper-small.gcode):
-- Planning. Our plan of the Benchy lasts 2442.7 s from the first step to the last, Klipper's 2294.2 s
-  (-6.1 %): the drift reaches 148 s, so the global differences say nothing of single steps. Causes: the file
-  sets Marlin's classic jerk (M205 X8 Y8), which we follow and Klipper ignores (its corners come from
-  square_corner_velocity); a lone `M204 P1250` / `M204 T1250` Klipper refuses, and from `M204 P1250 R1250
-  T2500` on Klipper accelerates everything at min(P, T) = 1250 mm/s^2 where we travel at T = 2500; Klipper
-  keeps square_corner_velocity (not the deviation) when M204 changes the acceleration; its extruder limits
-  the junction speed where the extrusion ratio changes (instant_corner_velocity 1 mm/s). `--same-limits`
-  drops M204/M205 from the file on both sides: then both corner by the same junction deviation at 2500 mm/s^2.
-- Step times of the same motion: Klipper compresses each stepper's steps with a one-sided 25 us window
-  (a step up to 25 us early, never late); our tables hold events within their own bound of the plan; so steps
-  of the same plan differ by up to ~25 us plus ours.
-- Homing position: ours starts the program where G28 says (0, 0, 0), Klipper at position_endstop (-2, -4, 0)
-  = the low end of the job's ranges, where our own `program.home: true` starts it too; the first move's step
-  count differs by 200 on x (Benchy: 17,900 of ours against 18,100) and the direction of y's first 200 steps.
-- Half steps: the file writes X/Y with 3 decimals at 100 steps/mm, so a coordinate can sit on a half step
-  (85.105 mm = 8510.5 steps); each side rounds it its own way, and where the path then turns back one side
-  makes an extra step pair: ours has 337 more pairs on x, 676 on y, 2 on e (of 5.2 M, 4.3 M, 2.8 M steps);
-  positions then differ by one step until the next move.
-- Arcs: Klipper cuts G2/G3 into chords of `resolution` mm ([gcode_arcs], default 1 mm: 12.5 um off a 10 mm
-  radius), ours within `tolerance` (0.002 mm): one-step position differences on arcs, and the chords' corners
-  time the arc differently.
+What the differences are. Figures of 2026-11-29 (Klipper 84104bbbd) on two programs: the PrusaSlicer Benchy
+with examples/printers/benchy-mini.yaml (12.5 M steps), and "small", benchy-mini's machine with
+`G28 / G90 / M83 / G1 X20 Y10 F6000 / G1 X60 Y10 E2 F3000 / G1 X60 Y50 E2 / G2 X80 Y70 I20 J0 E1.5 F2400 /
+G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
+- Step counts. small: equal on x and z; y 14,000 against Klipper's 13,998 with its default 1 mm arc chords
+  (they cut 12.5 um inside a 10 mm radius, so Klipper's G3 stops 1 step short of y = 10 at its bottom; with
+  --arc-resolution 0.1 both make 14,000); e 3,112 against 3,113: 7.5 mm is 3112.5 steps, a half step.
+  Benchy: z equal (174,880); x +674, y +1,352, e +4 ours (of 5.2 M, 4.3 M, 2.8 M), final positions equal.
+  The file writes X/Y with 3 decimals at 100 steps/mm, so a point can sit on a half step (85.105 mm =
+  8510.5 steps): x turns back at such a point 871 times, y 926. We round such a point once (DESIGN.md,
+  principle 3), Klipper steps when its float position reaches the boundary, so the two choose differently
+  and where the path turns back one side makes one step out and back more. Klipper's choice depends on its
+  timing: with --same-limits its x count is 72 lower, ours is the same.
+- Planning (the "global" differences). Benchy: ours 2445.2 s from the first step to the last, Klipper
+  2296.5 s; the drift reaches +148.6 s. By the kind of G-code line that gained it: extruding moves +167.6 s
+  (the file's `M204 P800` / `M204 P1000` print accelerations, which we follow and Klipper refuses: it prints
+  at 1250 from `M204 P1250 R1250 T2500`; and the file's classic jerk M205 X8 Y8, which we follow and Klipper
+  ignores for its square_corner_velocity), travels -41.5 s (we travel at T = 2500 mm/s^2, Klipper at
+  min(P, T) = 1250), retractions +16.4 s (R = 1250 for us, max_extrude_only_accel 5000 for Klipper), z
+  +6.1 s. With --same-limits (M204/M205 left out on both sides: the same junction deviation at 2500
+  mm/s^2): 2127.6 s against 2092.5 s, drift +35.1 s: extruding moves +55.0 s, z -8.9 s, retractions
+  -6.4 s, travels -4.6 s. small: drift -20 ms: we accelerate a diagonal move up to each axis's 2500 mm/s^2
+  (2795 mm/s^2 along X20 Y10), Klipper the toolhead at 2500; Klipper caps a corner where the extrusion
+  ratio changes at instant_corner_velocity / change (20 mm/s into X60 Y10 E2), we do not.
+- Step times of the same motion (the "local" differences: less the running median of 17 pairs, which
+  takes out a smooth planning drift). small, per G-code line, p99: 0-7 us on the straight moves for the
+  motor that leads them, 70-150 us for a motor that follows (y on X20 Y20, e): our tables couple the motors
+  by Bresenham, a follower steps on the leader's events, up to one leader interval from its own crossing;
+  350-940 us on the arcs (Klipper's 1 mm chords against our 2 um tolerance: its chord corners slow and
+  speed the axes). Our events keep within 5 % of the gap to the previous event, at most 100 us, of the plan
+  (codegen/tables/compress.py), Klipper's steps within 25 us, early only: at a move's start and end, where
+  steps are ms apart, this alone allows 125 us. Benchy local p99: x 297 us, y 445, z 2030, e 693 (--same-
+  limits: 210, 292, 585, 468); over 50 us: 5 % of x, 10 % of y, 13 % of z, 30 % of e. The largest local
+  values (0.65 s on x, 1.4 s on y) are single steps at a half-step point, made at the end of one move by
+  one side and at the start of the next by the other, or a pairing that missed (unpaired: x 1,125, y 1,524).
+- Positions (ours minus Klipper's at Klipper's step times). Global: meaningless beside a drift of 148 s
+  (up to 85 mm). Local (at our time matching Klipper's by the local drift): within 1 step at 99 % of
+  Klipper's steps, more than 1 step off at 4,118 x steps, 3,638 y, 4,906 z, 4,216 e (0.08 %-2.8 %), at most
+  10 steps on x and 75 on y, where the local drift is itself uncertain. small: within 1 step everywhere.
+- Homing. Klipper homes in out.serial; we leave its steps out (up to the end of its last homing pass).
+  Our G28 starts the program at (0, 0, 0); printer.cfg puts Klipper's switches at position_endstop (-2, -4,
+  0), the low ends of the job's ranges, where our `program.home: true` starts it too. So by default Klipper
+  is given our start as position_endstop; --klipper-home config keeps printer.cfg's and shows the 200 x
+  steps of `G28 / G1 X10 F3000` (ours 1,000, Klipper 1,200).
+- G4 P0: Klipper (and Marlin) come to rest at it, we go on at speed (`G1 X20 F6000 / G4 P0 / G1 X40`: ours
+  passes X20 at 100 mm/s, Klipper stops there: 0.29 s).
+Wall (2 shared cores, Benchy): ours (host_build) 13-24 s, Klipper 7-9 s, decoding 2.7-3.6 s, pairing and
+figures 48-55 s, 4.1 GB peak; small: about 5 s in all.
 """
 
 from __future__ import annotations
@@ -60,7 +85,7 @@ sys.path.insert(0, str(HERE))
 
 from klipper_compare import (BINS_S, Drift, Spread, Train, drift_of, nearest_pairs,  # noqa: E402
                              occurrence_pairs, position_at, trend)
-from klipper_decode import decode  # noqa: E402
+from klipper_decode import decode, homing_end  # noqa: E402
 from klipper_ref import CONFIG, find_klipper, run_klipper  # noqa: E402
 
 JOB = HERE.parent / "examples" / "printers" / "benchy-mini.yaml"
@@ -142,9 +167,8 @@ def klipper_trains(serial: Path, dictionary: Path, config: Path, steps_per_mm: d
     """Klipper's program steps per motor (after its homing), from the first step of any motor."""
     pins = stepper_pins(config)
     steppers, messages = decode(serial, dictionary, {s: (pin, inv) for s, (pin, inv, _) in pins.items()})
-    homing_end, _ = messages.of("endstop_home")
-    after = int(homing_end[-1]) if len(homing_end) else -1
-    program = {motor: steppers[section].message > after for motor, section in SECTIONS.items()}
+    homed = homing_end(messages, steppers)
+    program = {motor: steppers[section].clock > homed for motor, section in SECTIONS.items()}
     firsts = [steppers[SECTIONS[m]].clock[program[m]][:1] for m in SECTIONS]
     origin = int(np.concatenate(firsts).min()) if any(len(f) for f in firsts) else 0
     trains = {}

@@ -15,13 +15,13 @@ from tests.helpers import ROOT
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from klipper_compare import Train, drift_of, nearest_pairs, occurrence_pairs  # noqa: E402
-from klipper_decode import decode, varints  # noqa: E402
+from klipper_decode import decode, homing_end, varints  # noqa: E402
 from klipper_ref import find_klipper  # noqa: E402
 
 IDS = {"identify_response offset=%u data=%.*s": 0, "config_stepper oid=%c step_pin=%c dir_pin=%c invert_step=%c "
        "step_pulse_ticks=%u": 23, "queue_step oid=%c interval=%u count=%hu add=%hi": 22,
        "set_next_step_dir oid=%c dir=%c": 21, "reset_step_clock oid=%c clock=%u": 20,
-       "endstop_home oid=%c clock=%u": 25, "config_spi_shutdown oid=%c spi_oid=%c shutdown_msg=%*s": 34,
+       "endstop_home oid=%c clock=%u trsync_oid=%c": 25, "stepper_stop_on_trigger oid=%c trsync_oid=%c": 18, "config_spi_shutdown oid=%c spi_oid=%c shutdown_msg=%*s": 34,
        "allocate_oids count=%c": -7}
 PINS = {"PA0": [0, 8], "PF0": [40, 8]}  # PA4 = 4, PF0 = 40
 
@@ -81,16 +81,18 @@ def synthetic(tmp_path):
     expected, last = {0: [], 1: []}, {0: 0, 1: 0}
     direction = {0: -1, 1: -1}
     # (oid, what, value); x's clock passes 2^32 before its reset
-    commands = [(1, "dir", 1), (1, "q", (4_064_000, 1, 0)), (0, "dir", 1), (1, "q", (23_176, 2, -6_798)),
-                (0, "q", (3_000_000_000, 1, 0)), (0, "q", (1_600_000_000, 3, 1_000)), (1, "home", 0),
+    commands = [(1, "home", 4_000_000), (1, "dir", 1), (1, "q", (4_064_000, 1, 0)), (0, "dir", 1),
+                (1, "q", (23_176, 2, -6_798)), (0, "q", (3_000_000_000, 1, 0)), (0, "q", (1_600_000_000, 3, 1_000)),
+                (1, "home", 0),
                 (1, "dir", 0), (1, "q", (3_200, 250, 0)), (1, "q", (4_000_000_000, 1, 0)),
                 (1, "reset", 2**32 + 5_000_000), (1, "q", (1_000, 4, -3)), (0, "dir", 0), (0, "q", (40_000, 65_535, 0))]
     for oid, kind, value in commands:
         if kind == "dir":
             stream.append(message("set_next_step_dir oid=%c dir=%c", oid, value))
             direction[oid] = 1 if value else -1
-        elif kind == "home":
-            stream.append(message("endstop_home oid=%c clock=%u", oid, 0))
+        elif kind == "home":  # a homing pass of x's endstop (oid 3, trsync 4) starts, or ends (clock 0)
+            stream.append(message("stepper_stop_on_trigger oid=%c trsync_oid=%c", oid, 4))
+            stream.append(message("endstop_home oid=%c clock=%u trsync_oid=%c", 3, value, 4 if value else 0))
         elif kind == "reset":
             stream.append(message("reset_step_clock oid=%c clock=%u", oid, value % 2**32))
             last[oid] = value
@@ -114,8 +116,7 @@ def test_decoded_step_times_are_the_mcus(synthetic):
     assert list(zip(x.clock.tolist(), x.dir.tolist())) == expected[1]
     assert e.clock.tolist() == [c for c, _ in expected[0]]
     assert e.dir.tolist() == [-d for _, d in expected[0]]  # its dir pin inverted
-    home, _ = messages.of("endstop_home")
-    assert (x.message < home[0]).sum() == 3  # the steps queued before it: homing
+    assert homing_end(messages, steppers) == expected[1][2][0]  # x's pass: its first 3 steps, one way
 
 
 def test_pairs_survive_drift_and_an_extra_step_pair():
