@@ -3,18 +3,21 @@ same G-code (issue 29: "each motor's step count equal; each motor's step times w
 every step, or every difference explained").
 
     python benchmarks/klipper_steps.py [JOB.yaml] [--shaper mzv:50[:0.1]] [--pressure-advance 0.05[:0.04]]
-                                       [--arc-resolution 1.0] [--same-limits] [--json]
+        [--arc-resolution 1.0] [--same-limits] [--klipper-home ours|config] [--keep DIR] [--json]
 
-Klipper's batch mode (benchmarks/klipper_ref.py) runs on the job's G-code with benchmarks/klipper/printer.cfg
-plus [gcode_arcs] and, from the options, [input_shaper] and the extruder's pressure_advance (the job must say
-the same for our side: `machine.input_shaper`, `machine.pressure_advance`). Its out.serial is decoded by
-benchmarks/klipper_decode.py; the steps up to the end of its last homing pass are its G28 homing (our
-firmware homes before the tables) and are left out. Both sides' times count from the first step of any motor;
-positions from where homing leaves each side (Klipper: position_endstop; ours: the program's start). Steps
-are paired by the half-step boundary they cross (benchmarks/klipper_compare.py), so the figures hold
-although the two plans drift apart. Printed per motor: step counts, per-step time differences (global: as
-they stand; local: less the drift of the two clocks), and our position minus Klipper's at each of Klipper's
-steps (global, and at our time matching Klipper's by the drift).
+Klipper's batch mode (benchmarks/klipper_ref.py) runs on the job's G-code (default: the Benchy of
+examples/printers/benchy-mini.yaml) with benchmarks/klipper/printer.cfg plus [gcode_arcs], and [input_shaper]
+and the extruder's pressure_advance as the job has them (`machine.input_shaper`, `machine.pressure_advance`,
+where the job schema has them) or as the options say (the options set Klipper's only). Its out.serial is
+decoded by benchmarks/klipper_decode.py; the steps up to the end of its last homing pass are its G28 homing
+(our firmware homes before the tables) and are left out. Ours are the twin's pulses (host_build). Both
+sides' times count from the first step of any motor; positions from where homing leaves each side (Klipper
+is given our start as position_endstop unless --klipper-home config). Steps are paired by the half-step
+boundary they cross (benchmarks/klipper_compare.py), so the pairs hold although the two plans drift apart.
+Printed per motor (a table, or --json): step counts, unpaired steps, per-step time differences "global"
+(as they stand) and "local" (less the running median of the 17 pairs around: what is left once a smooth
+planning drift is taken out), with the largest one's G-code line (ours); our position minus Klipper's at
+each of Klipper's step times, "global" and "local" (at our time matching Klipper's by that running median).
 
 What the differences are. Figures of 2026-11-29 (Klipper 84104bbbd) on two programs: the PrusaSlicer Benchy
 with examples/printers/benchy-mini.yaml (12.5 M steps), and "small", benchy-mini's machine with
@@ -94,21 +97,38 @@ SECTIONS = {"x": "stepper_x", "y": "stepper_y", "z": "stepper_z", "e": "extruder
 SAME_LIMITS_DROPPED = ("M204", "M205")
 
 
-def klipper_config(work: Path, shaper: str | None, advance: str | None, arc_resolution: float,
+def shaping_of(machine, shaper: str | None, advance: str | None) -> tuple[dict, tuple | None]:
+    """Klipper's shapers {axis: (type, freq, damping)} and pressure advance (k, smooth_time or None): the
+    options' where given (TYPE:FREQ[:DAMPING] on x and y; K[:SMOOTH_TIME]), otherwise the job's
+    `machine.input_shaper` and `machine.pressure_advance` (x and y: Klipper's [input_shaper] has no z)."""
+    shapers = {}
+    if shaper:
+        kind, freq, *damping = shaper.split(":")
+        shapers = {axis: (kind, float(freq), float(damping[0]) if damping else None) for axis in "xy"}
+    elif getattr(machine, "input_shaper", None) is not None:
+        shapers = {axis: (s.type, s.freq, s.damping) for axis, s in machine.input_shaper.axes.items() if axis in "xy"}
+    if advance:
+        k, *smooth = advance.split(":")
+        return shapers, (float(k), float(smooth[0]) if smooth else None)
+    job_advance = getattr(machine, "pressure_advance", None)
+    return shapers, None if job_advance is None else (job_advance.k, job_advance.smooth_time)
+
+
+def klipper_config(work: Path, shapers: dict, advance: tuple | None, arc_resolution: float,
                    endstops: dict[str, float] | None) -> Path:
-    """printer.cfg with [gcode_arcs], the options' shaper and pressure advance, and `endstops` (section ->
+    """printer.cfg with [gcode_arcs], the shapers and pressure advance (shaping_of), and `endstops` (section ->
     position_endstop, mm) where given (Klipper merges a section given twice: the lines can follow the file)."""
     extra = [f"\n[gcode_arcs]\nresolution: {arc_resolution}\n"]
     extra += [f"\n[{section}]\nposition_endstop: {mm:g}\n" for section, mm in (endstops or {}).items()]
-    if shaper:
-        kind, freq, *damping = shaper.split(":")
+    if shapers:
         extra.append("\n[input_shaper]\n" + "".join(
-            f"shaper_type_{a}: {kind}\nshaper_freq_{a}: {float(freq)}\n"
-            + (f"damping_ratio_{a}: {float(damping[0])}\n" if damping else "") for a in "xy"))
-    if advance:
-        k, *smooth = advance.split(":")
-        extra.append(f"\n[extruder]\npressure_advance: {float(k)}\n"
-                     + (f"pressure_advance_smooth_time: {float(smooth[0])}\n" if smooth else ""))
+            f"shaper_type_{axis}: {kind}\nshaper_freq_{axis}: {freq:g}\n"
+            + (f"damping_ratio_{axis}: {damping:g}\n" if damping is not None else "")
+            for axis, (kind, freq, damping) in shapers.items()))
+    if advance is not None:
+        k, smooth = advance
+        extra.append(f"\n[extruder]\npressure_advance: {k:g}\n"
+                     + (f"pressure_advance_smooth_time: {smooth:g}\n" if smooth is not None else ""))
     path = work / "printer.cfg"
     path.write_text(CONFIG.read_text() + "".join(extra))
     return path
@@ -244,8 +264,10 @@ def print_table(result: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("job", type=Path, nargs="?", default=JOB)
-    parser.add_argument("--shaper", help="Klipper's [input_shaper] on x and y: TYPE:FREQ[:DAMPING]")
-    parser.add_argument("--pressure-advance", help="Klipper's extruder pressure_advance: K[:SMOOTH_TIME]")
+    parser.add_argument("--shaper", help="Klipper's [input_shaper] on x and y: TYPE:FREQ[:DAMPING] (default: "
+                                         "the job's machine.input_shaper)")
+    parser.add_argument("--pressure-advance", help="Klipper's extruder pressure_advance: K[:SMOOTH_TIME] (default: "
+                                                   "the job's machine.pressure_advance)")
     parser.add_argument("--arc-resolution", type=float, default=1.0, help="Klipper's [gcode_arcs] (mm)")
     parser.add_argument("--klipper-home", choices=("ours", "config"), default="ours",
                         help="Klipper's position_endstop: where our homing leaves the tool, or printer.cfg's")
@@ -266,7 +288,8 @@ def main() -> None:
         walls["ours (host_build)"] = time.perf_counter() - begin
         endstops = None if args.klipper_home == "config" else \
             {SECTIONS[axis]: float(host.start[i]) for i, axis in enumerate("xyz") if axis in host.kin.motors}
-        config = klipper_config(work, args.shaper, args.pressure_advance, args.arc_resolution, endstops)
+        shapers, advance = shaping_of(host.job.machine, args.shaper, args.pressure_advance)
+        config = klipper_config(work, shapers, advance, args.arc_resolution, endstops)
         run = run_klipper(dataclasses.replace(setup, config=config), gcode, work / "klipper", verbose=False)
         walls["klipper"] = run.wall_s
         steps_per_mm = {m: host.job.machine.steppers[m].steps_per_mm for m in SECTIONS}
@@ -277,6 +300,7 @@ def main() -> None:
     motors, drift = compare(ours, theirs)
     walls["compare"] = time.perf_counter() - begin
     result = {"job": str(args.job), "origin": "the first step of any motor, on each side",
+              "klipper_shaping": {"input_shaper": shapers, "pressure_advance": advance},
               "options": {k: v for k, v in vars(args).items() if k not in ("job", "json", "keep")},
               "ours_duration_s": max(float(t.time[-1]) for t, _ in ours.values() if len(t.time)),
               "klipper_duration_s": max(float(t.time[-1]) for t in theirs.values() if len(t.time)),
