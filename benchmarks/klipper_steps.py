@@ -40,7 +40,12 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   min(P, T) = 1250), retractions +16.4 s (R = 1250 for us, max_extrude_only_accel 5000 for Klipper), z
   +6.1 s. With --same-limits (M204/M205 left out on both sides: the same junction deviation at 2500
   mm/s^2): 2127.6 s against 2092.5 s, drift +35.1 s: extruding moves +55.0 s, z -8.9 s, retractions
-  -6.4 s, travels -4.6 s (what makes the remaining +55 s on extruding moves is not found yet). small:
+  -6.4 s, travels -4.6 s. The largest gains of a single line (0.3-1.7 s) are a bug of ours: a move
+  shorter than half a step (no step) before a turn makes the next move crawl. `G28 / G1 X10 F3600 /
+  G1 X10.001 / G1 X20 Y-1`: its last move takes us 2.26 s (x at 2.2-2.3 ms a step, 4.4 mm/s) against
+  Klipper's 0.187 s at 60 mm/s; without the 0.001 mm move, or with X20 instead of X20 Y-1, both take the
+  same. The Benchy has such moves (line 22647: `G1 X77.484 Y78.67 E.00006`, then 10.3 mm in 1.89 s
+  against 0.18 s). small:
   drift -20 ms: our limits are each motor's, Klipper's the toolhead's, so we accelerate `G1 X20 Y10 F6000`
   alone as if at 2795 mm/s^2 along it (each axis at 2500; first to last step 0.2562 s, Klipper 0.2594 s);
   and Klipper caps a corner where the extrusion ratio changes at instant_corner_velocity / change (its
@@ -72,9 +77,12 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   steps of `G28 / G1 X10 F3000` (ours 1,000, Klipper 1,200).
 - G4 P0: Klipper (and Marlin) come to rest at it, we go on at speed (`G1 X20 F6000 / G4 P0 / G1 X40`: ours
   passes X20 at 100 mm/s, Klipper stops there: 0.29 s).
-- Shaped (checked with the i29-shaping branch's job schema, `machine.input_shaper` MZV 50 Hz on x and y,
-  which Klipper then gets too): small with --arc-resolution 0.1: counts equal but e's half step, local p99
-  190 us x, 207 y, positions within 1 step: as unshaped.
+- Shaped: the i29-shaping branch of 06:59 (its job schema and planner), `machine.input_shaper` MZV 50 Hz
+  on x and y, which Klipper then gets too. small (--arc-resolution 0.1): counts equal but e's half step,
+  local p99 190 us x, 207 y, positions within 1 step: as unshaped. Benchy: x 5,203,970 against 5,201,720,
+  y 4,325,724 against 4,322,430 (the shaped paths smooth corners; theirs and ours differ by up to a step,
+  so more step pairs differ: +1,125 on x, +1,647 on y), z and e as unshaped; local p99 x 369 us, y 514,
+  z 2027, e 763; positions within 1 step but at 679 x and 1,076 y steps, at most 9; 96 s in all (ours 31 s).
 - Klipper's batch mode may exit before writing its last messages (seen 1 run in 5-10 on a loaded machine:
   the last 19 % of a move, or whole moves, missing). Its copy of the program ends with M84; an output
   without the motors-off after its last step is made again ("klipper_runs" in --json).
