@@ -44,7 +44,7 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   shorter than half a step (no step) before a turn makes the next move crawl. `G28 / G1 X10 F3600 /
   G1 X10.001 / G1 X20 Y-1`: its last move takes us 2.26 s (x at 2.2-2.3 ms a step, 4.4 mm/s) against
   Klipper's 0.187 s at 60 mm/s; without the 0.001 mm move, or with X20 instead of X20 Y-1, both take the
-  same. The Benchy has such moves (line 22647: `G1 X77.484 Y78.67 E.00006`, then 10.3 mm in 1.89 s
+  same. The Benchy has such moves (line 22646: `G1 X77.484 Y78.67 E.00006`; line 22648, 10.3 mm, 1.89 s
   against 0.18 s). small:
   drift -20 ms: our limits are each motor's, Klipper's the toolhead's, so we accelerate `G1 X20 Y10 F6000`
   alone as if at 2795 mm/s^2 along it (each axis at 2500; first to last step 0.2562 s, Klipper 0.2594 s);
@@ -192,7 +192,7 @@ def job_and_gcode(job_path: Path, work: Path, same_limits: bool) -> tuple[Path, 
 
 
 def our_trains(job_path: Path):
-    """Our steps per motor from the twin: (host, {motor: (Train, G-code line of each step)}, tick_hz)."""
+    """Our steps per motor from the twin: (host, {motor: (Train, G-code line of each step)})."""
     from codegen.job import load_job
     from codegen.pipeline.host import host_build
 
@@ -333,7 +333,7 @@ def main() -> None:
         begin = time.perf_counter()
         run, steppers, messages, klipper_runs = klipper_steps(setup, config, gcode, work / "klipper")
         walls["klipper"] = run.wall_s
-        walls["decode"] = time.perf_counter() - begin - run.wall_s
+        walls["decode"] = time.perf_counter() - begin - run.wall_s  # and any run made again
         steps_per_mm = {m: host.job.machine.steppers[m].steps_per_mm for m in SECTIONS}
         theirs = klipper_trains(steppers, messages, config, steps_per_mm)
     begin = time.perf_counter()
@@ -343,8 +343,8 @@ def main() -> None:
               "klipper_shaping": {"input_shaper": shapers, "pressure_advance": advance},
               "klipper_runs": klipper_runs,  # more than 1: an output found incomplete was made again
               "options": {k: v for k, v in vars(args).items() if k not in ("job", "json", "keep")},
-              "ours_duration_s": max(float(t.time[-1]) for t, _ in ours.values() if len(t.time)),
-              "klipper_duration_s": max(float(t.time[-1]) for t in theirs.values() if len(t.time)),
+              "ours_duration_s": max((float(t.time[-1]) for t, _ in ours.values() if len(t.time)), default=0.0),
+              "klipper_duration_s": max((float(t.time[-1]) for t in theirs.values() if len(t.time)), default=0.0),
               "drift_end_s": float(drift.offset[-1]) if len(drift.offset) else 0.0,
               "unknown_to_klipper": dict(run.unknown), "motors": motors, "wall_s": walls}
     if args.json:
