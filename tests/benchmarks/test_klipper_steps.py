@@ -21,8 +21,8 @@ from klipper_ref import find_klipper  # noqa: E402
 IDS = {"identify_response offset=%u data=%.*s": 0, "config_stepper oid=%c step_pin=%c dir_pin=%c invert_step=%c "
        "step_pulse_ticks=%u": 23, "queue_step oid=%c interval=%u count=%hu add=%hi": 22,
        "set_next_step_dir oid=%c dir=%c": 21, "reset_step_clock oid=%c clock=%u": 20,
-       "endstop_home oid=%c clock=%u trsync_oid=%c": 25, "stepper_stop_on_trigger oid=%c trsync_oid=%c": 18, "config_spi_shutdown oid=%c spi_oid=%c shutdown_msg=%*s": 34,
-       "allocate_oids count=%c": -7}
+       "endstop_home oid=%c clock=%u trsync_oid=%c": 25, "stepper_stop_on_trigger oid=%c trsync_oid=%c": 18,
+       "config_spi_shutdown oid=%c spi_oid=%c shutdown_msg=%*s": 34, "allocate_oids count=%c": -7}
 PINS = {"PA0": [0, 8], "PF0": [40, 8]}  # PA4 = 4, PF0 = 40
 
 
