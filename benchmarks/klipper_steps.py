@@ -40,12 +40,15 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   min(P, T) = 1250), retractions +16.4 s (R = 1250 for us, max_extrude_only_accel 5000 for Klipper), z
   +6.1 s. With --same-limits (M204/M205 left out on both sides: the same junction deviation at 2500
   mm/s^2): 2127.6 s against 2092.5 s, drift +35.1 s: extruding moves +55.0 s, z -8.9 s, retractions
-  -6.4 s, travels -4.6 s. The largest gains of a single line (0.3-1.7 s) are a bug of ours: a move
-  shorter than half a step (no step) before a turn makes the next move crawl. `G28 / G1 X10 F3600 /
-  G1 X10.001 / G1 X20 Y-1`: its last move takes us 2.26 s (x at 2.2-2.3 ms a step, 4.4 mm/s) against
-  Klipper's 0.187 s at 60 mm/s; without the 0.001 mm move, or with X20 instead of X20 Y-1, both take the
-  same. The Benchy has such moves (line 22646: `G1 X77.484 Y78.67 E.00006`; line 22648, 10.3 mm, 1.89 s
-  against 0.18 s). small:
+  -6.4 s, travels -4.6 s. The largest gains of a single line (0.3-1.7 s) are a bug of ours: a straight
+  move next to a short one that turns takes the curvature of their vertex (codegen/motion/planner.py,
+  `kappa` of both neighbours of a vertex) and is capped by its centripetal limit along its whole length.
+  `G28 / G1 X10 F3600 / G1 X10.001 / G1 X20 Y-1`: the last move takes us 2.26 s (x at 2.2-2.3 ms a step,
+  4.4 mm/s) against Klipper's 0.187 s at 60 mm/s; without the 0.001 mm move, or with X20 instead of X20
+  Y-1, both take the same. Benchy line 22648 (10.3 mm after the 0.001 mm `G1 X77.484 Y78.67 E.00006`):
+  1.89 s against 0.18 s; line 10853 (14.7 mm before the 0.134 mm turn of line 10854): planned at 29.5 mm/s
+  and 693 mm/s^2 instead of 80 mm/s, 0.52 s against 0.20 s. How much of the +55 s is this is not measured.
+  small:
   drift -20 ms: our limits are each motor's, Klipper's the toolhead's, so we accelerate `G1 X20 Y10 F6000`
   alone as if at 2795 mm/s^2 along it (each axis at 2500; first to last step 0.2562 s, Klipper 0.2594 s);
   and Klipper caps a corner where the extrusion ratio changes at instant_corner_velocity / change (its
