@@ -48,11 +48,10 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   Y-1, both take the same. Benchy line 22648 (10.3 mm after the 0.001 mm `G1 X77.484 Y78.67 E.00006`):
   1.89 s against 0.18 s; line 10853 (14.7 mm before the 0.134 mm turn of line 10854): planned at 29.5 mm/s
   and 693 mm/s^2 instead of 80 mm/s, 0.52 s against 0.20 s. How much of the +55 s is this is not measured.
-  small:
-  drift -20 ms: our limits are each motor's, Klipper's the toolhead's, so we accelerate `G1 X20 Y10 F6000`
-  alone as if at 2795 mm/s^2 along it (each axis at 2500; first to last step 0.2562 s, Klipper 0.2594 s);
-  and Klipper caps a corner where the extrusion ratio changes at instant_corner_velocity / change (its
-  formula: 20 mm/s into X60 Y10 E2, where the junction deviation allows 30).
+  small: drift -20 ms: our limits are each motor's, Klipper's the toolhead's, so we accelerate
+  `G1 X20 Y10 F6000` alone as if at 2795 mm/s^2 along it (each axis at 2500; first to last step 0.2562 s,
+  Klipper 0.2594 s); and Klipper caps a corner where the extrusion ratio changes at instant_corner_velocity
+  / change (its formula: 20 mm/s into X60 Y10 E2, where the junction deviation allows 30).
 - Step times of the same motion (the "local" differences: less the running median of 17 pairs, which
   takes out a smooth planning drift). small, per G-code line, p99: 0-7 us on the straight moves for the
   motor that leads them, 70-150 us for a motor that follows (y on X20 Y20, e): our tables couple the motors
