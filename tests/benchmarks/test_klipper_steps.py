@@ -67,8 +67,8 @@ def test_varints_decode_every_size_and_sign():
 
 @pytest.fixture()
 def synthetic(tmp_path):
-    """Two steppers' commands (with a string message, a far step, a negative add and a 32-bit clock wrap),
-    and every step time computed one by one, as the MCU would."""
+    """Two steppers' commands (with a string message, a far step, a negative add, a homing pass and a 32-bit
+    clock wrap), and every step time computed one by one, as the MCU would."""
     dictionary = tmp_path / "klipper.dict"
     dictionary.write_text(json.dumps({"commands": {k: v for k, v in IDS.items() if v}, "responses": {},
                                       "enumerations": {"pin": PINS}, "config": {"CLOCK_FREQ": 16000000}}))
@@ -83,8 +83,7 @@ def synthetic(tmp_path):
     # (oid, what, value); x's clock passes 2^32 before its reset
     commands = [(1, "home", 4_000_000), (1, "dir", 1), (1, "q", (4_064_000, 1, 0)), (0, "dir", 1),
                 (1, "q", (23_176, 2, -6_798)), (0, "q", (3_000_000_000, 1, 0)), (0, "q", (1_600_000_000, 3, 1_000)),
-                (1, "home", 0),
-                (1, "dir", 0), (1, "q", (3_200, 250, 0)), (1, "q", (4_000_000_000, 1, 0)),
+                (1, "home", 0), (1, "dir", 0), (1, "q", (3_200, 250, 0)), (1, "q", (4_000_000_000, 1, 0)),
                 (1, "reset", 2**32 + 5_000_000), (1, "q", (1_000, 4, -3)), (0, "dir", 0), (0, "q", (40_000, 65_535, 0))]
     for oid, kind, value in commands:
         if kind == "dir":
