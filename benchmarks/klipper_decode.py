@@ -18,6 +18,9 @@ strings are a length byte and the bytes. The step commands of one stepper (oid),
 so step k (0-based) of a queue_step is at last + (k + 1) * interval + add * k * (k + 1) / 2, and the last of
 them becomes `last`. Clocks are the MCU's (16 MHz here), made 64-bit here. The framing is checked by length,
 sequence bits and sync byte; the CRC is not recomputed (a file, not a serial line).
+Checked on 2026-11-29 against Klipper's own klippy/parsedump.py text of the Benchy's out.serial, expanded
+step by step: every one of the 12.7 M step times and directions equal (tests/benchmarks/test_klipper_steps.py
+checks the decoder on a synthetic stream, without Klipper).
 """
 
 from __future__ import annotations
