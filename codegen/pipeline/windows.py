@@ -29,7 +29,9 @@ from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
 from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
                                     segment_lengths)
+from codegen.motion.shaped_motion import ShapingSettings
 from codegen.motion.stepgen import generate
+from codegen.pipeline.shaping import shaped_window
 from codegen.stopwatch import Stopwatch
 from codegen.tables.checks import Checker, MotorTrain, corner_jumps
 from codegen.tables.compress import Compressed, compress
@@ -107,6 +109,7 @@ class StageSettings:
     tolerance_mm: float  # machine.tolerance: how far from the path the checks let a step put the tool
     step_pulse_us: float  # STEP high time
     dir_setup_us: float  # DIR before STEP
+    shaping: ShapingSettings | None = None  # the input shapers (codegen/pipeline/shaping.py); None: unshaped
 
 
 @dataclass
@@ -143,7 +146,9 @@ class Stages:
         self.kin, self.target, self.limits, self.lookahead = kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
-        self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm), 0,
+        self.shaping = settings.shaping
+        max_smoothing = None if self.shaping is None else self.shaping.max_smoothing
+        self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm, max_smoothing), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
@@ -219,9 +224,15 @@ class Stages:
         of its acceleration, the ring's first Shortfall (None for a motor's limits), and whether the window before
         is to be played again with it (a shortfall: always); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
+        planned, shaped = window, None
+        if self.shaping is not None:  # from here on the window is its shaped pieces
+            with watch("input shaping"):
+                shaped = shaped_window(window, kin, self.shaping, target.max_gap_s)
+            window = shaped.window
         with watch("step times"):
-            events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
-                              curves=True, max_rate=self.max_rate)
+            events = shaped.events if shaped is not None else generate(
+                window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s, curves=True,
+                max_rate=self.max_rate)
         block_item = window.segments.item[events.block_segment]
         extra = None if self.runtime is None else block_extra_ticks(
             self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
@@ -257,8 +268,13 @@ class Stages:
         trains = [MotorTrain(tick / target.tick_hz, direction)
                   for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
         with watch("checks"):
-            corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
+            if shaped is None:
+                corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
+            else:
+                corners_t, jumps = shaped.corners_t, shaped.jumps
             checker = copy.deepcopy(before.checker)
+            if shaped is not None:
+                checker.add_smoothing(shaped.smoothing_mm, shaped.smoothing_at, shaped.smoothing_line)
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
@@ -267,15 +283,17 @@ class Stages:
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
                            int(block_item[-1]) if len(block_item) else before.block_item, laser_counts)
-        scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
+        # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
+        planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
+        scale = self._slow_down(planned.plan, planned_segment, pulses, hits)
         if ring is not None:
             with watch("link"):
                 reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
                                                            target.tick_hz)
                 shortfalls = ring.add(reads, sizes)
             if scale is None and shortfalls:
-                record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
-                return played, carried, (*self._link_slow_down(window.plan, shortfalls, record_segment, sizes,
+                record_segment = planned_segment[np.minimum(record_event, len(event_segment) - 1)]
+                return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
         return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
 
