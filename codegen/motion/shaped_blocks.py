@@ -27,7 +27,7 @@ from codegen.motion.shaped_motion import Motion
 from codegen.motion.staircase import STAIRCASE_LIMIT, staircase_bound, staircase_error
 from codegen.toolpath.segments import REF_LINE, Segments
 
-CHORD_LIMIT = 0.25  # steps a slave may stray from its block's chord (the staircase's own error comes on top)
+CHORD_LIMIT = 0.5  # steps a slave may stray from its block's chord (the staircase's own error comes on top)
 CUT_ROUNDS = 64  # each round cuts every block still too far off once, at its worst point
 TURN_MARGIN = 1e-12  # s: a motor's turn this close to a piece's end needs no cut
 

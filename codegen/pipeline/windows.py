@@ -225,7 +225,7 @@ class Stages:
         is to be played again with it (a shortfall: always); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
         planned, shaped = window, None
-        if self.shaping is not None:  # from here on the window is its shaped pieces
+        if self.shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
             with watch("input shaping"):
                 shaped = shaped_window(window, kin, self.shaping, target.max_gap_s)
             window = shaped.window
