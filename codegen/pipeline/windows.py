@@ -65,6 +65,7 @@ class Played:
     power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
+    planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
 
 
 @dataclass
@@ -259,7 +260,7 @@ class Stages:
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
-                        before.block_item, power_error, ceiling_bytes)
+                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
         # The checks see the neighbouring windows' segments around this one's.
         parts = [p for p in (before.before, window.segments, after) if p is not None]
         around = concat(*parts)

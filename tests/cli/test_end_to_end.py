@@ -321,3 +321,15 @@ def test_a_shaped_job_verifies_in_simavr(tmp_path, capsys):
     shaper = json.loads(out)["input_shaper"]
     assert code == 0 and 0.0 < shaper["smoothing_mm"] < 0.5
     assert shaper["axes"]["y"] == {"type": "ei", "freq_hz": 40.0, "damping": 0.1}
+
+
+def test_a_shaped_gcode_job_verifies_against_its_program(tmp_path, capsys):
+    """The G-code read again (codegen/verify/program_check.py) with the shaper's smoothing as its room: arcs,
+    a helix, dwells, G91, G20 and the laser, shaped on x and y."""
+    job = tmp_path / "mixed-shaped.yaml"
+    job.write_text((ROOT / "examples" / "gcode" / "mixed.yaml").read_text().replace(
+        "  laser: {pwm_hz: 1000}", "  laser: {pwm_hz: 1000}\n  input_shaper: {x: {type: mzv, freq: 50}, "
+        "y: {type: zvd, freq: 45}}"))
+    code, out, _ = run(capsys, "verify", job, "--out", tmp_path / "out", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["pass"] is True, result["problems"]
