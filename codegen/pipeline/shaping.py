@@ -3,8 +3,8 @@ for, and the smoothing (codegen/motion/shaped_motion.py, shaped_blocks.py).
 
 The stages after the planner (codegen/pipeline/windows.py) then compress, play and check the blocks as they would
 the plan's own segments (one straight segment a block); where the pulses break a limit, the plan's segments
-under them are slowed and the window shaped again. Shaping reads the plan on both sides of every moment (half a shaper's duration), so a shaped
-program is planned as one window (codegen/motion/lookahead.py `whole`).
+under them are slowed and the window shaped again. Shaping reads the plan on both sides of every moment (half a
+shaper's duration), so a shaped program is planned as one window (codegen/motion/lookahead.py `whole`).
 """
 
 from __future__ import annotations
