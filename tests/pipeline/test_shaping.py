@@ -27,8 +27,8 @@ SAMPLE_HZ = 20_000.0
 
 
 def job_text(kinematics="cartesian", points=SQUARE, feed=9000, shaper="{x: {type: mzv, freq: 50}, y: {type: mzv, "
-             "freq: 50}}", accel=3000, extra=""):
-    steppers = "\n".join(f"    {m}: {{steps_per_mm: 80, max_velocity: 250, max_accel: {accel}}}"
+             "freq: 50}}", accel=3000, extra="", velocity=250):
+    steppers = "\n".join(f"    {m}: {{steps_per_mm: 80, max_velocity: {velocity}, max_accel: {accel}}}"
                          for m in MOTORS[kinematics])
     shaping = "" if shaper is None else f"  input_shaper: {shaper}\n"
     return (f"machine:\n  kinematics: {kinematics}\n  steppers:\n{steppers}\n{shaping}{extra}"
@@ -176,3 +176,19 @@ def test_random_shaped_jobs_keep_every_check_and_play_the_convolution(tmp_path, 
     if kinematics == "cartesian" or alike:
         assert all(shaped.findings.steps[m] <= plain.findings.steps[m] for m in plain.findings.steps)
     assert_shaped_plays_the_convolution(shaped, plain)
+
+
+def test_where_shaping_would_break_a_limit_the_plan_slows_down(tmp_path):
+    """A corexy corner taken at full speed (a large junction deviation) with x shaped slowly and y not: x's speed
+    fades over 0.1 s while y's rises at once, so belt a (x + y) would run at 150 % of its speed through the corner
+    (225 mm/s where it may go 200). The plan's segments under that stretch are slowed until every motor keeps its
+    limits on the shaped pulses."""
+    points, shaper = [[0, 0], [60, 0], [60, 60]], "{x: {type: zv, freq: 5}}"
+    extra = "  junction_deviation: 5\n"
+    shaped = built(tmp_path, job_text("corexy", points, 9000, shaper, extra=extra, velocity=200), "shaped")
+    plain = built(tmp_path, job_text("corexy", points, 9000, None, extra=extra, velocity=200), "plain")
+    f = shaped.findings
+    assert f.ok and max(f.rate_ratio.values()) <= 1.0 and max(f.accel_ratio.values()) <= 1.0
+    assert max(f.rate_ratio.values()) > max(plain.findings.rate_ratio.values())  # shaping made belt a faster
+    spread = shaped.settings.stages.shaping.spread
+    assert shaped.totals.duration_s > plain.totals.duration_s + spread + 0.05  # and the plan slower for it
