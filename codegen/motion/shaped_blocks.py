@@ -48,12 +48,15 @@ def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: 
         raise ValueError("shaped motion is cut into blocks for linear kinematics only (cartesian, corexy)")
     pieces = cut(shaped, _turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
+    fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
     for _ in range(CUT_ROUNDS):
-        extra = _cuts(pieces, bounds, segments, kin)
+        extra = _cuts(pieces, bounds, fresh, segments, kin)
         if not len(extra):
             break
         pieces = cut(pieces, extra)
-        bounds = np.unique(np.concatenate([bounds, extra]))
+        grown = np.unique(np.concatenate([bounds, extra]))
+        new = ~np.isin(grown, bounds)
+        bounds, fresh = grown, new[:-1] | new[1:]  # a block that was not cut stays as close as it was
     chords = _chords(pieces, bounds, segments)
     steps = kin.to_steps(chords.end) - kin.to_steps(chords.start)
     events = _events(pieces, bounds, chords, steps, kin, max_gap)
@@ -105,17 +108,21 @@ def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
     return np.flatnonzero(np.concatenate([[True], inner, [True]]))
 
 
-def _cuts(motion: Motion, bounds: np.ndarray, segments: Segments, kin: Kinematics) -> np.ndarray:
-    """The times to cut blocks at this round: each block whose slave strays too far from its chord at its worst
-    point, each block with more master steps than a block holds or a staircase too far off at its middle."""
-    first = np.searchsorted(motion.breaks, bounds[:-1])
-    last = np.searchsorted(motion.breaks, bounds[1:])
+def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segments, kin: Kinematics) -> np.ndarray:
+    """The times to cut the `fresh` blocks at this round: each whose slave strays too far from its chord at its
+    worst point, each with more master steps than a block holds, or (once none of them does) whose staircase
+    strays too far, at its middle."""
+    which = np.flatnonzero(fresh)
+    first = np.searchsorted(motion.breaks, bounds[which])
+    last = np.searchsorted(motion.breaks, bounds[which + 1])
     count = last - first
     block = np.repeat(np.arange(len(first)), count)
+    piece = first[block] + np.arange(len(block)) - np.repeat(np.cumsum(count) - count, count)
     p, v, a = motor_motion(motion, kin)
     h = np.diff(motion.breaks)
     ends = np.vstack([p, p[-1:] + v[-1:] * h[-1] + 0.5 * a[-1:] * h[-1] ** 2])  # (K + 1, M) at every break
     x0, x1 = ends[first], ends[last]
+    p, v, a, h = p[piece], v[piece], a[piece], h[piece]
     rows = np.arange(len(first))
     master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
     span = (x1 - x0)[rows, master][:, None]
@@ -127,21 +134,21 @@ def _cuts(motion: Motion, bounds: np.ndarray, segments: Segments, kin: Kinematic
     tau = np.divide(-c1, c2, out=np.zeros_like(c1), where=c2 != 0)
     tau = np.where((tau > 0) & (tau < h[:, None]), tau, 0.0)
     inside = np.abs(off + c1 * tau + 0.5 * c2 * tau * tau)
-    at_start = np.where((np.arange(len(block)) == first[block])[:, None], 0.0, np.abs(off))
+    at_start = np.where((piece == first[block])[:, None], 0.0, np.abs(off))
     stray = np.maximum(inside, at_start)
     worst_motor = np.argmax(stray, axis=1)
     worst = stray[np.arange(len(block)), worst_motor]
-    worst_time = motion.breaks[:-1] + np.where(inside[np.arange(len(block)), worst_motor] >= at_start[
+    worst_time = motion.breaks[piece] + np.where(inside[np.arange(len(block)), worst_motor] >= at_start[
         np.arange(len(block)), worst_motor], tau[np.arange(len(block)), worst_motor], 0.0)
     order = np.lexsort((worst, block))  # per block, its worst piece last
     pick = order[np.cumsum(count) - 1]
     bad = (worst[pick] > CHORD_LIMIT) & (span[:, 0] != 0)
     out = [worst_time[pick[bad]]]
-    middle = 0.5 * (bounds[:-1] + bounds[1:])
+    middle = 0.5 * (bounds[which] + bounds[which + 1])
     long = np.abs(np.round(x1) - np.round(x0)).max(axis=1) > MAX_MODULUS - 1
     out.append(middle[long & ~bad])
     if not np.any(bad | long):
-        chords = _chords(motion, bounds, segments)
+        chords = _chords(motion, bounds, segments).take(which)
         limit = STAIRCASE_LIMIT * kin.path_quantum()
         look = np.flatnonzero(staircase_bound(chords, kin) > limit)
         out.append(middle[look[staircase_error(chords, kin, look) > limit]])
