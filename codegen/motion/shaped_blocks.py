@@ -69,9 +69,12 @@ def cut(motion: Motion, times: np.ndarray) -> Motion:
     breaks = breaks[(breaks >= motion.breaks[0]) & (breaks <= motion.breaks[-1])]
     begin = breaks[:-1]
     parent = motion.piece_of(begin + 0.5 * np.diff(breaks))
-    dt = (begin - motion.breaks[parent])[:, None]
-    return Motion(breaks, motion.at_piece(parent, dt[:, 0]), motion.velocity[parent] + motion.accel[parent] * dt,
-                  motion.accel[parent], motion.origin[parent])
+    dt = begin - motion.breaks[parent]
+    inner = np.flatnonzero(dt != 0)  # the second parts of cut pieces; the rest begin where they did
+    position, velocity = motion.position[parent], motion.velocity[parent]
+    position[inner] = motion.at_piece(parent[inner], dt[inner])
+    velocity[inner] += motion.accel[parent[inner]] * dt[inner, None]
+    return Motion(breaks, position, velocity, motion.accel[parent], motion.origin[parent])
 
 
 def motor_motion(motion: Motion, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -213,9 +216,9 @@ def _crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps: np.nda
     key = offset[piece_block] + np.maximum(progress, 0.0)
     target = sign[block] * (np.round(origin[block]) - origin[block]) + k - 0.5
     piece = np.searchsorted(key, offset[block] + target, side="right") - 1
-    first = np.searchsorted(motion.breaks, bounds[block])
-    last = np.searchsorted(motion.breaks, bounds[block + 1]) - 1
-    piece = np.clip(piece, first, last)
+    first = np.searchsorted(motion.breaks, bounds[:-1])  # each block's pieces
+    last = np.searchsorted(motion.breaks, bounds[1:]) - 1
+    piece = np.clip(piece, first[block], last[block])
     speed, accel = s[piece] * v[piece, u[piece]], s[piece] * a[piece, u[piece]]
     ahead = np.maximum(target - progress[piece], 0.0)
     root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))

@@ -150,7 +150,7 @@ def _merged(motion: Motion) -> Motion:
 
 
 def smoothing(shaped: Motion, planned: Motion, settings: ShapingSettings,
-              samples: int = 8) -> tuple[float, np.ndarray, int]:
+              samples: int = 4) -> tuple[float, np.ndarray, int]:
     """How far (mm, xyz) the shaped tool gets from where the plan puts it at the same moment, at its largest: the
     distance, the plan's point there, and the plan's segment. It bounds how far the shaped path strays from the
     programmed one and how much of a corner it cuts; on a reversal at constant acceleration it is Klipper's
