@@ -52,9 +52,8 @@ class Lookahead:
     """`push` segments as they come (with their steps), `close` at the program's end; each returns the
     windows whose plan is final, in order."""
 
-    def __init__(self, kin: Kinematics, limits: PlannerLimits, whole: bool = False):
-        """`whole`: one window, the whole program's, committed at `close` (input shaping reads across junctions)."""
-        self.kin, self.limits, self.whole = kin, limits, whole
+    def __init__(self, kin: Kinematics, limits: PlannerLimits):
+        self.kin, self.limits = kin, limits
         self.held: Segments | None = None  # the last committed segment (context) first, when there is one
         self.held_steps = np.zeros((0, len(kin.motors)), dtype=np.int64)
         self.context = 0  # 1 once a window has been committed: held[0] is its last segment
@@ -82,7 +81,7 @@ class Lookahead:
 
     def _commit(self, final: bool) -> list[Window]:
         held = 0 if self.held is None else len(self.held) - self.context
-        if held == 0 or (self.whole and not final):
+        if held == 0:
             return []
         prof = profile(self.held, self.kin, self.held_steps, self.limits).part(self.context, len(self.held))
         curve_cut = False

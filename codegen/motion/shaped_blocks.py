@@ -23,7 +23,7 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import MAX_MODULUS, Events, bresenham_init
-from codegen.motion.shaped_motion import Motion
+from codegen.motion.shaped_motion import Motion, cut
 from codegen.motion.staircase import STAIRCASE_LIMIT, staircase_bound, staircase_error
 from codegen.toolpath.segments import REF_LINE, Segments
 
@@ -41,40 +41,29 @@ class ShapedBlocks:
     events: Events  # the blocks that have events, and the time of each
 
 
-def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: float) -> ShapedBlocks:
+def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: float, start: np.ndarray,
+                  end: np.ndarray | None = None) -> ShapedBlocks:
     """`segments`: the plan's (the shaped motion's origins); `max_gap` (s): the longest the player waits between
-    events (a rest becomes step-less events that carry its time)."""
+    events (a rest becomes step-less events that carry its time); `start`, `end` (4,): where the tool is at the
+    motion's ends, exactly (None: the motion's own end), so that consecutive stretches round their shared point
+    alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding)."""
     if not kin.linear:
         raise ValueError("shaped motion is cut into blocks for linear kinematics only (cartesian, corexy)")
     pieces = cut(shaped, _turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
     fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
     for _ in range(CUT_ROUNDS):
-        extra = _cuts(pieces, bounds, fresh, segments, kin)
+        extra = _cuts(pieces, bounds, fresh, segments, kin, (start, end))
         if not len(extra):
             break
         pieces = cut(pieces, extra)
         grown = np.unique(np.concatenate([bounds, extra]))
         new = ~np.isin(grown, bounds)
         bounds, fresh = grown, new[:-1] | new[1:]  # a block that was not cut stays as close as it was
-    chords = _chords(pieces, bounds, segments)
+    chords = _chords(pieces, bounds, segments, (start, end))
     steps = kin.to_steps(chords.end) - kin.to_steps(chords.start)
     events = _events(pieces, bounds, chords, steps, kin, max_gap)
     return ShapedBlocks(chords, steps, bounds, pieces, events)
-
-
-def cut(motion: Motion, times: np.ndarray) -> Motion:
-    """The same motion with breaks at `times` too."""
-    breaks = np.unique(np.concatenate([motion.breaks, times]))
-    breaks = breaks[(breaks >= motion.breaks[0]) & (breaks <= motion.breaks[-1])]
-    begin = breaks[:-1]
-    parent = motion.piece_of(begin + 0.5 * np.diff(breaks))
-    dt = begin - motion.breaks[parent]
-    inner = np.flatnonzero(dt != 0)  # the second parts of cut pieces; the rest begin where they did
-    position, velocity = motion.position[parent], motion.velocity[parent]
-    position[inner] = motion.at_piece(parent[inner], dt[inner])
-    velocity[inner] += motion.accel[parent[inner]] * dt[inner, None]
-    return Motion(breaks, position, velocity, motion.accel[parent], motion.origin[parent])
 
 
 def motor_motion(motion: Motion, kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -111,7 +100,8 @@ def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
     return np.flatnonzero(np.concatenate([[True], inner, [True]]))
 
 
-def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segments, kin: Kinematics) -> np.ndarray:
+def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segments, kin: Kinematics,
+          points: tuple) -> np.ndarray:
     """The times to cut the `fresh` blocks at this round: each whose slave strays too far from its chord at its
     worst point, each with more master steps than a block holds, or (once none of them does) whose staircase
     strays too far, at its middle."""
@@ -151,7 +141,7 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     long = np.abs(np.round(x1) - np.round(x0)).max(axis=1) > MAX_MODULUS - 1
     out.append(middle[long & ~bad])
     if not np.any(bad | long):
-        chords = _chords(motion, bounds, segments).take(which)
+        chords = _chords(motion, bounds, segments, points).take(which)
         limit = STAIRCASE_LIMIT * kin.path_quantum()
         look = np.flatnonzero(staircase_bound(chords, kin) > limit)
         out.append(middle[look[staircase_error(chords, kin, look) > limit]])
@@ -159,12 +149,15 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     return times[(times > bounds[0]) & (times < bounds[-1]) & ~np.isin(times, bounds)]
 
 
-def _chords(motion: Motion, bounds: np.ndarray, segments: Segments) -> Segments:
+def _chords(motion: Motion, bounds: np.ndarray, segments: Segments, points: tuple) -> Segments:
     """Each block as a straight segment between the shaped positions at its ends, carrying its first piece's plan
-    segment (tool, item, line); a block where nothing moves is a dwell. The motion's ends are the plan's, exactly."""
+    segment (tool, item, line); a block where nothing moves is a dwell. `points`: the motion's first and last
+    point, exactly (the last None: the motion's own)."""
     first = np.searchsorted(motion.breaks, bounds[:-1])
     at = motion.at(bounds)
-    at[0], at[-1] = segments.start[0], segments.end[-1]  # the shaper's amplitudes sum to 1 only to rounding
+    at[0] = points[0]
+    if points[1] is not None:
+        at[-1] = points[1]
     start, end = at[:-1], at[1:]
     still = np.all(start == end, axis=1)
     n = len(first)

@@ -83,6 +83,28 @@ class Motion:
         return self.at_piece(piece, t - self.breaks[piece])
 
 
+def cut(motion: Motion, times: np.ndarray) -> Motion:
+    """The same motion with breaks at `times` too."""
+    breaks = np.unique(np.concatenate([motion.breaks, times]))
+    breaks = breaks[(breaks >= motion.breaks[0]) & (breaks <= motion.breaks[-1])]
+    begin = breaks[:-1]
+    parent = motion.piece_of(begin + 0.5 * np.diff(breaks))
+    dt = begin - motion.breaks[parent]
+    inner = np.flatnonzero(dt != 0)  # the second parts of cut pieces; the rest begin where they did
+    position, velocity = motion.position[parent], motion.velocity[parent]
+    position[inner] = motion.at_piece(parent[inner], dt[inner])
+    velocity[inner] += motion.accel[parent[inner]] * dt[inner, None]
+    return Motion(breaks, position, velocity, motion.accel[parent], motion.origin[parent])
+
+
+def between(motion: Motion, begin: float, end: float) -> Motion:
+    """The motion from `begin` to `end` (s), within its own."""
+    whole = cut(motion, np.array([begin, end]))
+    first, last = np.searchsorted(whole.breaks, [max(begin, whole.breaks[0]), min(end, whole.breaks[-1])])
+    return Motion(whole.breaks[first:last + 1], whole.position[first:last], whole.velocity[first:last],
+                  whole.accel[first:last], whole.origin[first:last])
+
+
 def planned_motion(segments: Segments, plan: Plan) -> Motion:
     """The plan's motion: per segment its acceleration, cruise, deceleration and dwell, those that last."""
     n = len(plan.duration)

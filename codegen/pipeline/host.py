@@ -161,7 +161,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     runtime = (lambda: runtime_records(program.settings, played_out)) if played_out else None
     limits = planner_limits(job, kin, target, bool(played_out))
     laser = laser_pwm(settings.laser, job.board, target.board_data, target.f_cpu)
-    ahead = Lookahead(kin, limits, whole=settings.stages.shaping is not None)
+    ahead = Lookahead(kin, limits)
     stages: Stages | None = None
     played: list[Played] = []
     chunks = front_end(settings.front_end, kin, program, watch)

@@ -31,7 +31,7 @@ from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, 
                                     segment_lengths)
 from codegen.motion.shaped_motion import ShapingSettings
 from codegen.motion.stepgen import generate
-from codegen.pipeline.shaping import shaped_window
+from codegen.pipeline.shaping import ShapingTail, shaped_window
 from codegen.stopwatch import Stopwatch
 from codegen.tables.checks import Checker, MotorTrain, corner_jumps
 from codegen.tables.compress import Compressed, compress
@@ -124,6 +124,7 @@ class _Carried:
     ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
     block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
     laser_counts: int = 0  # the laser's PWM counts after the last event
+    shaping_tail: ShapingTail | None = None  # a shaped window's plan tail and end point (codegen/pipeline/shaping.py)
 
 
 class Stages:
@@ -168,7 +169,8 @@ class Stages:
         out = []
         played, carried, scale = self._attempt(window, after, last, before)
         if scale is not None and scale[3] and self.open is not None:  # play the open window and this one again
-            window, before = merge(self.open[0].window, window), self.open[1]
+            open_window = self.open[0].window if self.open[0].planned is None else self.open[0].planned
+            window, before = merge(open_window, window), self.open[1]
             self.open = None
             played, carried, scale = self._attempt(window, after, last, before)
         w_exit, rounds = None, 0
@@ -228,7 +230,7 @@ class Stages:
         planned, shaped = window, None
         if self.shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
             with watch("input shaping"):
-                shaped = shaped_window(window, kin, self.shaping, target.max_gap_s)
+                shaped = shaped_window(window, kin, self.shaping, target.max_gap_s, before.shaping_tail, last)
             window = shaped.window
         with watch("step times"):
             events = shaped.events if shaped is not None else generate(
@@ -261,8 +263,8 @@ class Stages:
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
                         before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
-        # The checks see the neighbouring windows' segments around this one's.
-        parts = [p for p in (before.before, window.segments, after) if p is not None]
+        # The checks see the neighbouring windows' segments around this one's (a shaped window's next are not yet).
+        parts = [p for p in (before.before, window.segments, after if shaped is None else None) if p is not None]
         around = concat(*parts)
         shift = 0 if before.before is None else 1
         event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
@@ -283,7 +285,8 @@ class Stages:
         ring = None if before.ring is None else before.ring.copy()
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
-                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts)
+                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts,
+                           before.shaping_tail if shaped is None else shaped.tail)
         # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
         planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
         scale = self._slow_down(planned.plan, planned_segment, pulses, hits)

@@ -73,7 +73,7 @@ def test_blocks_hold_every_master_crossing_and_stay_near_their_chords():
     kin, segments, _, plan = square_plan(kinematics="corexy")
     shaping = settings(("zv", 30.0), ("ei", 55.0))
     shaped = shape(planned_motion(segments, plan), shaping)
-    blocks = shaped_blocks(shaped, segments, kin, max_gap=0.01)
+    blocks = shaped_blocks(shaped, segments, kin, 0.01, segments.start[0], segments.end[-1])
     events = blocks.events
     spm = kin.limits.steps_per_mm
     # Steps telescope: the blocks move every motor from the start to the end, rounded once.

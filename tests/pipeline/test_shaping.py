@@ -13,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import codegen.motion.pieces as pieces
 from codegen.job import load_job
 from codegen.motion.shaped_blocks import CHORD_LIMIT
 from codegen.motion.shaped_motion import planned_motion
@@ -201,3 +202,21 @@ def test_where_shaping_would_break_a_limit_the_plan_slows_down(tmp_path):
     assert max(f.rate_ratio.values()) > max(plain.findings.rate_ratio.values())  # shaping made belt a faster
     spread = shaped.settings.stages.shaping.spread
     assert shaped.totals.duration_s > plain.totals.duration_s + spread + 0.05  # and the plan slower for it
+
+
+def test_a_shaped_program_plays_in_windows_as_in_one(tmp_path, monkeypatch):
+    """Each window plays the shaped motion from the window before's end to its own, reading back into that
+    window's plan (codegen/pipeline/shaping.py ShapingTail): cut into many windows, a shaped zigzag makes the steps
+    of the same job in few, ends where it should, and every event keeps to the plan's motion convolved."""
+    points = [[10 + 3 * k, 10 + 40 * (k % 2)] for k in range(12)]
+    shaper = "{x: {type: mzv, freq: 50}, y: {type: 2hump_ei, freq: 45}}"
+    few = built(tmp_path, job_text("cartesian", points, 9000, shaper), "few")
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)
+    many = built(tmp_path, job_text("cartesian", points, 9000, shaper), "many")
+    plain = built(tmp_path, job_text("cartesian", points, 9000, None), "plain")
+    assert many.totals.windows >= 4 * few.totals.windows
+    assert many.findings.ok, many.findings.problems
+    assert many.findings.steps == few.findings.steps and many.findings.final == few.findings.final
+    assert many.totals.duration_s == pytest.approx(few.totals.duration_s, abs=1e-9)
+    assert many.findings.smoothing_mm == pytest.approx(few.findings.smoothing_mm, rel=1e-6)
+    assert_shaped_plays_the_convolution(many, plain)
