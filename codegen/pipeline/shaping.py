@@ -24,7 +24,7 @@ from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Window
 from codegen.motion.planner import Plan, segment_lengths
 from codegen.motion.shaped_blocks import shaped_blocks
-from codegen.motion.shaped_motion import AXES, Motion, ShapingSettings, between, planned_motion, shape, smoothing
+from codegen.motion.shaped_motion import AXES, ShapingSettings, between, planned_motion, shape, smoothing
 from codegen.toolpath.segments import Segments, concat
 
 
@@ -43,7 +43,6 @@ class ShapedWindow:
     window: Window  # the blocks as straight segments, their steps and plan (on the shaped clock)
     events: Events  # the blocks' events, each where the shaped master crosses its half step
     origin: np.ndarray  # (n,) the plan's segment (of the window before shaping) under each block's start
-    motion: Motion  # the shaped motion, cut at every block's end
     corners_t: np.ndarray  # (J,) s: where the plan's corners' velocity jumps land once shaped
     jumps: np.ndarray  # (J, M) steps/s: each motor's share of them there
     smoothing_mm: float  # the largest distance of the shaped tool from the planned one at the same moment
@@ -70,7 +69,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
     return ShapedWindow(Window(window.first, blocks.chords, blocks.steps, shaped_plan, window.curve_cut),
-                        blocks.events, np.maximum(origin - before, 0), blocks.pieces, corners_t, jumps, worst, at,
+                        blocks.events, np.maximum(origin - before, 0), corners_t, jumps, worst, at,
                         int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]))
 
 

@@ -8,6 +8,9 @@ blocks; rate runs start afresh at every window (one run more per window than a r
 might need). The path check measures a window's first and last steps against the neighbouring windows'
 segments too.
 
+With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
+plan before shaping is what a retry slows.
+
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
 that stretch slowed (its entry speed stays: the window before is final), and the next window starts no
