@@ -95,8 +95,8 @@ def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
     way = np.sign(v * h + 0.5 * a * h * h)
     turns = np.any(way[1:] * way[:-1] < 0, axis=1)
     still = _still(motion, kin)
-    tool = segments.tool[motion.origin]
-    inner = turns | (still[1:] != still[:-1]) | (tool[1:] != tool[:-1])
+    tool, line = segments.tool[motion.origin], segments.line[motion.origin]
+    inner = turns | (still[1:] != still[:-1]) | (tool[1:] != tool[:-1]) | (line[1:] != line[:-1])
     return np.flatnonzero(np.concatenate([[True], inner, [True]]))
 
 
