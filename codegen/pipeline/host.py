@@ -68,6 +68,7 @@ class HostBuild:
     link_plan: LinkPlan | None = None  # a streamed job's link (host_build's `link`)
     runtime: RuntimeRecords | None = None  # the heater and fan settings the image plays (codegen/tables/runtime.py)
     laser: LaserPwm | None = None  # a PWM laser's (codegen/tables/laser.py)
+    planned: tuple[Segments, Plan] | None = None  # a shaped job's segments and plan before shaping, when kept
 
     @property
     def schedule(self):
@@ -211,6 +212,8 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
         bar.set_postfix_str("joining the windows")
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)
+            if played and played[0].planned is not None:
+                host.planned = join_segments(played, planned=True), join_plan(played, planned=True)
             host.pulses = join_pulses(played)
             host.compressed = join_compressed(played, False, host.pulses)
             if runtime is not None:

@@ -23,12 +23,13 @@ def _cat(parts: list, name: str) -> np.ndarray:
     return np.concatenate([getattr(p, name) for p in parts])
 
 
-def join_segments(played: list[Played]) -> Segments:
-    return concat(*(p.window.segments for p in played))
+def join_segments(played: list[Played], planned: bool = False) -> Segments:
+    """`planned`: a shaped job's segments before shaping (else the blocks' own)."""
+    return concat(*((p.planned if planned else p.window).segments for p in played))
 
 
-def join_plan(played: list[Played]) -> Plan:
-    return Plan.join([p.window.plan for p in played])
+def join_plan(played: list[Played], planned: bool = False) -> Plan:
+    return Plan.join([(p.planned if planned else p.window).plan for p in played])
 
 
 def join_events(played: list[Played]) -> Events:

@@ -17,6 +17,8 @@ from codegen.kinematics.base import Kinematics, StepperLimits
 from codegen.motion.jog import JogSettings
 from codegen.motion.pieces import FrontEndSettings
 from codegen.motion.planner import PlannerLimits
+from codegen.motion.shaped_motion import ShapingSettings
+from codegen.motion.shapers import make_shaper
 from codegen.pipeline.windows import StageSettings
 from codegen.program.homing import HomedStepper, HomingSettings
 from codegen.tables.hold import RAMP_SHARE, HoldSettings, plans_ramp_share
@@ -48,7 +50,17 @@ def front_end_settings(job) -> FrontEndSettings:
 
 def stage_settings(job) -> StageSettings:
     machine = job.machine
-    return StageSettings(machine.tolerance, machine.step_pulse_us, machine.dir_setup_us)
+    return StageSettings(machine.tolerance, machine.step_pulse_us, machine.dir_setup_us, shaping_settings(job))
+
+
+def shaping_settings(job) -> ShapingSettings | None:
+    """The input shaper of each axis x, y, z (None where it has none); None when the machine shapes no axis."""
+    shaper = job.machine.input_shaper
+    if shaper is None or not shaper.axes:
+        return None
+    axes = shaper.axes
+    return ShapingSettings(tuple(make_shaper(axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
+                                 for a in ("x", "y", "z")), shaper.max_smoothing)
 
 
 def homing_settings(job) -> HomingSettings:

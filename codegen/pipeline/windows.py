@@ -8,6 +8,9 @@ blocks; rate runs start afresh at every window (one run more per window than a r
 might need). The path check measures a window's first and last steps against the neighbouring windows'
 segments too.
 
+With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
+plan before shaping is what a retry slows.
+
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
 that stretch slowed (its entry speed stays: the window before is final), and the next window starts no
@@ -29,7 +32,9 @@ from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
 from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
                                     segment_lengths)
+from codegen.motion.shaped_motion import ShapingSettings
 from codegen.motion.stepgen import generate
+from codegen.pipeline.shaping import ShapingTail, shaped_window
 from codegen.stopwatch import Stopwatch
 from codegen.tables.checks import Checker, MotorTrain, corner_jumps
 from codegen.tables.compress import Compressed, compress
@@ -63,6 +68,7 @@ class Played:
     power_error: float = 0.0  # a laser's: the largest distance of an event's power from the ideal (of full scale)
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
+    planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
 
 
 @dataclass
@@ -107,6 +113,7 @@ class StageSettings:
     tolerance_mm: float  # machine.tolerance: how far from the path the checks let a step put the tool
     step_pulse_us: float  # STEP high time
     dir_setup_us: float  # DIR before STEP
+    shaping: ShapingSettings | None = None  # the input shapers (codegen/pipeline/shaping.py); None: unshaped
 
 
 @dataclass
@@ -120,6 +127,7 @@ class _Carried:
     ring: Ring | None = None  # the streaming player's ring fill (codegen/link/ring.py)
     block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
     laser_counts: int = 0  # the laser's PWM counts after the last event
+    shaping_tail: ShapingTail | None = None  # a shaped window's plan tail and end point (codegen/pipeline/shaping.py)
 
 
 class Stages:
@@ -143,7 +151,9 @@ class Stages:
         self.kin, self.target, self.limits, self.lookahead = kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
-        self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm), 0,
+        self.shaping = settings.shaping
+        max_smoothing = None if self.shaping is None else self.shaping.max_smoothing
+        self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm, max_smoothing), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
         self.totals = Totals()
@@ -162,7 +172,8 @@ class Stages:
         out = []
         played, carried, scale = self._attempt(window, after, last, before)
         if scale is not None and scale[3] and self.open is not None:  # play the open window and this one again
-            window, before = merge(self.open[0].window, window), self.open[1]
+            open_window = self.open[0].window if self.open[0].planned is None else self.open[0].planned
+            window, before = merge(open_window, window), self.open[1]
             self.open = None
             played, carried, scale = self._attempt(window, after, last, before)
         w_exit, rounds = None, 0
@@ -219,9 +230,15 @@ class Stages:
         of its acceleration, the ring's first Shortfall (None for a motor's limits), and whether the window before
         is to be played again with it (a shortfall: always); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
+        planned, shaped = window, None
+        if self.shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
+            with watch("input shaping"):
+                shaped = shaped_window(window, kin, self.shaping, target.max_gap_s, before.shaping_tail, last)
+            window = shaped.window
         with watch("step times"):
-            events = generate(window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s,
-                              curves=True, max_rate=self.max_rate)
+            events = shaped.events if shaped is not None else generate(
+                window.segments, window.plan, kin, window.steps, max_gap=target.max_gap_s, curves=True,
+                max_rate=self.max_rate)
         block_item = window.segments.item[events.block_segment]
         extra = None if self.runtime is None else block_extra_ticks(
             self.runtime(), block_item, before.block_item, runtime_cycles(target), target.tick_hz, target.f_cpu)
@@ -248,17 +265,22 @@ class Stages:
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
-                        before.block_item, power_error, ceiling_bytes)
-        # The checks see the neighbouring windows' segments around this one's.
-        parts = [p for p in (before.before, window.segments, after) if p is not None]
+                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
+        # The checks see the neighbouring windows' segments around this one's (a shaped window's next are not yet).
+        parts = [p for p in (before.before, window.segments, after if shaped is None else None) if p is not None]
         around = concat(*parts)
         shift = 0 if before.before is None else 1
         event_segment = np.repeat(events.block_segment, np.diff(events.block_first)) + shift
         trains = [MotorTrain(tick / target.tick_hz, direction)
                   for tick, direction in map(pulses.of_motor, range(len(kin.motors)))]
         with watch("checks"):
-            corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
+            if shaped is None:
+                corners_t, jumps = corners_after(window.plan, window.segments, before.before, self.kin)
+            else:
+                corners_t, jumps = shaped.corners_t, shaped.jumps
             checker = copy.deepcopy(before.checker)
+            if shaped is not None:
+                checker.add_smoothing(shaped.smoothing_mm, shaped.smoothing_at, shaped.smoothing_line)
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
@@ -266,16 +288,19 @@ class Stages:
         ring = None if before.ring is None else before.ring.copy()
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
-                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts)
-        scale = self._slow_down(window.plan, event_segment - shift, pulses, hits)
+                           int(block_item[-1]) if len(block_item) else before.block_item, laser_counts,
+                           before.shaping_tail if shaped is None else shaped.tail)
+        # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
+        planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
+        scale = self._slow_down(planned.plan, planned_segment, pulses, hits)
         if ring is not None:
             with watch("link"):
                 reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
                                                            target.tick_hz)
                 shortfalls = ring.add(reads, sizes)
             if scale is None and shortfalls:
-                record_segment = event_segment[np.minimum(record_event, len(event_segment) - 1)] - shift
-                return played, carried, (*self._link_slow_down(window.plan, shortfalls, record_segment, sizes,
+                record_segment = planned_segment[np.minimum(record_event, len(event_segment) - 1)]
+                return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
         return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
 

@@ -35,6 +35,7 @@ def plan_summary(host: HostBuild) -> dict:
         "max_path_error_mm": rounded(f.max_path_error_mm),
         "path_limit_mm": rounded(f.path_limit_mm),
         "max_timing_error_us": rounded(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
+        **({"input_shaper": shaper_plan(host)} if f.smoothing_mm is not None else {}),
         "pass": f.ok,
         "problems": list(f.problems),
         **(host.link_plan.summary() if host.link_plan is not None else
@@ -43,6 +44,16 @@ def plan_summary(host: HostBuild) -> dict:
         **({"laser": laser_plan(host)} if host.laser else {}),
         **({"feed_hold": feed_hold_plan(host)} if host.hold_plan is not None else {}),
     }
+
+
+def shaper_plan(host: HostBuild) -> dict:
+    """The input shapers and their smoothing: the largest distance of the shaped tool from the planned one at the
+    same moment, where (the planned point, its G-code line) and the limit (codegen/motion/shaped_motion.py)."""
+    f, machine = host.findings, host.job.machine.input_shaper
+    axes = {name: {"type": s.type, "freq_hz": s.freq, "damping": s.damping} for name, s in machine.axes.items()}
+    return {"axes": axes,
+            "smoothing_mm": rounded(f.smoothing_mm), "smoothing_at": [rounded(c) for c in f.smoothing_at],
+            "smoothing_line": f.smoothing_line, "max_smoothing_mm": machine.max_smoothing}
 
 
 def feed_hold_plan(host: HostBuild) -> dict:
@@ -129,6 +140,13 @@ def human_plan(summary: dict) -> str:
                      f"rate {100 * m['max_rate_ratio']:.1f} %, accel {100 * m['max_accel_ratio']:.1f} % of limit")
     lines.append(f"  path error {summary['max_path_error_mm']:.4f} mm (limit {summary['path_limit_mm']:.4f} mm), "
                  f"timing within {summary['max_timing_error_us']:.2f} us of the plan")
+    if "input_shaper" in summary:
+        shaper = summary["input_shaper"]
+        axes = ", ".join(f"{name} {s['type']} {s['freq_hz']:g} Hz" for name, s in shaper["axes"].items())
+        limit = "" if shaper["max_smoothing_mm"] is None else f" (limit {shaper['max_smoothing_mm']:g} mm)"
+        line = f" on G-code line {shaper['smoothing_line']}" if shaper["smoothing_line"] else ""
+        lines.append(f"  input shaper {axes}: smoothing {shaper['smoothing_mm']:.4f} mm{limit}, the most at "
+                     f"({', '.join(f'{c:.3f}' for c in shaper['smoothing_at'])}){line}")
     if summary.get("flash_bytes") is not None and summary["table_bytes"] > summary["flash_bytes"]:
         lines.append(f"  too big for a flash image: the tables alone are {summary['table_bytes']} bytes, the "
                      f"{summary['mcu']} has {summary['flash_bytes']}; stream the job (--stream)")

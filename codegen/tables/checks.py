@@ -45,6 +45,11 @@ class Findings:
     rate_ratio: dict[str, float]  # highest 8-step rate / limit
     accel_ratio: dict[str, float]  # highest window velocity change / what is allowed
     problems: list[str] = field(default_factory=list)
+    # Input shaping's (codegen/motion/shaped_motion.py `smoothing`): the largest distance of the shaped tool from
+    # the planned one at the same moment, the planned point there and its G-code line (0: none); None: unshaped.
+    smoothing_mm: float | None = None
+    smoothing_at: tuple[float, ...] | None = None
+    smoothing_line: int = 0
 
     @property
     def ok(self) -> bool:
@@ -169,8 +174,12 @@ class Checker:
     """The checks over a pulse train that comes a window at a time (the motor checks carry what they need of
     the windows before); `findings` once the train has ended."""
 
-    def __init__(self, kin: Kinematics, start_steps: np.ndarray, tolerance: float):
+    def __init__(self, kin: Kinematics, start_steps: np.ndarray, tolerance: float,
+                 max_smoothing: float | None = None):
+        """`max_smoothing` (mm): the input shaper's smoothing allowed (None: any)."""
         self.kin, self.start_steps = kin, np.asarray(start_steps, dtype=np.int64)
+        self.max_smoothing = max_smoothing
+        self.smoothing: tuple[float, tuple[float, ...], int] | None = None  # the worst so far: mm, where, line
         spm = kin.limits.steps_per_mm
         self.rates = [RateCheck(float(r)) for r in kin.limits.max_rate]
         self.accels = [AccelCheck(float(a)) for a in kin.limits.max_accel * spm]
@@ -207,6 +216,11 @@ class Checker:
             hits.append((rate, accel))
         return hits
 
+    def add_smoothing(self, mm: float, at: np.ndarray, line: int) -> None:
+        """A shaped stretch's smoothing, its planned point and G-code line."""
+        if self.smoothing is None or mm > self.smoothing[0]:
+            self.smoothing = (float(mm), tuple(float(c) for c in at), int(line))
+
     def add_tool(self, tables: np.ndarray, program: np.ndarray) -> None:
         """The tool of the next blocks as the tables have it against the program's (its segments' flags): the
         compressor carries a block's tool over from its segment, and nothing after it checks that it did."""
@@ -230,6 +244,8 @@ class Checker:
             rate_ratio={n: c.worst for n, c in zip(names, self.rates)},
             accel_ratio={n: c.worst for n, c in zip(names, self.accels)},
         )
+        if self.smoothing is not None:
+            findings.smoothing_mm, findings.smoothing_at, findings.smoothing_line = self.smoothing
         for name, got, want in zip(names, final, expected_final):
             if got != want:
                 findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")
@@ -240,6 +256,13 @@ class Checker:
                 + (f" on G-code line {self.worst_line}" if self.worst_line else ""))
         if self.tool_problem is not None:
             findings.problems.append(self.tool_problem)
+        if self.smoothing is not None and self.max_smoothing is not None and self.smoothing[0] > self.max_smoothing:
+            mm, at, line = self.smoothing
+            findings.problems.append(
+                f"the input shaper smooths the path by {mm:.4f} mm, more than machine.input_shaper.max_smoothing "
+                f"({self.max_smoothing:g} mm), at ({', '.join(f'{c:.3f}' for c in at)})"
+                + (f" on G-code line {line}" if line else "") + ": a higher shaper frequency, a shaper with less "
+                "smoothing (zv, mzv), or a lower acceleration there")
         for name in names:
             rate, accel = findings.rate_ratio[name], findings.accel_ratio[name]
             if rate > 1.0:

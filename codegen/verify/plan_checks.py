@@ -84,6 +84,9 @@ class PlanChecks:
         self.worst_corner = 0.0  # the highest planned corner speed so far, over its bound
         self.worst_timing = 0.0  # the farthest an event came from its planned time, over its window
         self.reported: set[str] = set()
+        # A shaped job's corners are its plan's before shaping (its blocks are chords of the shaped curve), checked
+        # whole with the first chapter (a build that did not keep that plan has none to check).
+        self.shaped, self.planned = host.settings.stages.shaping is not None, host.planned
 
     @property
     def not_compared(self) -> list[str]:
@@ -100,10 +103,14 @@ class PlanChecks:
         return problems
 
     def _corners(self, chapter: Chapter) -> list[str]:
-        plan, segments = chapter.plan, chapter.segments
+        plan, segments, before = chapter.plan, chapter.segments, chapter.before
+        if self.shaped:
+            if self.segments or self.planned is None:
+                return []
+            (segments, plan), before = self.planned, None
         if not len(segments):
             return []
-        j, bound, by_jerk = corner_bounds(plan, segments, chapter.before, self.kin, self.machine_deviation)
+        j, bound, by_jerk = corner_bounds(plan, segments, before, self.kin, self.machine_deviation)
         speed = plan.v_entry[j]
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(speed > 0, speed / bound, 0.0)
@@ -122,7 +129,8 @@ class PlanChecks:
                     "allows")
         count = int(np.count_nonzero(over))
         line = int(segments.line[at])
-        where = f"segment {self.segments + at}" + (f", where G-code line {line} begins" if line else "")
+        where = (f"segment {(0 if self.shaped else self.segments) + at}"
+                 + (f", where G-code line {line} begins" if line else ""))
         return [f"corner at {plan.t_start[at]:.3f} s ({where}): planned {speed[k]:.1f} mm/s where {rule} "
                 f"{bound[k]:.1f} mm/s" + (f" ({count} corners over their bound)" if count > 1 else "")]
 

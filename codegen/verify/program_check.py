@@ -5,6 +5,10 @@ from the start's radius to the end's where the end is off the circle) and turns 
 as it says. The front end and the planner are the code under test here: a reading of G20, G92, an R arc or an F
 word that both they and the twin share shows up nowhere else.
 
+With input shaping the tool follows the program convolved with the shapers: it passes within the plan's reported
+smoothing of every point (codegen/motion/shaped_motion.py), so ends, feeds and arcs get that much more room, and a
+G4's rest is shorter by the shapers' spread (the motion before and after it overlaps it), none where it is shorter.
+
 Each played event belongs to a segment and so to a G-code line (Segments.line). A line's last event is where its
 move ends (to a step: the stepper rounds each motor once); from the line's last event before it, the move takes at
 least its length over its speed, give or take a step at either end.
@@ -87,6 +91,11 @@ class ProgramCheck:
         self.reading = Reading(job, gcode_start(host)) if self.active else None
         self.start_steps = np.asarray(host.start_steps)[self.geometry.index]
         self.tolerance = host.settings.stages.tolerance_mm
+        shaping = host.settings.stages.shaping
+        self.smoothing = 0.0 if shaping is None else float(host.findings.smoothing_mm or 0.0)  # mm
+        self.spread = 0.0 if shaping is None else shaping.spread  # s
+        motor_per_mm = math.sqrt(2.0) if self.geometry.kind == "corexy" else 1.0  # a belt sums x and y
+        self.end_slack = STEP_SLACK + self.smoothing * motor_per_mm * self.geometry.spm  # steps, per motor
         self.moves: dict[int, Move] = {}
         self.dwells: dict[int, Dwell] = {}
         self.open_run: tuple | None = None  # (line, position, time) of the last run so far: it may go on
@@ -145,7 +154,7 @@ class ProgramCheck:
             return
         want = self.geometry.steps(np.array([move.end]))[0]
         self.checked["ends"] += 1
-        if np.any(np.abs(position - want) > STEP_SLACK):
+        if np.any(np.abs(position - want) > self.end_slack):
             self.problems.append(
                 f"{_at(move)}: the tables end the move at steps {_steps(self.geometry, position)} where the "
                 f"program's end, {_mm(move.end)} in machine mm, gives {_steps(self.geometry, want)}" + _offsets(move))
@@ -154,7 +163,7 @@ class ProgramCheck:
         length = move.length()
         if move.speed is None or math.isnan(length) or not math.isfinite(self.run_began):
             return
-        least = (length - 2 * self.geometry.step_mm()) / move.speed * (1 - TIME_SLACK)
+        least = (length - 2 * self.geometry.step_mm() - 2 * self.smoothing) / move.speed * (1 - TIME_SLACK)
         took = time - self.run_began
         self.checked["feeds"] += least > 0
         if least > 0 and took < least:
@@ -171,7 +180,7 @@ class ProgramCheck:
         angle = np.unwrap(np.arctan2(path[:, 1] - centre[1], path[:, 0] - centre[0]))
         along = np.clip((angle[1:-1] - angle[0]) / sweep, 0.0, 1.0)  # of the sweep, where each event is
         off = np.hypot(tool[:, u] - centre[0], tool[:, v] - centre[1]) - (radius + (end_radius - radius) * along)
-        limit = self.tolerance + ARC_SLACK_STEPS / float(self.geometry.spm.min())
+        limit = self.tolerance + ARC_SLACK_STEPS / float(self.geometry.spm.min()) + self.smoothing
         self.checked["arcs"] += 1
         worst = int(np.argmax(np.abs(off)))
         if abs(off[worst]) > limit:
@@ -192,7 +201,7 @@ class ProgramCheck:
             if dwell is None:
                 continue
             self.checked["dwells"] += 1
-            if abs(float(duration[k]) - dwell.seconds) > DWELL_SLACK_S:
+            if not dwell.seconds - self.spread - DWELL_SLACK_S <= float(duration[k]) <= dwell.seconds + DWELL_SLACK_S:
                 self.problems.append(f"{_at(dwell)}: the plan dwells {float(duration[k]):.4f} s where the "
                                      f"program's G4 says {dwell.seconds:.4f} s")
 
@@ -203,7 +212,7 @@ class ProgramCheck:
                 if isinstance(record, Dwell):
                     self.dwells[record.line] = record
             self.problems += [f"{_at(d)}: the program's G4 dwells {d.seconds:.4f} s, the plan not at all"
-                              for d in self.dwells.values()]
+                              for d in self.dwells.values() if d.seconds > self.spread]
         return self.problems
 
 

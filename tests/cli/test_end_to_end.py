@@ -286,3 +286,50 @@ def test_plotter_set_fits_one_8051_image(verified, tmp_path, capsys):
     code, out, err = run(capsys, "build", fine, "--out", tmp_path / "fine")
     assert code == 1 and "8192" in err and "machine.tolerance" in err
     assert not (tmp_path / "fine" / "firmware.hex").exists()
+
+
+SHAPED = """\
+name: shaped-square
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+  input_shaper: {x: {type: mzv, freq: 50}, y: {type: ei, freq: 40}, max_smoothing: 0.5}
+program:
+  start: [10, 10]
+  feed: 6000
+  shapes:
+    - polyline: {points: [[10, 10], [60, 10], [60, 60], [10, 60], [10, 10]]}
+    - circle: {center: [35, 35], radius: 20}
+"""
+
+
+def test_a_shaped_job_verifies_in_simavr(tmp_path, capsys):
+    """Input shaping (issue 29): the image plays the shaped steps the twin predicts, every limit holds on the
+    simulated pulses, and `plan` reports the smoothing."""
+    job = tmp_path / "shaped.yaml"
+    job.write_text(SHAPED)
+    code, out, _ = run(capsys, "verify", job, "--out", tmp_path / "out", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["pass"] is True, result["problems"]
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_rate_ratio"] <= 1.0 and motor["max_accel_ratio"] <= 1.0
+    assert result["max_path_error_mm"] <= result["path_limit_mm"]
+    code, out, _ = run(capsys, "plan", job, "--json")
+    shaper = json.loads(out)["input_shaper"]
+    assert code == 0 and 0.0 < shaper["smoothing_mm"] < 0.5
+    assert shaper["axes"]["y"] == {"type": "ei", "freq_hz": 40.0, "damping": 0.1}
+
+
+def test_a_shaped_gcode_job_verifies_against_its_program(tmp_path, capsys):
+    """The G-code read again (codegen/verify/program_check.py) with the shaper's smoothing as its room: arcs,
+    a helix, dwells, G91, G20 and the laser, shaped on x and y."""
+    job = tmp_path / "mixed-shaped.yaml"
+    job.write_text((ROOT / "examples" / "gcode" / "mixed.yaml").read_text().replace(
+        "  laser: {pwm_hz: 1000}", "  laser: {pwm_hz: 1000}\n  input_shaper: {x: {type: mzv, freq: 50}, "
+        "y: {type: zvd, freq: 45}}"))
+    code, out, _ = run(capsys, "verify", job, "--out", tmp_path / "out", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["pass"] is True, result["problems"]

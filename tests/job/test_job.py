@@ -430,3 +430,68 @@ def test_machine_numbers_that_overflowed_the_host_are_refused_with_the_reason(tm
         (8, 23, "machine.junction_deviation: must be <= 10 (mm: beyond 10 mm every corner is taken at full speed, "
                 "and v^2 overflows)"),
     ]
+
+
+# ---- the input shaper ----
+
+def test_input_shaper_loads_per_axis_with_klippers_default_damping(tmp_path):
+    path = write(tmp_path, STEPPERS + """\
+  input_shaper:
+    x: {type: mzv, freq: 48.2}
+    y: {type: 2hump_ei, freq: 60, damping: 0.2}
+    max_smoothing: 0.1
+program:
+  shapes:
+    - line: {to: [10, 0]}
+""")
+    shaper = load_job(path).machine.input_shaper
+    assert (shaper.x.type, shaper.x.freq, shaper.x.damping) == ("mzv", 48.2, 0.1)
+    assert (shaper.y.type, shaper.y.damping, shaper.z, shaper.max_smoothing) == ("2hump_ei", 0.2, None, 0.1)
+    assert list(shaper.axes) == ["x", "y"]
+
+
+def test_input_shaper_errors_point_at_the_value(tmp_path):
+    path = write(tmp_path, STEPPERS + """\
+  input_shaper:
+    x: {type: mzz, freq: 48.2}
+    y: {type: ei, freq: 0.5}
+    z: {type: 3hump_ei, freq: 40, damping: 0.3}
+    max_smoothing: -1
+    xx: 3
+program:
+  shapes:
+    - line: {to: [10, 0]}
+""")
+    assert errors(path) == [
+        (7, 15, "machine.input_shaper.x.type: 'mzz' is not one of zv, mzv, zvd, ei, 2hump_ei, 3hump_ei "
+                "(did you mean 'mzv'?)"),
+        (8, 25, "machine.input_shaper.y.freq: must be >= 1 and <= 1000 (Hz: below 1 Hz a shaper lasts seconds, "
+                "above 1000 Hz it spans less than the player's step)"),
+        (9, 44, "machine.input_shaper.z.damping: must be <= 0.2 for 3hump_ei (its formulas hold up to there)"),
+        (10, 20, "machine.input_shaper.max_smoothing: must be > 0"),
+        (11, 5, "machine.input_shaper: unknown key 'xx' (did you mean 'x'?)"),
+    ]
+
+
+def test_input_shaper_on_a_delta_is_refused_at_its_key(tmp_path):
+    path = write(tmp_path, textwrap.dedent("""\
+        machine:
+          kinematics: delta
+          steppers:
+            a: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+            b: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+            c: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+          delta: {radius: 100, diagonal_rod: 200, height: 250}
+          input_shaper: {x: {type: zv, freq: 40}}
+        program:
+          shapes:
+            - line: {to: [10, 0]}
+        """))
+    assert errors(path) == [
+        (8, 3, "machine.input_shaper: input shaping needs cartesian or corexy kinematics (delta: not yet)")]
+
+
+def test_the_schemas_damping_limits_are_the_shapers():
+    from codegen.job.schema import SHAPER_MAX_DAMPING
+    from codegen.motion.shapers import SHAPERS
+    assert SHAPER_MAX_DAMPING == {name: largest for name, (_, largest) in SHAPERS.items()}

@@ -5,8 +5,8 @@ checks that span several keys (the motors of a kinematics, `delta:` only with de
 `shapes` and `gcode`) run in loader.py over the parsed YAML, so they are reported even when other values in
 the same mapping are wrong. `source`, `gcode_source` and `path` are set by the loader.
 
-The models live by part: fields.py (the field types and sane ranges), machine.py, heaters.py, shapes.py; the
-program and the job here. Everything is imported from here.
+The models live by part: fields.py (the field types and sane ranges), machine.py, heaters.py, shapes.py,
+shaping.py (the input shaper); the program and the job here. Everything is imported from here.
 """
 
 from __future__ import annotations
@@ -24,12 +24,14 @@ from codegen.job.schema.heaters import (DEFAULT_MAX_TEMP_C, DEFAULT_SENSOR, HEAT
 from codegen.job.schema.machine import Delta, FeedHold, Homing, Jog, Laser, Link, Machine, Stepper
 from codegen.job.schema.shapes import (SHAPES, Arc, Circle, Ellipse, Function, Line, Points, Polyline, Shape, ShapeItem,
                                        Sine, Travel)
+from codegen.job.schema.shaping import SHAPED_AXES, SHAPER_MAX_DAMPING, AxisShaper, InputShaper
 
 __all__ = [
     "TARGETS", "DEFAULT_BOARDS", "KINEMATICS", "MOTORS", "REQUIRED_MOTORS", "HEATERS", "DEFAULT_SENSOR",
     "DEFAULT_MAX_TEMP_C", "SHAPES", "Job", "Program", "Machine", "Stepper", "Delta", "Homing", "Link", "Laser", "Jog",
     "FeedHold", "Heater", "CustomSensor", "PidGains", "BangBang", "Control", "PlantOverrides", "Shape", "Line",
-    "Polyline", "Points", "Arc", "Circle", "Ellipse", "Sine", "Function", "Travel",
+    "Polyline", "Points", "Arc", "Circle", "Ellipse", "Sine", "Function", "Travel", "InputShaper", "AxisShaper",
+    "SHAPED_AXES", "SHAPER_MAX_DAMPING",
 ]
 
 

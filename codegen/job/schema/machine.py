@@ -1,4 +1,5 @@
-"""The machine's models: steppers, delta geometry, homing, the link, the laser, jog keys and feed hold."""
+"""The machine's models: steppers, delta geometry, homing, the link, the laser, jog keys and feed hold (the input
+shaper's in shaping.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from codegen.job.schema.fields import (BACKOFF, DELTA_SIZE, HOMING_SPEED, JUNCTI
                                        REACH_MM, SLOWEST_TOP_SPEED, STEPS_PER_MM, TOLERANCE, XY, Angles, Flag, Model,
                                        Positive, choice, fail, number_value)
 from codegen.job.schema.heaters import Heater
+from codegen.job.schema.shaping import InputShaper
 
 
 class Stepper(Model):
@@ -157,6 +159,7 @@ class Machine(Model):
     heaters: Optional[dict[str, Heater]] = None  # None: the board's defaults (codegen.program.heater_settings)
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
     feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none
+    input_shaper: Optional[InputShaper] = None  # shapers per axis (codegen/job/schema/shaping.py); None: unshaped
 
     @property
     def motor_names(self) -> tuple[str, ...]:
