@@ -20,7 +20,7 @@ from typing import Any, Callable, Iterable, Iterator
 
 from tests.fuzzing.outcomes import HANG, MEMORY, Hang, Outcome, classify, died
 
-WALL_FACTOR = 4  # the wall clock's limit, in CPU time limits: a worker may get a quarter of a core
+WALL_FACTOR = 10  # the wall clock's limit, in CPU time limits: a worker may get a tenth of a core
 WATCHDOG_S = 3.0  # after the wall's limit: faulthandler dumps the stack and ends the worker
 KILL_S = 6.0  # after the wall's limit: the parent kills the worker
 GiB = 1 << 30
