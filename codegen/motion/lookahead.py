@@ -20,7 +20,7 @@ the program's, so junction speeds agree to a few units in the last place, and ti
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,10 +60,12 @@ class Lookahead:
         self.first = 0  # the program's index of held[self.context]
         self.w_first = 0.0  # v^2 at the junction before held[self.context]: final
         self.t0 = 0.0  # s: when that junction is passed
+        self.straight_cap: tuple[np.ndarray, float] | None = None  # slow_straight_on's line and feed, while it goes on
 
     def push(self, segments: Segments, steps: np.ndarray) -> list[Window]:
         if len(segments) == 0:
             return []
+        segments = self._capped(segments)
         self.held = segments if self.held is None else concat(self.held, segments)
         self.held_steps = np.concatenate([self.held_steps, steps])
         return self._commit(final=False)
@@ -74,6 +76,28 @@ class Lookahead:
     def resume(self, w: float, t0: float) -> None:
         """The window before was planned again, slower: the next one starts at v^2 = `w` at most, at `t0`."""
         self.w_first, self.t0 = min(self.w_first, w), t0
+
+    def slow_straight_on(self, feed: float) -> None:
+        """The window before was played slowed, its last segment at `feed` (mm/s; a motor over its limit there):
+        the pieces that go on in a straight line from it, held or still to come, start no faster, so that a long
+        move at a motor's limit is not slowed, and played again with the window before, in every window (issue 28)."""
+        held = self.held
+        if held is None or not self.context:
+            return
+        self.straight_cap = (_directions(held)[0], feed)
+        self.held = concat(held.take(np.arange(1)), self._capped(held.take(np.arange(1, len(held)))))
+
+    def _capped(self, segments: Segments) -> Segments:
+        """`segments` with the straight cap (slow_straight_on) on those that go on in its line; the cap ends at the
+        first that does not."""
+        if self.straight_cap is None or not len(segments):
+            return segments
+        direction, feed = self.straight_cap
+        collinear = _directions(segments) @ direction >= STRAIGHT_COS
+        run = len(collinear) if collinear.all() else int(np.argmin(collinear))
+        if run < len(collinear):
+            self.straight_cap = None
+        return replace(segments, feed=np.concatenate([np.minimum(segments.feed[:run], feed), segments.feed[run:]]))
 
     def next_segment(self) -> Segments | None:
         """The first segment after the windows so far (its geometry is final, its plan is not)."""
@@ -120,6 +144,12 @@ class Lookahead:
     def _held_events(self) -> int:
         """The master steps of the segments held (the context's included)."""
         return int(np.abs(self.held_steps).max(axis=1, initial=0).sum())
+
+
+def _directions(segments: Segments) -> np.ndarray:
+    """(n, 3) every piece's unit direction in xyz (zeros for a piece that does not move)."""
+    delta = segments.end[:, :3] - segments.start[:, :3]
+    return delta / np.maximum(np.linalg.norm(delta, axis=1, keepdims=True), 1e-300)
 
 
 def _straight(prof: Profile) -> np.ndarray:

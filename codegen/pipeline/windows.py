@@ -193,6 +193,7 @@ class Stages:
                              f"(machine.link.baud), or a larger machine.tolerance")
         if w_exit is not None:
             self.lookahead.resume(w_exit, window.plan.total)
+            self.lookahead.slow_straight_on(float(window.segments.feed[-1]))
         if self.open is not None:
             out.append(self.open[0])
         self.open, self.carried = (played, before), carried

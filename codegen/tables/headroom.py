@@ -67,20 +67,22 @@ def allowance(schedule: Schedule, delta: np.ndarray, pulses: Pulses, before: np.
 
 def _rate_ratio(pulses: Pulses, before: np.ndarray, max_rate: np.ndarray, tick_hz: int) -> np.ndarray:
     """(E,) the highest rate over 8 steps (the checks' measure) / max_rate of any motor's steps around each event:
-    of every 8 consecutive steps of a motor whose first is at or before the event and whose last at or after."""
+    of every 8 consecutive steps of a motor whose first is at or before the event and whose last at or after. The
+    8 steps may begin in the window before or end in the one after: those are counted as if their steps there came
+    at the window's first event, or at its last (they come before it, or after it: no faster than that)."""
     position = pulses.event_position
     worst = np.zeros(len(position))
+    if not len(position):
+        return np.maximum(worst, 1e-12)
+    ends = (np.full(RATE_WINDOW, pulses.event_tick[0]), np.full(RATE_WINDOW, pulses.event_tick[-1]))
     for m in range(position.shape[1]):
         steps = np.diff(position[:, m], prepend=before[m]) != 0  # at most one step per event
-        stepped = np.flatnonzero(steps)
-        if len(stepped) <= RATE_WINDOW:
-            continue
-        tick = pulses.event_tick[stepped]
+        tick = np.concatenate([ends[0], pulses.event_tick[steps], ends[1]])
         ratio = RATE_WINDOW * tick_hz / np.maximum(tick[RATE_WINDOW:] - tick[:-RATE_WINDOW], 1) / max_rate[m]
-        padded = np.concatenate([np.zeros(RATE_WINDOW + 1), ratio, np.zeros(RATE_WINDOW + 1)])  # [k + 1]: ending at k
-        highest = padded[:len(stepped) + 1].copy()  # highest[j + 1]: the windows ending at steps j .. j + 7
+        base = np.concatenate([ratio[:1], ratio])  # base[j + 1]: the 8 steps from the motor's step j - 8 + 1 on
+        highest = base[:len(ratio) - RATE_WINDOW + 1].copy()  # highest[j + 1]: the 8 steps around its step j
         for k in range(1, RATE_WINDOW + 1):
-            np.maximum(highest, padded[k:k + len(stepped) + 1], out=highest)
+            np.maximum(highest, base[k:k + len(highest)], out=highest)
         np.maximum(worst, highest[np.cumsum(steps)], out=worst)  # [j + 1]: j the last step so far
     return np.maximum(worst, 1e-12)
 

@@ -20,7 +20,7 @@ from codegen.pipeline.host import host_build
 from codegen.tables.hold import F_ONE, RESUME_TICKS, dilate, override_target
 from codegen.verify.hold import hold_verify
 from codegen.verify.hold_limits import ceiling_problems, ceiling_shares, ramp_excess, ramp_limit, ramp_problems
-from tests.helpers import EXAMPLES, ROOT
+from tests.helpers import DATA, EXAMPLES, ROOT
 
 NEAR_RATE = ROOT / "tests" / "data" / "mutants" / "override-near-rate.yaml"  # x cruises at 92.5 % of its rate
 needs_simavr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
@@ -121,3 +121,12 @@ def test_the_star_overridden_to_150_percent_passes_both_rules(star_flash):
     hold = result["hold"]
     assert hold["ceiling_rate_ratio"] == 0.9791 and hold["highest_factor_pct"] == 130.5
     assert len(hold["rests"]) == 1
+
+
+def test_a_ceiling_counts_the_8_steps_that_reach_into_the_window_before():
+    """A coarse carriage's 8 steps span the two windows of a slow delta move: the second window's ceiling keeps the
+    stretch that began in the first within its rate (it was 100.8 % under 199.2 %)."""
+    host = host_build(load_job(DATA / "jobs" / "found" / "delta-coarse-ceiling-across-windows.yaml"))
+    assert host.totals.windows == 2 and host.schedule.n_ceiling > 0
+    shares = ceiling_shares(host)
+    assert ceiling_problems(shares) == [] and max(share for share, _, _, _ in shares.values()) <= 1.0
