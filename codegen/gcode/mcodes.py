@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from codegen.toolpath.items import Dwell, Limits, Output
 from codegen.toolpath.limits import dwell_error
+from codegen.toolpath.segments import WAIT_REST_S
 
 FAN_FULL_SCALE = 255.0
 
@@ -162,7 +163,8 @@ def feed_factor(it, block, params):
 @_guarded
 def dwell(it, block, params):
     """G4 P (ms in Marlin, s in Grbl: codegen/gcode/dialect.py) or S (s; S wins when both are given); no wait
-    without either."""
+    without either. G4 P0 waits no time but for the moves to finish, as Marlin, Grbl and Klipper do: the plan
+    comes to rest there (a rest of WAIT_REST_S)."""
     if "S" in params:
         seconds = _number(it, block, params, "S", strict=False)
     elif "P" in params:
@@ -173,8 +175,7 @@ def dwell(it, block, params):
         letter = "S" if "S" in params else "P"
         it.fail(block, letter, f"'{it.word(block, letter)}': {message}")
         return False
-    if seconds > 0.0:
-        it.items.append(Dwell(seconds, it.source(block)))
+    it.items.append(Dwell(seconds if seconds > 0.0 else WAIT_REST_S, it.source(block)))
     return None
 
 

