@@ -47,7 +47,7 @@ PARAMS = {
     "M0": "PS", "M1": "PS", "M2": "", "M30": "", "M3": "", "M4": "", "M5": "", "M82": "", "M83": "",
     "M104": "ST", "M109": "SRT", "M140": "S", "M190": "SR",
     "M106": "SP", "M107": "P",
-    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M220": "SBR", "M221": "ST",
+    "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M220": "SBR", "M221": "ST", "M400": "",
     # Grbl (codegen/gcode/grbl.py)
     "G10": "LPXYZ", "G53": "", "G28.1": "", "G30": "XYZ", "G30.1": "", "G92.1": "", "G93": "",
     "G43.1": "Z", "G49": "", "M7": "", "M8": "", "M9": "",
@@ -77,7 +77,6 @@ HARMLESS = {
     "M105": "temperature report",
     "M114": "position report",
     "M115": "firmware info",
-    "M400": "wait for moves to finish",
     "M500": "save settings",
     "M501": "restore settings",
     "M503": "report settings",

@@ -179,6 +179,12 @@ def dwell(it, block, params):
     return None
 
 
+def finish_moves(it, block, params):
+    """M400 (Marlin): waits for the moves to finish, so the plan comes to rest there (a rest of WAIT_REST_S)."""
+    it.items.append(Dwell(WAIT_REST_S, it.source(block)))
+    return None
+
+
 def pause(it, block, params, name: str) -> None:
     """M0 / M1 (Grbl's and Marlin's program pause; M1 as M0: there is no optional stop switch): the plan comes to
     rest and the player waits for the resume key. With P (ms) or S (s), Marlin's timed form: a dwell."""
@@ -205,4 +211,5 @@ HANDLERS = {
     "M205": jerk,
     "M220": feed_factor,
     "M221": flow,
+    "M400": finish_moves,
 }
