@@ -96,11 +96,8 @@ def test_a_split_move_plays_the_steps_and_times_of_the_whole_move(tmp_path, monk
     assert split.totals.max_timing_error_ticks == whole.totals.max_timing_error_ticks
 
 
-def test_a_window_slowed_for_a_stretch_of_its_own_is_played_again_alone(monkeypatch):
-    """The windows of a 10 km move were each slowed once (coarse motor a 3 % over its rate where its Bresenham phase
-    restarts between pieces): the first is planned again alone, not with every window before it (the time then grew
-    with the square of the move), and the pieces that go on in its line start as slow: each window after is played
-    once."""
+def _attempts_counted(monkeypatch) -> list[int]:
+    """The segments of every window attempt the stages play, in order."""
     played = []
     attempt = Stages._attempt
 
@@ -109,6 +106,15 @@ def test_a_window_slowed_for_a_stretch_of_its_own_is_played_again_alone(monkeypa
         return attempt(self, window, *rest)
 
     monkeypatch.setattr(Stages, "_attempt", counted)
+    return played
+
+
+def test_a_window_slowed_for_a_stretch_of_its_own_is_played_again_alone(monkeypatch):
+    """The windows of a 10 km move were each slowed once (coarse motor a 3 % over its rate where its Bresenham phase
+    restarts between pieces): the first is planned again alone, not with every window before it (the time then grew
+    with the square of the move), and the pieces that go on in its line start as slow: each window after is played
+    once."""
+    played = _attempts_counted(monkeypatch)
     host = host_build(load_job(DATA / "jobs" / "found" / "corexy-long-move-slowed-every-window.yaml"))
     assert host.findings.ok and host.totals.segments == 32
     assert played == [1, 9, 9, 9, 8, 5]
@@ -118,14 +124,7 @@ def test_a_long_move_at_a_coarse_motor_s_rate_goes_on_as_slow_as_its_window_befo
     """A 65 m move keeps coarse motor a at its rate: once a window is slowed for it, the pieces that go on in its line
     start as slow, so the windows after are played once each, alone (each was played again merged with all the
     windows before: 82 s and 1.6 GB)."""
-    played = []
-    attempt = Stages._attempt
-
-    def counted(self, window, *rest):
-        played.append(len(window.segments))
-        return attempt(self, window, *rest)
-
-    monkeypatch.setattr(Stages, "_attempt", counted)
+    played = _attempts_counted(monkeypatch)
     host = host_build(load_job(DATA / "jobs" / "found" / "corexy-coarse-motor-merges-every-window.yaml"), keep=False)
     assert host.findings.ok and host.totals.segments == 201
     # the windows the lookahead made before the first was slowed are merged, then each is played once, alone
