@@ -26,6 +26,7 @@ from codegen.gcode.dialect import Dialect, DialectState
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
 from codegen.gcode.moves import LINE, Moves
 from codegen.gcode.reader import Block, Origin
+from codegen.gcode.shaper_codes import ShaperState
 
 _ORDER = ("G93", "G94", "M3", "M4", "M5", "M7", "M8", "M9", *mcodes.HANDLERS, "G4", *PLANES, *SYSTEMS, "G43.1",
           "G49", "G90", "G91", "M82", "M83", "G10", "G28.1", "G30.1", "G28", "G30", "G92", "G92.1")
@@ -68,6 +69,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         self.power = 1.0
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
+        self.shapers = ShaperState(machine, self.kinematics)  # M593
         self.origin, self.strict = origin, strict
         self.flat = list(start)
         self.count, self.cur, self.base = 1, 0, 0
@@ -229,8 +231,9 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                 problems.append((tool, f"'T{words[tool][1]}' is not a tool number"))
             else:
                 codes.append((name, tool))
-        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin), M220 its B and R
+        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin), M593 X and Y, M220 B and R
             if not ((letter in "XYZ" and any(name == "G28" for name, _ in codes)) or
+                    (letter in "XY" and any(name == "M593" for name, _ in codes)) or
                     (letter in "BR" and any(name == "M220" for name, _ in codes))):
                 problems.append((self.word_index(block, letter), f"expected a number after '{letter}'"))
                 del params[letter]
@@ -248,7 +251,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         inverse = ("G93" in names or self.inverse_time) and "G94" not in names
         if "G94" in names and self.inverse_time:
             self.feed = None  # back from G93 the feed rate is undefined until an F, as in Grbl: the job's feed
-        if "F" in params and not inverse and self._feed(block, params) is False:
+        if ("F" in params and not inverse and not any("F" in PARAMS[n] for n in names)
+                and self._feed(block, params) is False):  # M593's F is a frequency
             return
         if "S" in params and not any("S" in PARAMS[n] for n in names) and self.set_power(block, params) is False:
             return

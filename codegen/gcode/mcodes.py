@@ -1,5 +1,5 @@
 """The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M205
-least feed rates, M220 feed rate factor, M221 flow, G4.
+least feed rates, M220 feed rate factor, M221 flow, G4, M400; M593 in codegen/gcode/shaper_codes.py.
 
 Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
 when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
@@ -9,6 +9,7 @@ targets in degrees C; fan S over 0..255.
 
 from __future__ import annotations
 
+from codegen.gcode.shaper_codes import input_shaping
 from codegen.toolpath.items import Dwell, Limits, Output
 from codegen.toolpath.limits import dwell_error
 from codegen.toolpath.segments import WAIT_REST_S
@@ -212,4 +213,5 @@ HANDLERS = {
     "M220": feed_factor,
     "M221": flow,
     "M400": finish_moves,
+    "M593": input_shaping,
 }

@@ -14,6 +14,10 @@ stay bounded whatever one move's length (issue 28). A segment's
 own limits wait for the junction after it (its curvature there), and the window's last segment stays held as
 the next window's context: every junction is planned from both of its segments, as in the whole program.
 
+A window also ends where the input shapers' era changes (an M593, codegen/toolpath/segments.py): the plan rests
+there, so that junction is final as soon as the next era's first segment is held, and every window is shaped
+alike (codegen/pipeline/windows.py).
+
 The speeds are the whole program's to rounding: the passes sum their gains from the window's start rather than
 the program's, so junction speeds agree to a few units in the last place, and times to a few nanoseconds.
 """
@@ -68,10 +72,30 @@ class Lookahead:
         segments = self._capped(segments)
         self.held = segments if self.held is None else concat(self.held, segments)
         self.held_steps = np.concatenate([self.held_steps, steps])
-        return self._commit(final=False)
+        return self._commit_all(final=False)
 
     def close(self) -> list[Window]:
-        return self._commit(final=True)
+        return self._commit_all(final=True)
+
+    def _commit_all(self, final: bool) -> list[Window]:
+        """The windows final now: one, or after a window that ends at an era change, the ones that follow it."""
+        windows: list[Window] = []
+        while not windows or self._era_end(windows[-1]):
+            window = self._commit(final)
+            if window is None:
+                break
+            windows.append(window)
+        return windows
+
+    def _era_end(self, window: Window) -> bool:
+        """Whether the window ends where the shapers' era changes (the next segment held begins another)."""
+        return self.held is not None and len(self.held) > 1 and self.held.shaping[1] != window.segments.shaping[-1]
+
+    def _era_cut(self) -> int | None:
+        """The first segment held (after the context) whose shapers' era differs from the one before it."""
+        era = self.held.shaping[self.context:]
+        change = np.flatnonzero(era[1:] != era[:-1])
+        return int(change[0]) + 1 if len(change) else None
 
     def resume(self, w: float, t0: float) -> None:
         """The window before was planned again, slower: the next one starts at v^2 = `w` at most, at `t0`."""
@@ -103,13 +127,15 @@ class Lookahead:
         """The first segment after the windows so far (its geometry is final, its plan is not)."""
         return self.held.take(np.arange(1, 2)) if self.held is not None and len(self.held) > 1 else None
 
-    def _commit(self, final: bool) -> list[Window]:
+    def _commit(self, final: bool) -> Window | None:
         held = 0 if self.held is None else len(self.held) - self.context
         if held == 0:
-            return []
+            return None
         prof = profile(self.held, self.kin, self.held_steps, self.limits).part(self.context, len(self.held))
-        curve_cut = False
-        if final:
+        curve_cut, era_cut = False, self._era_cut()
+        if era_cut is not None:  # the plan rests there: final whatever follows
+            end = era_cut
+        elif final:
             end = held
         else:
             # The last segment's own limits wait for the junction after it (its curvature there).
@@ -125,7 +151,7 @@ class Lookahead:
             if len(ends) == 0 and (held > MAX_HELD or events > 2 * WINDOW_EVENTS):
                 ends, curve_cut = np.flatnonzero(ok), True
             if len(ends) == 0:
-                return []
+                return None
             end = int(ends[-1])
         w = passes(prof, self.w_first, 0.0)
         plan = finish(prof.part(0, end), w[:end + 1], self.t0)
@@ -139,7 +165,7 @@ class Lookahead:
         self.held = self.held.take(keep).compact()
         self.held_steps = self.held_steps[keep]
         self.context = 1
-        return [window]
+        return window
 
     def _held_events(self) -> int:
         """The master steps of the segments held (the context's included)."""

@@ -16,6 +16,7 @@ import numpy as np
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
 from codegen.motion.planner import segment_lengths
+from codegen.motion.shaped_motion import settle_time
 from codegen.motion.staircase import refine, split_kinked, split_long
 from codegen.motion.stepgen import segment_steps
 from codegen.overlap import overlapped
@@ -68,11 +69,13 @@ def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
             break
         with watch("segments"):
             if flattener is None:
-                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file)
+                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file,
+                                      settle_time)
             first = flattener.items
             segments = drop_empty(flattener(batch))
             program.settings += flattener.settings
-            flattener.settings = []
+            program.shapings += flattener.shapings
+            flattener.settings, flattener.shapings = [], []
             found = reach_problems(settings, kin, batch, first, segments)
             if not found:
                 segments = kin.subdivide(segments, settings.tolerance_mm)

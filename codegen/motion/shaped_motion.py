@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.motion.planner import Plan
-from codegen.motion.shapers import Shaper
+from codegen.motion.shapers import Shaper, make_shaper
 from codegen.toolpath.segments import Segments
 
 AXES = 4  # x, y, z, e: the extruder is never shaped (Klipper's neither)
@@ -47,6 +47,20 @@ class ShapingSettings:
     def spread(self) -> float:
         """s the shaped motion lasts longer than the plan."""
         return max((float(self.offsets(a)[1][-1]) for a in range(AXES)), default=0.0) + self.shift
+
+
+def shaping_of(specs: tuple, max_smoothing: float | None = None) -> ShapingSettings | None:
+    """The settings of the shapers given as (type, freq, damping) for x, y, z (None: unshaped); None when they
+    shape no axis."""
+    if all(spec is None for spec in specs):
+        return None
+    return ShapingSettings(tuple(None if spec is None else make_shaper(*spec) for spec in specs), max_smoothing)
+
+
+def settle_time(change) -> float:
+    """s the motion shaped before an M593 (an InputShaping item) goes on after the plan's: its shapers' spread."""
+    before = shaping_of(change.before)
+    return 0.0 if before is None else before.spread
 
 
 @dataclass

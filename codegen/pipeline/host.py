@@ -25,7 +25,7 @@ from codegen.motion.lookahead import Lookahead, Window
 from codegen.motion.pieces import front_end
 from codegen.motion.planner import Plan, PlannerLimits, plan
 from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_schedule, join_segments
-from codegen.pipeline.settings import JobSettings, job_settings, planner_limits
+from codegen.pipeline.settings import JobSettings, ShapingEras, job_settings, planner_limits
 from codegen.pipeline.windows import Played, Stages, Totals
 from codegen.program.heater_settings import heater_settings
 from codegen.program.heaters import HeaterProgram, heater_diagnostics
@@ -69,6 +69,12 @@ class HostBuild:
     runtime: RuntimeRecords | None = None  # the heater and fan settings the image plays (codegen/tables/runtime.py)
     laser: LaserPwm | None = None  # a PWM laser's (codegen/tables/laser.py)
     planned: tuple[Segments, Plan] | None = None  # a shaped job's segments and plan before shaping, when kept
+    shapings: tuple = ()  # each era's input shapers (ShapingSettings or None: unshaped), M593s between them
+
+    @property
+    def shaped(self) -> bool:
+        """Some stretch of the program is shaped (the machine's shapers or an M593's)."""
+        return any(s is not None for s in self.shapings)
 
     @property
     def schedule(self):
@@ -162,6 +168,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     limits = planner_limits(job, kin, target, bool(played_out))
     laser = laser_pwm(settings.laser, job.board, target.board_data, target.f_cpu)
     ahead = Lookahead(kin, limits)
+    eras = ShapingEras(job, program)
     stages: Stages | None = None
     played: list[Played] = []
     chunks = front_end(settings.front_end, kin, program, watch)
@@ -171,7 +178,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
         if stages is None:
             start_steps = kin.to_steps(program.start[None, :])[0]
             stages = Stages(settings.stages, kin, target, limits, start_steps, ahead, keep is True, watch, tables, link,
-                            runtime, laser, hold, observe)
+                            runtime, laser, hold, observe, eras)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
         for window in windows:
@@ -197,7 +204,8 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
                                       link is not None and not played_out)
     host = HostBuild(job, settings, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
-                     program.warnings + heater_notes, homing, program.heater_program, laser=laser)
+                     program.warnings + heater_notes, homing, program.heater_program, laser=laser,
+                     shapings=tuple(eras.all()))
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if runtime is not None:
@@ -212,7 +220,7 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
         bar.set_postfix_str("joining the windows")
         with watch("join"):
             host.segments, host.plan, host.events = join_segments(played), join_plan(played), join_events(played)
-            if played and played[0].planned is not None:
+            if any(p.planned is not None for p in played):
                 host.planned = join_segments(played, planned=True), join_plan(played, planned=True)
             host.pulses = join_pulses(played)
             host.compressed = join_compressed(played, False, host.pulses)

@@ -24,12 +24,16 @@ def _cat(parts: list, name: str) -> np.ndarray:
 
 
 def join_segments(played: list[Played], planned: bool = False) -> Segments:
-    """`planned`: a shaped job's segments before shaping (else the blocks' own)."""
-    return concat(*((p.planned if planned else p.window).segments for p in played))
+    """`planned`: a shaped job's segments before shaping (else the blocks' own; an unshaped window's are its plan's)."""
+    return concat(*(_source(p, planned).segments for p in played))
 
 
 def join_plan(played: list[Played], planned: bool = False) -> Plan:
-    return Plan.join([(p.planned if planned else p.window).plan for p in played])
+    return Plan.join([_source(p, planned).plan for p in played])
+
+
+def _source(played: Played, planned: bool):
+    return played.planned if planned and played.planned is not None else played.window
 
 
 def join_events(played: list[Played]) -> Events:

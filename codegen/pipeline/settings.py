@@ -17,7 +17,7 @@ from codegen.kinematics.base import Kinematics, StepperLimits
 from codegen.motion.jog import JogSettings
 from codegen.motion.pieces import FrontEndSettings
 from codegen.motion.planner import PlannerLimits
-from codegen.motion.shaped_motion import ShapingSettings
+from codegen.motion.shaped_motion import ShapingSettings, shaping_of
 from codegen.motion.shapers import make_shaper
 from codegen.pipeline.windows import StageSettings
 from codegen.program.homing import HomedStepper, HomingSettings
@@ -61,6 +61,26 @@ def shaping_settings(job) -> ShapingSettings | None:
     axes = shaper.axes
     return ShapingSettings(tuple(make_shaper(axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
                                  for a in ("x", "y", "z")), shaper.max_smoothing)
+
+
+class ShapingEras:
+    """The input shapers of each era of the program (codegen/toolpath/segments.py `shaping`): era 0 the machine's,
+    era k what the k-th M593 of `program.shapings` set (as the front end hands them on), with the machine's
+    max_smoothing."""
+
+    def __init__(self, job, program):
+        self.program = program
+        self.max_smoothing = None if job.machine.input_shaper is None else job.machine.input_shaper.max_smoothing
+        self.known = {0: shaping_settings(job)}
+
+    def __call__(self, era: int) -> ShapingSettings | None:
+        if era not in self.known:
+            self.known[era] = shaping_of(self.program.shapings[era - 1].shapers, self.max_smoothing)
+        return self.known[era]
+
+    def all(self) -> list[ShapingSettings | None]:
+        """Every era's, in order."""
+        return [self(era) for era in range(len(self.program.shapings) + 1)]
 
 
 def homing_settings(job) -> HomingSettings:

@@ -52,9 +52,11 @@ class ShapedWindow:
 
 
 def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, max_gap: float,
-                  tail: ShapingTail | None, last: bool) -> ShapedWindow:
+                  tail: ShapingTail | None, last: bool, settles: bool = False) -> ShapedWindow:
     """`max_gap` (s): the longest the player waits between two events; `tail`: the window before's (None: the
-    program's first); `last`: the program's last window (its shaped motion goes on until it rests)."""
+    program's first, or its shapers' era's); `last`: the program's last window (its shaped motion goes on until
+    it rests); `settles`: its era's last, which ends in a rest at least the shapers' spread long (an M593's):
+    the shaped motion comes to rest within the window and ends where the plan does."""
     segments, plan, before = window.segments, window.plan, 0
     if tail is not None:
         segments, plan, before = concat(tail.segments, segments), Plan.join([tail.plan, plan]), len(tail.segments)
@@ -63,7 +65,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     begin = window.plan.t_start[0]
     stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
     start = segments.start[0] if tail is None else tail.point
-    blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last else None)
+    blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last or settles else None)
     corners_t, jumps = shaped_corners(window.plan, kin, settings)
     worst, at, seg = smoothing(stretch, planned, settings)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]

@@ -9,7 +9,9 @@ might need). The path check measures a window's first and last steps against the
 segments too.
 
 With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
-plan before shaping is what a retry slows.
+plan before shaping is what a retry slows. Each era of the program's shapers (between M593s: windows end there,
+codegen/motion/lookahead.py) has its own; an era's last window plays its shaped motion to rest (the plan rests
+there long enough), and the next era's first starts afresh.
 
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
@@ -113,7 +115,7 @@ class StageSettings:
     tolerance_mm: float  # machine.tolerance: how far from the path the checks let a step put the tool
     step_pulse_us: float  # STEP high time
     dir_setup_us: float  # DIR before STEP
-    shaping: ShapingSettings | None = None  # the input shapers (codegen/pipeline/shaping.py); None: unshaped
+    shaping: ShapingSettings | None = None  # the machine's input shapers (codegen/pipeline/shaping.py); None: unshaped
 
 
 @dataclass
@@ -128,6 +130,7 @@ class _Carried:
     block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
     laser_counts: int = 0  # the laser's PWM counts after the last event
     shaping_tail: ShapingTail | None = None  # a shaped window's plan tail and end point (codegen/pipeline/shaping.py)
+    shaping_era: int = 0  # the shapers' era of the last window
 
 
 class Stages:
@@ -138,7 +141,8 @@ class Stages:
                  start_steps: np.ndarray, lookahead: Lookahead, keep: bool, watch: Stopwatch | None = None,
                  tables: BinaryIO | None = None, link: LinkBudget | None = None,
                  runtime: Callable[[], RuntimeRecords] | None = None, laser: LaserPwm | None = None,
-                 hold: HoldPlan | None = None, observe: Callable[[Played], None] | None = None):
+                 hold: HoldPlan | None = None, observe: Callable[[Played], None] | None = None,
+                 eras: Callable[[int], ShapingSettings | None] | None = None):
         """`settings`: the machine's tolerance and pulse timing; `keep`: the windows handed out keep their events
         and pulses (for `join`); `watch` times the stages; `tables` gets each final window's table records as it
         is made (a window ends at a block and a run start, so they join into the whole program's stream;
@@ -147,12 +151,13 @@ class Stages:
         (codegen/tables/runtime.py), whose cost the blocks after them get; `laser`: the laser's PWM, whose power
         records the runs get (codegen/tables/laser.py); `hold`: the feed hold, whose ceiling records they get where
         its override goes above 100 % (codegen/tables/headroom.py); `observe` gets each final window with its
-        pulses (which it drops after unless `keep`)."""
+        pulses (which it drops after unless `keep`); `eras` gives the shapers of each era of the program's
+        (a segment's `shaping`; None: the machine's throughout)."""
         self.kin, self.target, self.limits, self.lookahead = kin, target, limits, lookahead
         self.max_rate = jitter_rate(kin.limits.max_rate, limits.pulse_jitter_s)  # what the pulses may use
         self.keep, self.watch, self.tables = keep, watch or Stopwatch(), tables
-        self.shaping = settings.shaping
-        max_smoothing = None if self.shaping is None else self.shaping.max_smoothing
+        self.shaping_of = eras or (lambda era: settings.shaping)
+        max_smoothing = None if settings.shaping is None else settings.shaping.max_smoothing
         self.carried = _Carried(Checker(kin, start_steps, settings.tolerance_mm, max_smoothing), 0,
                                 np.zeros(len(kin.motors), dtype=np.int64), None, None if link is None else Ring(link))
         self.open: tuple[Played, _Carried] | None = None  # the last window played, and what came before it
@@ -171,7 +176,9 @@ class Stages:
         before = self.carried
         out = []
         played, carried, scale = self._attempt(window, after, last, before)
-        if scale is not None and scale[3] and self.open is not None:  # play the open window and this one again
+        # Play the open window and this one again (not across the rest between two eras of the shapers).
+        if (scale is not None and scale[3] and self.open is not None
+                and self.open[0].window.segments.shaping[-1] == window.segments.shaping[0]):
             open_window = self.open[0].window if self.open[0].planned is None else self.open[0].planned
             window, before = merge(open_window, window), self.open[1]
             self.open = None
@@ -232,9 +239,14 @@ class Stages:
         is to be played again with it (a shortfall: always); None: nowhere."""
         kin, target, watch = self.kin, self.target, self.watch
         planned, shaped = window, None
-        if self.shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
+        era = int(window.segments.shaping[0]) if len(window.segments) else 0
+        shaping = self.shaping_of(era)
+        # An era's last window: its shaped motion settles in the rest it ends with, and the next era starts afresh.
+        era_ends = after is not None and int(after.shaping[0]) != era
+        if shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
             with watch("input shaping"):
-                shaped = shaped_window(window, kin, self.shaping, target.max_gap_s, before.shaping_tail, last)
+                tail = before.shaping_tail if before.shaping_tail is None or before.shaping_era == era else None
+                shaped = shaped_window(window, kin, shaping, target.max_gap_s, tail, last, era_ends)
             window = shaped.window
         with watch("step times"):
             events = shaped.events if shaped is not None else generate(
@@ -290,7 +302,7 @@ class Stages:
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
                            int(block_item[-1]) if len(block_item) else before.block_item, laser_counts,
-                           before.shaping_tail if shaped is None else shaped.tail)
+                           None if shaped is None else shaped.tail, era)
         # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
         planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
         scale = self._slow_down(planned.plan, planned_segment, pulses, hits)

@@ -56,6 +56,7 @@ class Program:
         self.heater_program = HeaterProgram()
         self.plays_runtime = False
         self.settings: list = []  # (item index, Output), in program order
+        self.shapings: list = []  # the M593s' InputShaping items, in program order: era k begins after the k-th
         self.handed_on = 0.0
         self._warnings: list[Diagnostic] | None = None  # as a child process read them (`restore`)
 
@@ -68,11 +69,11 @@ class Program:
     def state(self) -> tuple:
         """What the batches have found out so far, for a copy of the program in another process."""
         return (self.start, self.end, self.homes_first, self.heater_program, list(self.warnings), self.settings,
-                self.handed_on)
+                self.handed_on, self.shapings)
 
     def restore(self, state: tuple) -> None:
         (self.start, self.end, self.homes_first, self.heater_program, self._warnings, self.settings,
-         self.handed_on) = state
+         self.handed_on, self.shapings) = state
 
     @property
     def gcode_file(self) -> str | None:

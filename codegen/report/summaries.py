@@ -48,12 +48,14 @@ def plan_summary(host: HostBuild) -> dict:
 
 def shaper_plan(host: HostBuild) -> dict:
     """The input shapers and their smoothing: the largest distance of the shaped tool from the planned one at the
-    same moment, where (the planned point, its G-code line) and the limit (codegen/motion/shaped_motion.py)."""
+    same moment, where (the planned point, its G-code line) and the limit (codegen/motion/shaped_motion.py); the
+    machine's shapers, and how many M593s changed them."""
     f, machine = host.findings, host.job.machine.input_shaper
-    axes = {name: {"type": s.type, "freq_hz": s.freq, "damping": s.damping} for name, s in machine.axes.items()}
-    return {"axes": axes,
+    axes = {name: {"type": s.type, "freq_hz": s.freq, "damping": s.damping}
+            for name, s in ({} if machine is None else machine.axes).items()}
+    return {"axes": axes, "m593_changes": max(len(host.shapings) - 1, 0),
             "smoothing_mm": rounded(f.smoothing_mm), "smoothing_at": [rounded(c) for c in f.smoothing_at],
-            "smoothing_line": f.smoothing_line, "max_smoothing_mm": machine.max_smoothing}
+            "smoothing_line": f.smoothing_line, "max_smoothing_mm": None if machine is None else machine.max_smoothing}
 
 
 def feed_hold_plan(host: HostBuild) -> dict:
@@ -143,6 +145,8 @@ def human_plan(summary: dict) -> str:
     if "input_shaper" in summary:
         shaper = summary["input_shaper"]
         axes = ", ".join(f"{name} {s['type']} {s['freq_hz']:g} Hz" for name, s in shaper["axes"].items())
+        if shaper["m593_changes"]:
+            axes = f"{axes or 'none'}, then {shaper['m593_changes']} M593 changes"
         limit = "" if shaper["max_smoothing_mm"] is None else f" (limit {shaper['max_smoothing_mm']:g} mm)"
         line = f" on G-code line {shaper['smoothing_line']}" if shaper["smoothing_line"] else ""
         lines.append(f"  input shaper {axes}: smoothing {shaper['smoothing_mm']:.4f} mm{limit}, the most at "

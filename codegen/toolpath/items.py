@@ -184,8 +184,22 @@ class Output:
     source: SourceRef
 
 
+ShaperSpec = tuple[str, float, float]  # an axis's shaper: Klipper's type name, frequency (Hz), damping ratio
+
+
+@dataclass(frozen=True)
+class InputShaping:
+    """The axes' input shapers from here on (G-code M593), each x, y, z a ShaperSpec or None (unshaped), and the
+    ones before. The machine comes to rest first, and the motion shaped before settles there
+    (codegen/toolpath/segments.py)."""
+
+    shapers: tuple[ShaperSpec | None, ...]  # x, y, z
+    before: tuple[ShaperSpec | None, ...]
+    source: SourceRef
+
+
 Move = Line | Lines | Arc | Curve
-Item = Line | Lines | Arc | Curve | Dwell | Limits | Home | Output
+Item = Line | Lines | Arc | Curve | Dwell | Limits | Home | Output | InputShaping
 
 
 @dataclass

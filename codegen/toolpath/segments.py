@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-from codegen.toolpath.items import FINE_STEPS, Arc, Curve, Dwell, Limits, Line, Lines, Output, Toolpath
+from codegen.toolpath.items import FINE_STEPS, Arc, Curve, Dwell, InputShaping, Limits, Line, Lines, Output, Toolpath
 
 REF_LINE, REF_ARC, REF_CURVE = 0, 1, 2
 AXIS = {"x": 0, "y": 1, "z": 2, "e": 3}
@@ -38,6 +39,7 @@ class Segments:
     axis_accel: np.ndarray  # (n, 4) mm/s^2 per axis the program allows
     jerk: np.ndarray  # (n, 4) mm/s per axis, Marlin's classic jerk at the piece's start (nan: not set)
     junction_deviation: np.ndarray  # (n,) mm the program set (nan: the machine's)
+    shaping: np.ndarray  # (n,) int: the input shapers' era, the M593s before the piece (0: the machine's shapers)
     ref_kind: np.ndarray  # (n,) REF_LINE | REF_ARC | REF_CURVE
     ref_center: np.ndarray  # (n, 2) arc centre in its plane
     ref_radius: np.ndarray  # (n,) mm, the arc's radius at ref_angle
@@ -114,16 +116,22 @@ class Flattener:
     """`flatten` a batch of items at a time: the limits in force and the position carry over, and each piece's
     `item` counts the items of every batch before (a Lines item counts as its moves). With `runtime` (a player
     that plays heater and fan settings at their place), `settings` gathers them with their item index, and a
-    temperature wait becomes a dwell of WAIT_REST_S at its index: the plan comes to rest there."""
+    temperature wait becomes a dwell of WAIT_REST_S at its index: the plan comes to rest there. An InputShaping
+    item (M593) rests the plan too, for as long as `settle` says the motion shaped before needs to come to rest,
+    and begins a new era of shapers (`shapings` gathers the items, taken by the caller)."""
 
-    def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False, gcode_file: str | None = None):
-        """`gcode_file`: the pieces of items written there keep their line (verify reads the G-code again)."""
-        self.tolerance, self.gcode_file = tolerance, gcode_file
+    def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False, gcode_file: str | None = None,
+                 settle: Callable[[InputShaping], float] | None = None):
+        """`gcode_file`: the pieces of items written there keep their line (verify reads the G-code again);
+        `settle`: s the motion shaped before an InputShaping item takes to rest (None: WAIT_REST_S)."""
+        self.tolerance, self.gcode_file, self.settle = tolerance, gcode_file, settle
         self.limits = _LimitState()
         self.position = np.asarray(start, dtype=float)
         self.items = 0
         self.runtime = runtime
         self.settings: list[tuple[int, Output]] = []  # (item index, setting), taken by the caller
+        self.era = 0
+        self.shapings: list[InputShaping] = []  # the era changes, taken by the caller
 
     def __call__(self, batch: list) -> Segments:
         limits = self.limits
@@ -133,7 +141,7 @@ class Flattener:
         for item in batch:
             if isinstance(item, Lines):
                 groups += single.take()
-                groups.append(_lines_group(item, index, len(limits.rows) - 1, item.file == self.gcode_file))
+                groups.append(_lines_group(item, index, len(limits.rows) - 1, item.file == self.gcode_file, self.era))
                 self.position = item.end
                 index += len(item)
                 continue
@@ -143,9 +151,15 @@ class Flattener:
                 self.settings.append((index, item))
                 if item.wait and (item.value > 0 or item.name == "pause"):
                     single.add(self._pieces(Dwell(WAIT_REST_S, item.source), fines), index, len(limits.rows) - 1,
-                               self._line(item))
+                               self._line(item), self.era)
+            elif isinstance(item, InputShaping):  # the last piece of its era: a rest
+                seconds = WAIT_REST_S if self.settle is None else max(WAIT_REST_S, self.settle(item))
+                single.add(self._pieces(Dwell(seconds, item.source), fines), index, len(limits.rows) - 1,
+                           self._line(item), self.era)
+                self.era += 1
+                self.shapings.append(item)
             elif isinstance(item, (Line, Arc, Curve, Dwell)):  # not Output, Home: nothing to move along
-                single.add(self._pieces(item, fines), index, len(limits.rows) - 1, self._line(item))
+                single.add(self._pieces(item, fines), index, len(limits.rows) - 1, self._line(item), self.era)
             index += 1
         groups += single.take()
         self.items = index
@@ -181,7 +195,8 @@ COLUMNS = (("pieces", np.int64, ()), ("item", np.int64, ()), ("feed", float, ())
            ("accel", float, ()), ("power", float, ()), ("dynamic", bool, ()), ("dwell", float, ()),
            ("kind", np.int64, ()), ("center", float, (2,)),
            ("radius", float, ()), ("plane", np.int64, (2,)), ("angle", float, ()), ("sweep", float, ()),
-           ("change", float, ()), ("limits", np.int64, ()), ("fine", np.int64, ()), ("line", np.int64, ()))
+           ("change", float, ()), ("limits", np.int64, ()), ("fine", np.int64, ()), ("line", np.int64, ()),
+           ("shaping", np.int64, ()))
 
 
 class _Single:
@@ -190,12 +205,12 @@ class _Single:
     def __init__(self):
         self.points, self.rows, self.fine_count = [], [], 0
 
-    def add(self, pieces: tuple, index: int, state: int, line: int) -> None:
+    def add(self, pieces: tuple, index: int, state: int, line: int, era: int) -> None:
         pts, feed, tool, accel, power, dynamic, dwell, (kind, center, radius, plane, angle, sweep, change) = pieces
         count = len(pts) - 1
         self.points.append(pts)
         self.rows.append((count, index, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, angle,
-                          sweep, change, state, self.fine_count if kind == REF_CURVE else -1, line))
+                          sweep, change, state, self.fine_count if kind == REF_CURVE else -1, line, era))
         self.fine_count += count if kind == REF_CURVE else 0
 
     def take(self) -> list[tuple]:
@@ -207,7 +222,7 @@ class _Single:
         return [(np.concatenate([p[:-1] for p in stacked]), np.concatenate([p[1:] for p in stacked]), *columns)]
 
 
-def _lines_group(lines: Lines, index: int, state: int, in_gcode: bool) -> tuple:
+def _lines_group(lines: Lines, index: int, state: int, in_gcode: bool, era: int) -> tuple:
     """The group of a Lines item: a piece per move (their lines kept `in_gcode`)."""
     n = len(lines)
     return (lines.points[:-1], lines.points[1:], np.ones(n, dtype=np.int64), np.arange(index, index + n),
@@ -215,7 +230,7 @@ def _lines_group(lines: Lines, index: int, state: int, in_gcode: bool) -> tuple:
             np.zeros((n, 2)), np.zeros(n),
             np.tile(np.array([0, 1]), (n, 1)), np.zeros(n), np.zeros(n), np.zeros(n), np.full(n, state),
             np.full(n, -1),
-            lines.line if in_gcode else np.zeros(n, dtype=np.int64))
+            lines.line if in_gcode else np.zeros(n, dtype=np.int64), np.full(n, era))
 
 
 def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments:
@@ -223,7 +238,7 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     if not groups:
         groups = [(np.zeros((0, 4)), np.zeros((0, 4)), *(np.zeros((0, *shape), dtype=t) for _, t, shape in COLUMNS))]
     (starts, ends, counts, owners, feed, tool, accel, power, dynamic, dwell, kind, center, radius, plane, angle, sweep,
-     change, state, fine_rows, line) = (np.concatenate(c) for c in zip(*groups))
+     change, state, fine_rows, line, era) = (np.concatenate(c) for c in zip(*groups))
     each = lambda values: np.repeat(values, counts, axis=0)  # noqa: E731
     rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
     along = rank / each(counts)  # of the item, where each piece starts
@@ -235,7 +250,8 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
         start=starts, end=ends, feed=each(feed), tool=each(tool), power=each(power), dynamic=each(dynamic),
         dwell=each(dwell), item=each(owners), line=each(line),
         accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
-        jerk=jerk.reshape(-1, 4), junction_deviation=jd, ref_kind=each(kind), ref_center=each(center).reshape(-1, 2),
+        jerk=jerk.reshape(-1, 4), junction_deviation=jd, shaping=each(era), ref_kind=each(kind),
+        ref_center=each(center).reshape(-1, 2),
         ref_radius=each(radius) + each(change) * along, ref_angle=each(angle) + each(sweep) * along,
         ref_growth=each(growth), ref_plane=each(plane).reshape(-1, 2),
         ref_fine=np.where(first_fine >= 0, first_fine + rank, -1),

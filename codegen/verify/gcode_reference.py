@@ -162,7 +162,7 @@ class Reading:
                 self.plane = PLANES[code]
             elif code in ("G0", "G1", "G2", "G3", "G80"):
                 self.motion = code
-        if "F" in params and not self.inverse_time:
+        if "F" in params and not self.inverse_time and "M593" not in codes:  # M593's F is a frequency
             self.feed = params["F"] * self.unit / 60.0
         if "M220" in codes:  # B saves the factor, R restores it
             self.saved_factor = self.factor if "B" in letters else self.saved_factor

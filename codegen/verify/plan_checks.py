@@ -86,7 +86,7 @@ class PlanChecks:
         self.reported: set[str] = set()
         # A shaped job's corners are its plan's before shaping (its blocks are chords of the shaped curve), checked
         # whole with the first chapter (a build that did not keep that plan has none to check).
-        self.shaped, self.planned = host.settings.stages.shaping is not None, host.planned
+        self.shaped, self.planned = host.shaped, host.planned
 
     @property
     def not_compared(self) -> list[str]:

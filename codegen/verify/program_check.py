@@ -91,9 +91,8 @@ class ProgramCheck:
         self.reading = Reading(job, gcode_start(host)) if self.active else None
         self.start_steps = np.asarray(host.start_steps)[self.geometry.index]
         self.tolerance = host.settings.stages.tolerance_mm
-        shaping = host.settings.stages.shaping
-        self.smoothing = 0.0 if shaping is None else float(host.findings.smoothing_mm or 0.0)  # mm
-        self.spread = 0.0 if shaping is None else shaping.spread  # s
+        self.smoothing = float(host.findings.smoothing_mm or 0.0) if host.shaped else 0.0  # mm
+        self.spread = max((s.spread for s in host.shapings if s is not None), default=0.0)  # s, the longest era's
         motor_per_mm = math.sqrt(2.0) if self.geometry.kind == "corexy" else 1.0  # a belt sums x and y
         self.end_slack = STEP_SLACK + self.smoothing * motor_per_mm * self.geometry.spm  # steps, per motor
         self.moves: dict[int, Move] = {}

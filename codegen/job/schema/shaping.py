@@ -17,10 +17,12 @@ from codegen.job.schema.fields import Model, Positive, choice, fail, number_valu
 # Klipper's shaper names, each with the largest damping ratio its formulas accept.
 SHAPER_MAX_DAMPING = {"zv": 0.99, "mzv": 0.99, "zvd": 0.99, "ei": 0.4, "2hump_ei": 0.3, "3hump_ei": 0.2}
 SHAPED_AXES = ("x", "y", "z")
+SHAPER_HZ = (1.0, 1000.0)  # the frequencies a shaper may have (job key and G-code M593 alike)
+DEFAULT_SHAPER_DAMPING = 0.1  # Klipper's default damping ratio
 
 
 def _frequency(v: float) -> float:
-    if not 1.0 <= v <= 1000.0:  # a frame's resonance: Klipper's calibration sweeps 5 to 200 Hz
+    if not SHAPER_HZ[0] <= v <= SHAPER_HZ[1]:  # a frame's resonance: Klipper's calibration sweeps 5 to 200 Hz
         raise fail("range", "must be >= 1 and <= 1000 (Hz: below 1 Hz a shaper lasts seconds, above 1000 Hz it "
                             "spans less than the player's step)")
     return v
@@ -31,7 +33,7 @@ class AxisShaper(Model):
 
     type: choice(*SHAPER_MAX_DAMPING)  # type: ignore[valid-type]
     freq: Annotated[float, BeforeValidator(number_value), AfterValidator(_frequency)]  # Hz
-    damping: Annotated[float, BeforeValidator(number_value), Field(ge=0)] = 0.1  # ratio, Klipper's default
+    damping: Annotated[float, BeforeValidator(number_value), Field(ge=0)] = DEFAULT_SHAPER_DAMPING
 
     @model_validator(mode="after")
     def _damping_within_the_fit(self) -> "AxisShaper":
