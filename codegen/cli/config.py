@@ -65,7 +65,11 @@ _Dumper.add_representer(LiteralText, lambda d, text: d.represent_scalar("tag:yam
 
 def config_yaml(job: Job) -> str:
     """The normalized job and `board_info:`, as YAML in a fixed key order."""
-    document = {**normalized_job(job), "board_info": board_info(job)}
+    return job_yaml({**normalized_job(job), "board_info": board_info(job)})
+
+
+def job_yaml(document: dict) -> str:
+    """A job file's keys as YAML in their order, as `config` prints them (a stepper on one line)."""
     return yaml.dump(document, Dumper=_Dumper, sort_keys=False, default_flow_style=False, allow_unicode=True,
                      width=120)
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from codegen import __version__, progress
 from codegen.cli import batch as cli_batch
+from codegen.cli import calibrate as cli_calibrate
 from codegen.cli import config as cli_config
 from codegen.cli import flash as cli_flash
 from codegen.cli import stream as cli_stream
@@ -329,6 +330,7 @@ def parser() -> argparse.ArgumentParser:
     cli_tune.add_parser(verbs)
     cli_config.add_parser(verbs)
     cli_flash.add_parser(verbs)
+    cli_calibrate.add_parser(verbs)
     return p
 
 
