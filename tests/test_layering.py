@@ -8,8 +8,8 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "codegen"
 # The stages in pipeline order: a module may import its own stage and the stages before it, never one after.
-STAGES = ("heaters", "job", "toolpath", "gcode", "shapes", "calibrate", "kinematics", "program", "motion", "tables", "link",
-          "firmware", "sim", "pipeline", "verify", "report", "cli", "__main__")
+STAGES = ("heaters", "job", "toolpath", "gcode", "shapes", "calibrate", "kinematics", "program", "motion", "tables",
+          "link", "firmware", "sim", "pipeline", "verify", "report", "cli", "__main__")
 # Shared leaves: modules and packages every stage may use, that import no stage themselves.
 LEAVES = ("__init__", "errors", "paths", "progress", "stopwatch", "overlap", "targets", "native")
 
