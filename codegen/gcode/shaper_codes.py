@@ -30,8 +30,7 @@ class ShaperState:
         self.damping = {a: axes[a].damping if a in axes else DEFAULT_SHAPER_DAMPING for a in SHAPED_AXES}
         self.typed = set(axes)  # the axes whose type the machine gives
         self.noted = False
-        self.refused = None if kinematics != "delta" else "input shaping needs cartesian or corexy kinematics " \
-                                                          "(delta: not yet)"
+        self.shapes = kinematics != "delta"  # a delta's carriages are not yet cut from shaped motion
 
     def specs(self) -> tuple[ShaperSpec | None, ...]:
         return tuple((self.type[a], self.freq[a], self.damping[a]) if self.freq[a] > 0 else None for a in SHAPED_AXES)
@@ -41,8 +40,8 @@ def input_shaping(it, block, params):
     """M593 [X] [Y] F D (see the module): an InputShaping item, unless the line sets neither F nor D (Marlin then
     reports the settings; nothing changes)."""
     state: ShaperState = it.shapers
-    if state.refused is not None:
-        it.fail(block, "M593", f"M593: {state.refused}")
+    if not state.shapes:
+        it.fail(block, "M593", "M593: input shaping needs cartesian or corexy kinematics (delta: not yet)")
         return False
     axes = [a.lower() for a in M593_AXES if a in params] or ["x", "y"]
     freq, damping = params.get("F"), params.get("D")
