@@ -25,6 +25,7 @@ the program's, so junction speeds agree to a few units in the last place, and ti
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Iterator
 
 import numpy as np
 
@@ -53,8 +54,9 @@ def merge(a: Window, b: Window) -> Window:
 
 
 class Lookahead:
-    """`push` segments as they come (with their steps), `close` at the program's end; each returns the
-    windows whose plan is final, in order."""
+    """`push` segments as they come (with their steps), `close` at the program's end; each gives the windows
+    whose plan is final, in order, each planned when it is asked for (after the one before has been played, and
+    maybe slowed: `resume`)."""
 
     def __init__(self, kin: Kinematics, limits: PlannerLimits):
         self.kin, self.limits = kin, limits
@@ -66,26 +68,23 @@ class Lookahead:
         self.t0 = 0.0  # s: when that junction is passed
         self.straight_cap: tuple[np.ndarray, float] | None = None  # slow_straight_on's line and feed, while it goes on
 
-    def push(self, segments: Segments, steps: np.ndarray) -> list[Window]:
+    def push(self, segments: Segments, steps: np.ndarray) -> Iterator[Window]:
         if len(segments) == 0:
-            return []
+            return iter(())
         segments = self._capped(segments)
         self.held = segments if self.held is None else concat(self.held, segments)
         self.held_steps = np.concatenate([self.held_steps, steps])
         return self._commit_all(final=False)
 
-    def close(self) -> list[Window]:
+    def close(self) -> Iterator[Window]:
         return self._commit_all(final=True)
 
-    def _commit_all(self, final: bool) -> list[Window]:
+    def _commit_all(self, final: bool) -> Iterator[Window]:
         """The windows final now: one, or after a window that ends at an era change, the ones that follow it."""
-        windows: list[Window] = []
-        while not windows or self._era_end(windows[-1]):
-            window = self._commit(final)
-            if window is None:
-                break
-            windows.append(window)
-        return windows
+        while (window := self._commit(final)) is not None:
+            yield window
+            if not self._era_end(window):
+                return
 
     def _era_end(self, window: Window) -> bool:
         """Whether the window ends where the shapers' era changes (the next segment held begins another)."""

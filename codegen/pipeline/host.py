@@ -181,8 +181,13 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
                             runtime, laser, hold, observe, eras)
         with watch("plan"):
             windows = ahead.close() if chunk is None else ahead.push(*chunk)
-        for window in windows:
-            final = stages.play(window, None if chunk is None else ahead.next_segment(), chunk is None)
+        while True:
+            with watch("plan"):  # each window planned once the one before is played (and maybe slowed)
+                window = next(windows, None)
+            if window is None:
+                break
+            after = ahead.next_segment()  # at the program's end too: of a window that ends at an M593
+            final = stages.play(window, after, chunk is None and after is None)
             if keep == "tables":
                 played += [_tables_only(p) for p in final]
             elif keep:

@@ -32,7 +32,7 @@ def windowed(segments, kin, steps, limits, chunk):
     for lo in range(0, len(segments), chunk):
         part = np.arange(lo, min(lo + chunk, len(segments)))
         windows += ahead.push(segments.take(part), steps[part])
-    return windows + ahead.close()
+    return [*windows, *ahead.close()]
 
 
 def assert_joins_into(windows, whole):

@@ -105,3 +105,32 @@ def test_each_stretch_has_its_own_windows_and_shapers(tmp_path, monkeypatch):
     assert few.findings.ok and many.findings.ok, many.findings.problems
     assert few.findings.steps == many.findings.steps and few.findings.final == many.findings.final
     assert_plays(many, few, 0.0, 0)
+
+
+def test_a_stretch_slowed_to_keep_a_limit_delays_the_next(tmp_path):
+    """A corexy corner that x shaped at 5 Hz would take over belt a's speed is slowed (codegen/pipeline/windows.py);
+    the stretch after the M593 (planned once that one is played: codegen/motion/lookahead.py) starts when the
+    slowed one has come to rest, not when its first plan would have."""
+    zigzag = "".join(f"G1 X{60 - 6 * k} Y{60 if k % 2 else 54}\n" for k in range(1, 10))  # settled corners
+    gcode = f"G1 X60 Y0 F9000\nG1 X60 Y60\nM593 F0\n{zigzag}"
+    text = ("machine:\n  kinematics: corexy\n  steppers:\n"
+            "    a: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+            "    b: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+            "  junction_deviation: 5\n  input_shaper: {x: {type: zv, freq: 5}}\n"
+            f"program:\n  gcode: |\n{textwrap.indent(gcode, '    ')}")
+    path = tmp_path / "slowed.yaml"
+    path.write_text(text)
+    host = host_module.host_build(load_job(path))
+    (tmp_path / "plain.yaml").write_text(text.replace("  input_shaper: {x: {type: zv, freq: 5}}\n", ""))
+    plain = host_module.host_build(load_job(tmp_path / "plain.yaml"))
+    assert host.findings.ok, host.findings.problems
+    assert max(host.findings.rate_ratio.values()) <= 1.0
+    segments, plan = host.planned
+    rest = int(np.flatnonzero(segments.dwell > 0)[0])
+    assert plan.t_start[rest] > plain.plan.t_start[rest] + 0.05  # slowed (the plain job rests at the same place)
+    assert plan.t_start[rest + 1] == pytest.approx(plan.t_start[rest] + plan.duration[rest], abs=1e-12)
+    rest_end = plan.t_start[rest] + plan.duration[rest]
+    moving = host.events.time[np.any(np.diff(host.pulses.event_position, axis=0, prepend=0) != 0, axis=1)]
+    assert np.all(np.diff(host.events.time) > 0)
+    assert moving[moving <= rest_end + 1e-9][-1] < rest_end  # the shaped motion settles in the rest
+    assert moving[moving > rest_end + 1e-9][0] > rest_end  # and the next stretch starts after it
