@@ -8,6 +8,8 @@ import textwrap
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import codegen.motion.pieces as pieces
 import codegen.pipeline.host as host_module
@@ -134,3 +136,35 @@ def test_a_stretch_slowed_to_keep_a_limit_delays_the_next(tmp_path):
     assert np.all(np.diff(host.events.time) > 0)
     assert moving[moving <= rest_end + 1e-9][-1] < rest_end  # the shaped motion settles in the rest
     assert moving[moving > rest_end + 1e-9][0] > rest_end  # and the next stretch starts after it
+
+
+@st.composite
+def programs(draw):
+    """A polyline of corners with M593s between some of its moves (frequencies, off, one axis or both)."""
+    count = draw(st.integers(2, 6))
+    points = draw(st.lists(st.tuples(st.integers(5, 45), st.integers(5, 45)), min_size=count, max_size=count))
+    lines = [f"G1 X{points[0][0]} Y{points[0][1]} F{draw(st.sampled_from((3000, 9000)))}"]
+    for x, y in points[1:]:
+        if draw(st.booleans()):
+            axis = draw(st.sampled_from(("", " X", " Y")))
+            lines.append(f"M593{axis} F{draw(st.sampled_from((0, 25, 40.5, 90)))}")
+        lines.append(f"G1 X{x} Y{y}")
+    return "\n".join(lines) + "\n", draw(st.sampled_from((None, ZV40, "{type: ei, freq: 60, damping: 0.2}")))
+
+
+@settings(max_examples=10, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(programs())
+def test_random_m593_programs_keep_every_check_and_rest_for_the_spread_before(tmp_path, program):
+    gcode, shaper = program
+    host = built(tmp_path, gcode, "random", shaper, start=(0, 0))
+    assert host.findings.ok, host.findings.problems
+    assert host.findings.final == host.findings.expected_final
+    assert np.all(np.diff(host.events.time) >= 0)
+    segments = host.segments if host.planned is None else host.planned[0]  # None: nothing shaped
+    rests = np.flatnonzero(segments.dwell > 0)
+    assert len(host.shapings) == gcode.count("M593") + 1 and len(rests) == gcode.count("M593")
+    for rest in rests:  # each M593's rest: the shaped motion before it settles
+        before = host.shapings[segments.shaping[rest]]
+        assert segments.dwell[rest] == pytest.approx(max(WAIT_REST_S, 0.0 if before is None else before.spread))
+        assert rest + 1 == len(segments) or segments.shaping[rest + 1] == segments.shaping[rest] + 1
