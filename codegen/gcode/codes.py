@@ -55,6 +55,8 @@ PARAMS = {
     **{f"G5{n}": "" for n in range(4, 10)},
 }
 SUPPORTED = frozenset(PARAMS)
+# The letters a code takes without a number: G28's axes (`G28 X Y`, as Marlin), M593's, M220's B (save) and R.
+BARE_LETTERS = {"G28": "XYZ", "M593": "XY", "M220": "BR"}
 AXIS_TAKERS = frozenset(c for c, p in PARAMS.items() if any(a in p for a in AXIS_LETTERS))
 
 # Codes that change nothing this toolchain models: skipped with one warning each (errors with --strict).

@@ -19,8 +19,8 @@ import math
 import codegen.gcode.mcodes as mcodes
 import codegen.toolpath.limits as limits
 from codegen.errors import Diagnostic
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES, PROBES, SUPPORTED,
-                                 code_name, group_of, harmless_reason)
+from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, BARE_LETTERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES,
+                                 PROBES, SUPPORTED, code_name, group_of, harmless_reason)
 from codegen.gcode.diagnostics import Diagnostics, Stop
 from codegen.gcode.dialect import Dialect, DialectState
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
@@ -231,10 +231,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                 problems.append((tool, f"'T{words[tool][1]}' is not a tool number"))
             else:
                 codes.append((name, tool))
-        for letter in bare:  # only G28 takes axis letters alone (`G28 X Y`, as Marlin), M593 X and Y, M220 B and R
-            if not ((letter in "XYZ" and any(name == "G28" for name, _ in codes)) or
-                    (letter in "XY" and any(name == "M593" for name, _ in codes)) or
-                    (letter in "BR" and any(name == "M220" for name, _ in codes))):
+        for letter in bare:
+            if not any(letter in BARE_LETTERS.get(name, "") for name, _ in codes):
                 problems.append((self.word_index(block, letter), f"expected a number after '{letter}'"))
                 del params[letter]
         motion, names = self._classify(block, codes, params, problems)

@@ -32,13 +32,12 @@ from codegen.kinematics.base import Kinematics
 from codegen.link.ring import LinkBudget, Ring, Shortfall
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
-from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
-                                    segment_lengths)
+from codegen.motion.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile
 from codegen.motion.shaped_motion import ShapingSettings
 from codegen.motion.stepgen import generate
 from codegen.pipeline.shaping import ShapingTail, shaped_window
 from codegen.stopwatch import Stopwatch
-from codegen.tables.checks import Checker, MotorTrain, corner_jumps
+from codegen.tables.checks import Checker, MotorTrain, corners_after
 from codegen.tables.compress import Compressed, compress
 from codegen.tables.format import encode, end_marker, record_events, stream_bytes
 from codegen.tables.headroom import with_ceilings
@@ -130,7 +129,6 @@ class _Carried:
     block_item: int = -1  # the item of the last block's segment (runtime records after it come before the next)
     laser_counts: int = 0  # the laser's PWM counts after the last event
     shaping_tail: ShapingTail | None = None  # a shaped window's plan tail and end point (codegen/pipeline/shaping.py)
-    shaping_era: int = 0  # the shapers' era of the last window
 
 
 class Stages:
@@ -245,8 +243,7 @@ class Stages:
         era_ends = after is not None and int(after.shaping[0]) != era
         if shaping is not None and len(window.plan.duration):  # from here on the window is its shaped blocks
             with watch("input shaping"):
-                tail = before.shaping_tail if before.shaping_tail is None or before.shaping_era == era else None
-                shaped = shaped_window(window, kin, shaping, target.max_gap_s, tail, last, era_ends)
+                shaped = shaped_window(window, kin, shaping, target.max_gap_s, before.shaping_tail, last, era_ends)
             window = shaped.window
         with watch("step times"):
             events = shaped.events if shaped is not None else generate(
@@ -302,7 +299,7 @@ class Stages:
         carried = _Carried(checker, _end_fx(played), position,
                            window.segments.take(np.arange(n - 1, n)) if n else before.before, ring,
                            int(block_item[-1]) if len(block_item) else before.block_item, laser_counts,
-                           None if shaped is None else shaped.tail, era)
+                           None if shaped is None or era_ends else shaped.tail)
         # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
         planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
         scale = self._slow_down(planned.plan, planned_segment, pulses, hits)
@@ -393,17 +390,3 @@ def _end_fx(played: Played) -> int:
     sched = played.compressed.schedule
     n, interval, add = sched.run_count, sched.run_interval, sched.run_add
     return played.origin_fx + int(np.sum(interval * n + add * (n * (n - 1) // 2)))
-
-
-def corners_after(plan, segments: Segments, last: Segments | None, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
-    """The corners (`corner_jumps`) of a stretch of the plan, the one where it meets the stretch before (whose last
-    segment is `last`) included."""
-    if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
-        return corner_jumps(plan, segments, kin)
-    _, before = segment_lengths(last)
-    joined = concat(last, segments)
-    both = replace(plan, direction=np.concatenate([before, plan.direction]),
-                   v_entry=np.concatenate([[0.0], plan.v_entry]),
-                   t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
-                   corner=np.concatenate([[True], plan.corner]))
-    return corner_jumps(both, joined, kin)

@@ -14,15 +14,15 @@ The same functions judge the twin against the plan (`build`) and the simulated p
 from __future__ import annotations
 
 import ctypes
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.motion.planner import Plan
+from codegen.motion.planner import Plan, segment_lengths
 from codegen.native import contiguous, library, pointer
 from codegen.tables.motor_checks import AccelCheck, RateCheck
-from codegen.toolpath.segments import REF_ARC, Segments
+from codegen.toolpath.segments import REF_ARC, Segments, concat
 
 CHUNK = 1 << 20
 
@@ -283,3 +283,17 @@ def check(trains: list[MotorTrain], positions: np.ndarray, position_segment: np.
         corners_t = warp(corners_t)
     checker.add(trains, positions, position_segment, segments, corners_t, jumps, last=True)
     return checker.findings(expected_final)
+
+
+def corners_after(plan, segments: Segments, last: Segments | None, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+    """The corners (`corner_jumps`) of a stretch of the plan, the one where it meets the stretch before (whose last
+    segment is `last`) included."""
+    if last is None or len(plan.duration) == 0 or not (plan.corner[0] and plan.v_entry[0] > 0):
+        return corner_jumps(plan, segments, kin)
+    _, before = segment_lengths(last)
+    joined = concat(last, segments)
+    both = replace(plan, direction=np.concatenate([before, plan.direction]),
+                   v_entry=np.concatenate([[0.0], plan.v_entry]),
+                   t_start=np.concatenate([[plan.t_start[0]], plan.t_start]),
+                   corner=np.concatenate([[True], plan.corner]))
+    return corner_jumps(both, joined, kin)

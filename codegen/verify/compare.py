@@ -14,9 +14,8 @@ import numpy as np
 
 from codegen.firmware.homing import homing_steps
 from codegen.pipeline.host import HostBuild, trains_from
-from codegen.pipeline.windows import corners_after
 from codegen.sim.avr_edges import Steps
-from codegen.tables.checks import Checker, Findings
+from codegen.tables.checks import Checker, Findings, corners_after
 from codegen.tables.hold import Dilation
 from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
