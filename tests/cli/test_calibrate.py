@@ -155,6 +155,14 @@ def test_bad_options_are_exit_2(capsys, tmp_path, test, machine, options, messag
     assert code == 2 and message in err and not (tmp_path / "x.gcode").exists()
 
 
+def test_the_job_file_written_never_replaces_the_machines(capsys, tmp_path):
+    job = tmp_path / "machine.yaml"
+    job.write_text(PRINTER)
+    code, _, err = run(capsys, "calibrate", "ringing", job, "--out", tmp_path / "machine.gcode")
+    assert code == 2 and "--out: error:" in err and "would replace machine.yaml" in err
+    assert job.read_text() == PRINTER and not (tmp_path / "machine.gcode").exists()
+
+
 def test_m593_out_of_range_in_a_job_is_exit_2_at_its_column(capsys, tmp_path):
     job = tmp_path / "bad.yaml"
     job.write_text(PRINTER.replace("  shapes:\n    - line: {to: [1, 1]}\n", "  gcode: bad.gcode\n"))
