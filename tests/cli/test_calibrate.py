@@ -155,6 +155,26 @@ def test_bad_options_are_exit_2(capsys, tmp_path, test, machine, options, messag
     assert code == 2 and message in err and not (tmp_path / "x.gcode").exists()
 
 
+def test_the_tables_say_which_height_and_which_line_has_which_value(capsys, tmp_path):
+    job = tmp_path / "machine.yaml"
+    job.write_text(PRINTER)
+    code, out, _ = run(capsys, "calibrate", "ringing", job, "--out", tmp_path / "r.gcode", *SMALL_TOWER)
+    assert code == 0 and out.splitlines()[:5] == [
+        "band  height z from (mm)   to (mm)  M593 F (Hz)",
+        "   1              0.00      1.50  30",
+        "   2              1.50      3.00  40",
+        "   3              3.00      4.50  50",
+        "   4              4.50      6.00  60"]
+    code, out, _ = run(capsys, "calibrate", "pressure-advance", job, "--out", tmp_path / "p.gcode", "--end", "0.01")
+    assert code == 0 and out.splitlines()[:4] == [
+        "band            y (mm)  M900 K (s)",
+        "   1             95.00  0",
+        "   2            100.00  0.005",
+        "   3            105.00  0.01"]
+    assert out.splitlines()[4] == f"wrote {tmp_path / 'p.gcode'} and {tmp_path / 'p.yaml'}: printer-codegen plan " \
+                                  f"{tmp_path / 'p.yaml'}"
+
+
 def test_the_job_file_written_never_replaces_the_machines(capsys, tmp_path):
     job = tmp_path / "machine.yaml"
     job.write_text(PRINTER)
