@@ -45,7 +45,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         has_z = "z" in self.motors or self.kinematics == "delta"
         self.movable = (True, True, has_z, "e" in self.motors)
         self.fixed = tuple(i for i in range(4) if not self.movable[i])
-        self.home_z = float(machine.delta.height) if self.kinematics == "delta" else 0.0
+        self.home_point = list(machine.home_point)  # x, y, z (mm) where G28 leaves the tool
         self.reach = limits.axis_reach(machine)  # mm, per axis: where a move may go
         start = [0.0] * 4
         start[: len(program.start)] = [float(v) for v in program.start]

@@ -166,4 +166,14 @@ class Machine(Model):
         """The motors present, in the kinematics' canonical order (cartesian x, y, z, e; ...)."""
         return tuple(n for n in MOTORS[self.kinematics] if n in self.steppers)
 
+    @property
+    def home_point(self) -> tuple[float, float, float]:
+        """Where the tool is once homed (x, y, z, mm): a delta's nozzle at `height` above the bed centre; on
+        cartesian and corexy machines each axis at its min switch, the low end of its motor's `range` (0 without
+        one; a corexy's x and y at 0: its a and b ranges are the belts')."""
+        if self.kinematics == "delta":
+            return 0.0, 0.0, float(self.delta.height)
+        low = [self.steppers[a].range[0] if a in self.steppers and self.steppers[a].range else 0.0 for a in "xyz"]
+        return float(low[0]), float(low[1]), float(low[2])
+
 
