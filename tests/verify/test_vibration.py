@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import codegen.motion.pieces as pieces
 from codegen.job import load_job
 from codegen.motion.shapers import SHAPERS
 from codegen.pipeline.host import host_build
-from codegen.verify.chapters import whole_chapter
+from codegen.verify.chapters import Chapters, whole_chapter
 from codegen.verify.resonance import AxisResonance
 from codegen.verify.vibration import VibrationCheck
 from tests.helpers import run_cli
@@ -32,7 +33,10 @@ needs_avr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("
                                reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
 
 
-def ringing_job(folder: Path, shaper: str | None) -> Path:
+SIDES = [[0, 0], [15, 0], [15, 15], [0, 15]]
+
+
+def ringing_job(folder: Path, shaper: str | None, points=SIDES) -> Path:
     """Three sides of a 15 mm square at 60 mm/s, 12,000 mm/s^2: every acceleration sharp against a 40 Hz period,
     two corners, a stop; 400 steps/mm, so a step (2.5 um) is small against the ringing (about 200 um)."""
     shaping = "" if shaper is None else (f"  input_shaper: {{x: {{type: {shaper}, freq: {FREQ}}}, "
@@ -42,7 +46,7 @@ def ringing_job(folder: Path, shaper: str | None) -> Path:
                     "    x: {steps_per_mm: 400, max_velocity: 200, max_accel: 12000}\n"
                     "    y: {steps_per_mm: 400, max_velocity: 200, max_accel: 12000}\n"
                     f"{shaping}program:\n  start: [0, 0]\n  feed: 3600\n  shapes:\n"
-                    "    - polyline: {points: [[0, 0], [15, 0], [15, 15], [0, 15]]}\n")
+                    f"    - polyline: {{points: {points}}}\n")
     return path
 
 
@@ -99,3 +103,31 @@ def test_verify_in_simavr_reports_the_shapers_theory(tmp_path, capsys):
         assert code == 0 and result["pass"], result["problems"]
         assert {v["freq_hz"] for v in result["vibration"].values()} == {FREQ * scale}
         assert_theory(result["vibration"], f"simavr at {scale:g} f")
+
+
+@pytest.mark.parametrize("chapter_pulses", [700, 3000])
+def test_chapter_by_chapter_the_figures_are_the_whole_runs(tmp_path, monkeypatch, chapter_pulses):
+    """verify measures a chapter at a time (codegen/verify/chapters.py): places and samples that run on past a
+    chapter's pulses wait for the next one, and the figures come out as from the run in one piece."""
+    path = ringing_job(tmp_path, "ei", SIDES + [[0, 5], [10, 5], [10, 10]])  # six windows, a corner each
+    # y's shaper shorter than x's: its shaped command settles after the plan's window ends (the shaped clock runs
+    # x's mean impulse time behind), so its samples there wait for the next chapter's pulses.
+    path.write_text(path.read_text().replace("y: {type: ei", "y: {type: zv"))
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)  # the front end hands on a few segments at a time: windows
+    whole = twin_vibration(host_build(load_job(path)), FREQ * 0.8)
+    host = host_build(load_job(path), keep=False)
+    check = VibrationCheck(host.kin, tuple(AxisResonance(axis, FREQ * 0.8, DAMPING) for axis in (0, 1)),
+                           host.settings.stages.shaping, host.start_steps, host.target.max_gap_s)
+    chapters = []
+
+    def measure(chapter):
+        chapters.append(chapter.last)
+        check.add(chapter, chapter.pulses.tick / host.target.tick_hz, chapter.pulses.motor, chapter.pulses.dir)
+
+    observer = Chapters(measure, chapter_pulses)
+    host_build(load_job(path), keep=False, observe=observer)
+    observer.close()
+    assert len(chapters) >= 3 and chapters[-1]
+    for axis in ("x", "y"):
+        for key in ("places", "residual_peak_um", "residual_rms_um", "unshaped_peak_um", "unshaped_rms_um"):
+            assert check.figures()[axis][key] == pytest.approx(whole[axis][key], rel=1e-6), (axis, key)
