@@ -30,7 +30,7 @@ from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_li
 from codegen.verify.hold import hold_lines, hold_verify, pauses
 from codegen.verify.report_samples import whole_run_samples
 from codegen.verify.resonance import resonance_option
-from codegen.verify.results import vibration_lines, verify_json
+from codegen.verify.results import verify_json, vibration_lines
 from codegen.verify.shipped import shipped_problems
 from codegen.verify.waveform import write_vcd
 

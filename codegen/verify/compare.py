@@ -84,7 +84,7 @@ class Verdict:
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
     gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
-    vibration: dict | None = None  # per resonating axis, the toolhead's residual vibration (codegen/verify/vibration.py)
+    vibration: dict | None = None  # per resonating axis, the toolhead's residual vibration (verify/vibration.py)
 
     @property
     def path_measured(self) -> bool:
@@ -105,7 +105,8 @@ class Comparison:
     machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
     plan's times onto its clock (seconds to seconds; it may know only the chapter being added's: it is called there);
     `dilation` (codegen/tables/hold.py) has its feed factors. `resonance`: axes whose resonance the command line
-    gives (verify --resonance), beside or instead of the job's input shaper's; a held run's vibration is not modelled."""
+    gives (verify --resonance), beside or instead of the job's input shaper's; a held run's vibration is not
+    modelled."""
 
     def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None,
                  resonance: tuple[AxisResonance, ...] = ()):
@@ -364,7 +365,8 @@ def _chapter_dilation(dilation: Dilation | None, chapter: Chapter) -> Dilation |
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
-            dilated: Pulses | None = None, warp=None, dilation=None, resonance: tuple[AxisResonance, ...] = ()) -> Verdict:
+            dilated: Pulses | None = None, warp=None, dilation=None,
+            resonance: tuple[AxisResonance, ...] = ()) -> Verdict:
     """A whole simulated run (the table's steps, after any homing) against a kept host build's twin (`dilated`: a
     held run's), as one chapter; homing on its own."""
     trace = full_trace.run_only()

@@ -68,7 +68,9 @@ def vibration_lines(vibration: dict) -> list[str]:
     """verify's text lines of the toolhead's residual vibration, an axis a line."""
     lines = []
     for axis, v in vibration.items():
-        place = "" if v["worst"] is None else f", the most at {v['worst']['time_s']:.4f} s (line {v['worst']['line']})"
+        worst = v["worst"] or {}
+        place = f", the most at {worst['time_s']:.4f} s" if worst else ""
+        place += f" (line {worst['line']})" if worst.get("line") else ""
         if v["shaper"] is None:
             lines.append(f"  vibration {axis} ({v['freq_hz']:g} Hz, damping {v['damping']:g}, unshaped): residual "
                          f"{v['residual_peak_um']:.2f} um peak, {v['residual_rms_um']:.2f} um RMS after "

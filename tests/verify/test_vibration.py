@@ -97,12 +97,14 @@ def test_verify_in_simavr_reports_the_shapers_theory(tmp_path, capsys):
     +-20 % (the build reused)."""
     job = ringing_job(tmp_path, "mzv")
     for scale in SCALES:
-        extra = [] if scale == 1.0 else [f"--resonance=x={FREQ * scale:g}", f"--resonance=y={FREQ * scale:g},0.1"]
+        extra = ["--report", tmp_path / "report.html"] if scale == 1.0 else [
+            f"--resonance=x={FREQ * scale:g}", f"--resonance=y={FREQ * scale:g},0.1"]
         code, out, _ = run_cli(capsys, "verify", job, "--out", tmp_path / "build", "--json", "--quiet", *extra)
         result = json.loads(out)
         assert code == 0 and result["pass"], result["problems"]
         assert {v["freq_hz"] for v in result["vibration"].values()} == {FREQ * scale}
         assert_theory(result["vibration"], f"simavr at {scale:g} f")
+    assert "data-plot='vibration'" in (tmp_path / "report.html").read_text()  # the worst place, shaped and not
 
 
 @pytest.mark.parametrize("chapter_pulses", [700, 3000])
