@@ -135,9 +135,10 @@ class Comparison:
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
-        resonances = job_resonances(host.job, resonance) if warp is None else ()
+        resonances = job_resonances(host.job, resonance)
         self.vibration = VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
-                                        host.target.max_gap_s) if resonances else None
+                                        host.target.max_gap_s) if resonances and warp is None else None
+        self.vibration_held = bool(resonances) and warp is not None
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -286,6 +287,9 @@ class Comparison:
         elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
         not_compared, timing = list(self.plan_checks.not_compared), {}
+        if self.vibration_held:
+            not_compared.append("toolhead vibration: a held or overridden run plays on a dilated clock (verify "
+                                "without --hold, --override and M0/M1 models it)")
         for m, name in enumerate(names):
             got, want = int(self.made[m]), int(self.predicted[m])
             if got != want:

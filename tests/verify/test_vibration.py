@@ -22,6 +22,7 @@ from codegen.motion.shapers import SHAPERS
 from codegen.pipeline.host import host_build
 from codegen.verify.chapters import Chapters, whole_chapter
 from codegen.verify.resonance import AxisResonance
+from codegen.verify.results import vibration_lines
 from codegen.verify.vibration import VibrationCheck
 from tests.helpers import run_cli
 
@@ -133,3 +134,16 @@ def test_chapter_by_chapter_the_figures_are_the_whole_runs(tmp_path, monkeypatch
     for axis in ("x", "y"):
         for key in ("places", "residual_peak_um", "residual_rms_um", "unshaped_peak_um", "unshaped_rms_um"):
             assert check.figures()[axis][key] == pytest.approx(whole[axis][key], rel=1e-6), (axis, key)
+
+
+def test_the_text_names_the_figures_and_the_theory(tmp_path):
+    """verify's text: per axis its resonance and shaper, the residual and the unshaped run's, their ratio against
+    the shaper's theory; an unshaped job's residual alone."""
+    shaped = twin_vibration(host_build(load_job(ringing_job(tmp_path, "zvd"))), FREQ * 0.8)
+    x = shaped["x"]
+    line = vibration_lines(shaped)[0]
+    assert line.startswith(f"  vibration x (32 Hz, damping 0.1, zvd): residual {x['residual_peak_um']:.2f} um peak")
+    assert f"unshaped {x['unshaped_peak_um']:.2f} um peak" in line
+    assert f"{100 * x['ratio']:.1f} % of unshaped (the shaper's theory: {100 * x['theory_ratio']:.1f} %)" in line
+    plain = vibration_lines(twin_vibration(host_build(load_job(ringing_job(tmp_path, None))), FREQ))
+    assert len(plain) == 2 and "unshaped)" in plain[0] and "% of unshaped" not in plain[0]
