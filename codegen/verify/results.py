@@ -52,6 +52,7 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
                   "table_bytes": host.totals.table_bytes},
         "problems": verdict.problems + f.problems,
         **({"vibration": vibration_json(verdict.vibration)} if verdict.vibration else {}),
+        **({"smoothing_mm": rounded(host.findings.smoothing_mm)} if host.findings.smoothing_mm is not None else {}),
     }
 
 
