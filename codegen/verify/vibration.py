@@ -85,6 +85,7 @@ class _Run:
             np.concatenate([a, np.zeros(grow, a.dtype)])
             for a in (self.amplitude, self.amplitude_n, self.squares, self.squares_n))
         every = Samples.join([self.waiting, samples])
+        # a moment before the chapter's last change has every change before it
         now = every.t <= max(known, float(times[-1]) if len(times) else -math.inf)
         self.waiting, s = every.take(~now), every.take(now)
         z = self.oscillator.ringing(s.t, s.u, s.du, s.ddu)
