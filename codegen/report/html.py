@@ -186,6 +186,9 @@ def _verify_header(host, result: dict) -> str:
     if "trip" in result:
         trip = result["trip"]
         pairs.append(("thermal protection trip", f"{trip['reason']} on {trip['heater']} at {trip['time_s']} s"))
+    pairs += [(f"vibration {axis} (µm)", f"{v['residual_peak_um']:.2f} peak, {v['residual_rms_um']:.2f} RMS; "
+               f"unshaped {v['unshaped_peak_um']:.2f}, {v['unshaped_rms_um']:.2f}")
+              for axis, v in result.get("vibration", {}).items()]
     pairs += [("not compared", reason) for reason in result.get("not_compared", [])]
     return _table(pairs) + _motor_table(result["motors"], (
         ("steps", "steps"), ("final", "net steps"), ("expected_final", "job's net steps"),

@@ -109,7 +109,8 @@ def test_verify_in_simavr_reports_the_shapers_theory(tmp_path, capsys):
         assert {v["freq_hz"] for v in result["vibration"].values()} == {FREQ * scale}
         assert result["smoothing_mm"] > 0.1  # MZV at 40 Hz cuts the corners at 12,000 mm/s^2 (plan says it too)
         assert_theory(result["vibration"], f"simavr at {scale:g} f")
-    assert "data-plot='vibration'" in (tmp_path / "report.html").read_text()  # the worst place, shaped and not
+    page = (tmp_path / "report.html").read_text()
+    assert "data-plot='vibration'" in page and "<th>vibration x (µm)</th>" in page  # the worst place, the figures
 
 
 @pytest.mark.parametrize("chapter_pulses", [700, 3000])
