@@ -25,8 +25,8 @@ from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
 from codegen.verify.plan_checks import PlanChecks
 from codegen.verify.program_check import ProgramCheck
-from codegen.verify.resonance import AxisResonance, job_resonances
-from codegen.verify.vibration import VibrationCheck
+from codegen.verify.resonance import AxisResonance
+from codegen.verify.vibration import vibration_check
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -104,9 +104,7 @@ class Comparison:
     A streaming firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the
     machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
     plan's times onto its clock (seconds to seconds; it may know only the chapter being added's: it is called there);
-    `dilation` (codegen/tables/hold.py) has its feed factors. `resonance`: axes whose resonance the command line
-    gives (verify --resonance), beside or instead of the job's input shaper's; a held run's vibration is not
-    modelled."""
+    `dilation` (codegen/tables/hold.py) has its feed factors. `resonance`: verify --resonance's axes."""
 
     def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None,
                  resonance: tuple[AxisResonance, ...] = ()):
@@ -135,10 +133,7 @@ class Comparison:
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
-        resonances = job_resonances(host.job, resonance)
-        self.vibration = VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
-                                        host.target.max_gap_s) if resonances and warp is None else None
-        self.vibration_held = bool(resonances) and warp is not None
+        self.vibration, self.vibration_notes = vibration_check(host, resonance, held=warp is not None)
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -286,10 +281,7 @@ class Comparison:
             pace, self.problems = [], []
         elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
-        not_compared, timing = list(self.plan_checks.not_compared), {}
-        if self.vibration_held:
-            not_compared.append("toolhead vibration: a held or overridden run plays on a dilated clock (verify "
-                                "without --hold, --override and M0/M1 models it)")
+        not_compared, timing = self.plan_checks.not_compared + self.vibration_notes, {}
         for m, name in enumerate(names):
             got, want = int(self.made[m]), int(self.predicted[m])
             if got != want:

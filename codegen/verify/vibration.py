@@ -31,7 +31,7 @@ from codegen.motion.shaped_motion import Motion, ShapingSettings, planned_motion
 from codegen.motion.shapers import remaining_vibration
 from codegen.motion.stepgen import generate, segment_steps
 from codegen.toolpath.segments import Segments
-from codegen.verify.resonance import AxisResonance, Oscillator
+from codegen.verify.resonance import AxisResonance, Oscillator, job_resonances
 
 SAMPLES_PER_PERIOD = 8
 RMS_PERIODS = 8  # a place's RMS: over this many damped periods from its start (or the place, if shorter)
@@ -273,3 +273,15 @@ class VibrationCheck:
 
     def figures(self) -> dict:
         return {v.resonance.name: v.figures() for v in self.axes}
+
+
+def vibration_check(host, resonance: tuple[AxisResonance, ...], held: bool) -> tuple[VibrationCheck | None, list[str]]:
+    """The check of a host build's run (codegen/pipeline/host.py HostBuild) for the job's shaped axes and
+    `resonance` (verify --resonance: beside or instead of them), or None where none resonates; and why not, for a
+    `held` run (its clock dilated by holds and overrides)."""
+    resonances = job_resonances(host.job, resonance)
+    if not resonances or held:
+        return None, ["toolhead vibration: a held or overridden run plays on a dilated clock (verify without "
+                      "--hold, --override and M0/M1 models it)"] if resonances else []
+    return VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
+                          host.target.max_gap_s), []

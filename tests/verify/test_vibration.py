@@ -23,7 +23,7 @@ from codegen.pipeline.host import host_build
 from codegen.verify.chapters import Chapters, whole_chapter
 from codegen.verify.resonance import AxisResonance
 from codegen.verify.results import vibration_lines
-from codegen.verify.vibration import VibrationCheck
+from codegen.verify.vibration import VibrationCheck, vibration_check
 from tests.helpers import run_cli
 
 FREQ, DAMPING = 40.0, 0.1
@@ -152,3 +152,16 @@ def test_the_text_names_the_figures_and_the_theory(tmp_path):
     assert f"{100 * x['ratio']:.1f} % of unshaped (the shaper's theory: {100 * x['theory_ratio']:.1f} %)" in line
     plain = vibration_lines(twin_vibration(host_build(load_job(ringing_job(tmp_path, None))), FREQ))
     assert len(plain) == 2 and "unshaped)" in plain[0] and "% of unshaped" not in plain[0]
+
+
+def test_which_runs_are_modelled(tmp_path):
+    """The job's shaped axes, or --resonance's in their place and beside them; none for an unshaped job without
+    --resonance; a held run's, not at all, and it says so."""
+    shaped = host_build(load_job(ringing_job(tmp_path, "zv")))
+    check, notes = vibration_check(shaped, (AxisResonance(0, 30.0, 0.05), AxisResonance(2, 70.0)), held=False)
+    assert [(v.resonance.name, v.resonance.freq, v.resonance.damping) for v in check.axes] == [
+        ("x", 30.0, 0.05), ("y", FREQ, 0.1), ("z", 70.0, 0.1)] and notes == []
+    check, notes = vibration_check(shaped, (), held=True)
+    assert check is None and notes[0].startswith("toolhead vibration: a held or overridden run")
+    plain = host_build(load_job(ringing_job(tmp_path, None)))
+    assert vibration_check(plain, (), held=True) == (None, [])
