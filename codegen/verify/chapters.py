@@ -66,6 +66,7 @@ class Chapter:
     first_event: int  # the program's index of its first event
     laser_before: int  # the PWM counts in force when it begins
     last: bool
+    planned: tuple[Segments, Plan] | None = None  # a shaped job's segments and plan before shaping
 
     @property
     def schedule(self) -> Schedule:
@@ -80,7 +81,7 @@ class Chapter:
 def whole_chapter(host, pulses: Pulses | None = None) -> Chapter:
     """A kept host build's whole program as one chapter (with `pulses`: a held run's dilated twin instead)."""
     return Chapter(host.segments, host.plan, host.events, pulses or host.pulses, host.compressed, None, None, 0, 0,
-                   True)
+                   True, host.planned)
 
 
 class Chapters:
@@ -128,8 +129,11 @@ class Chapters:
         pulses = join_pulses(windows)
         segments = join_segments(windows)
         compressed = join_compressed(windows, False, pulses)
+        planned = None
+        if windows[0].planned is not None:
+            planned = join_segments(windows, planned=True), join_plan(windows, planned=True)
         chapter = Chapter(segments, join_plan(windows), join_events(windows), pulses, compressed, self.before, after,
-                          self.events, self.laser, last)
+                          self.events, self.laser, last, planned)
         self.events += len(pulses.event_tick)
         if len(compressed.schedule.run_power):
             counts = played_counts(compressed.schedule, self.laser)

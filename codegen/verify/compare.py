@@ -25,6 +25,8 @@ from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
 from codegen.verify.plan_checks import PlanChecks
 from codegen.verify.program_check import ProgramCheck
+from codegen.verify.resonance import AxisResonance
+from codegen.verify.vibration import vibration_check
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -82,6 +84,7 @@ class Verdict:
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
     gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
+    vibration: dict | None = None  # per resonating axis, the toolhead's residual vibration (verify/vibration.py)
 
     @property
     def path_measured(self) -> bool:
@@ -101,9 +104,10 @@ class Comparison:
     A streaming firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the
     machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
     plan's times onto its clock (seconds to seconds; it may know only the chapter being added's: it is called there);
-    `dilation` (codegen/tables/hold.py) has its feed factors."""
+    `dilation` (codegen/tables/hold.py) has its feed factors. `resonance`: verify --resonance's axes."""
 
-    def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None):
+    def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None,
+                 resonance: tuple[AxisResonance, ...] = ()):
         """`levels`: the run's clock and slow outputs so far (timer_start_cycle, f_cpu, tool_edges, laser_duty: a
         SimTrace, or what the caller keeps up to date as it reads the run)."""
         self.host, self.levels, self.f_cpu = host, levels, levels.f_cpu
@@ -129,6 +133,7 @@ class Comparison:
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
+        self.vibration, self.vibration_notes = vibration_check(host, resonance, held=warp is not None)
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -167,6 +172,8 @@ class Comparison:
             self.span_cycles = [self.span_cycles[0] if self.span_cycles else int(sim.cycle[0]), int(sim.cycle[-1])]
         self._motion(chapter, sim, sim_s, matched)
         self.program.add(chapter)
+        if self.vibration is not None:
+            self.vibration.add(chapter, sim_s, sim.motor, sim.dir)
 
     def _pair(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
               twin_dir: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -274,7 +281,7 @@ class Comparison:
             pace, self.problems = [], []
         elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
-        not_compared, timing = list(self.plan_checks.not_compared), {}
+        not_compared, timing = self.plan_checks.not_compared + self.vibration_notes, {}
         for m, name in enumerate(names):
             got, want = int(self.made[m]), int(self.predicted[m])
             if got != want:
@@ -317,7 +324,8 @@ class Comparison:
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
                        homing_problems + problems, homing, display, not_compared, laser,
-                       self.program.checked if self.program.active else None)
+                       self.program.checked if self.program.active else None,
+                       None if self.vibration is None else self.vibration.figures())
 
     def step_span(self, trace) -> tuple[int, int] | None:
         """The first and the last STEP rise of the run, homing's (in `trace`) included."""
@@ -353,11 +361,12 @@ def _chapter_dilation(dilation: Dilation | None, chapter: Chapter) -> Dilation |
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
-            dilated: Pulses | None = None, warp=None, dilation=None) -> Verdict:
+            dilated: Pulses | None = None, warp=None, dilation=None,
+            resonance: tuple[AxisResonance, ...] = ()) -> Verdict:
     """A whole simulated run (the table's steps, after any homing) against a kept host build's twin (`dilated`: a
     held run's), as one chapter; homing on its own."""
     trace = full_trace.run_only()
-    comparison = Comparison(host, trace, streamed, warp, dilation)
+    comparison = Comparison(host, trace, streamed, warp, dilation, resonance)
     order = np.argsort(trace.step_cycle, kind="stable")
     sim = Steps(trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order])
     comparison.add(whole_chapter(host, dilated), sim, sim.cycle)
