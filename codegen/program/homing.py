@@ -15,7 +15,6 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
 

@@ -10,7 +10,8 @@ import pytest
 
 from codegen.cli import batch
 from codegen.cli.main import parser
-from tests.helpers import EXAMPLES, run_cli as run
+from tests.helpers import EXAMPLES
+from tests.helpers import run_cli as run
 
 needs_tools = pytest.mark.skipif(any(shutil.which(t) is None for t in ("avr-gcc", "simavr", "sdcc", "s51")),
                                  reason="needs gcc-avr, simavr, sdcc and s51 (scripts/setup.sh installs them)")
