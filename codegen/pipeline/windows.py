@@ -8,8 +8,8 @@ blocks; rate runs start afresh at every window (one run more per window than a r
 might need). The path check measures a window's first and last steps against the neighbouring windows'
 segments too.
 
-With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
-plan before shaping is what a retry slows.
+With input shaping or pressure advance a window is played as the blocks of its shaped motion (its extruder
+advanced: codegen/pipeline/shaping.py), and the plan before shaping is what a retry slows.
 
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
@@ -280,8 +280,10 @@ class Stages:
             else:
                 corners_t, jumps = shaped.corners_t, shaped.jumps
             checker = copy.deepcopy(before.checker)
-            if shaped is not None:
+            if shaped is not None and self.shaping.shaped:
                 checker.add_smoothing(shaped.smoothing_mm, shaped.smoothing_at, shaped.smoothing_line)
+            if shaped is not None and shaped.advance is not None:
+                checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
         n = len(window.segments)
@@ -304,6 +306,13 @@ class Stages:
                 return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
         return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
+
+    def _advance_worst(self, shaped, pulses: Pulses, position: np.ndarray) -> tuple[float, float, int]:
+        """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`)."""
+        e = self.kin.motors.index("e")
+        tick, direction = pulses.of_motor(e)
+        after = self.checker.start_steps[e] + position[e] + np.cumsum(direction)
+        return shaped.advance.worst(tick / self.target.tick_hz, direction, after, self.kin.limits.steps_per_mm[e])
 
     @staticmethod
     def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,

@@ -20,6 +20,7 @@ from codegen.tables.checks import Checker, Findings
 from codegen.tables.hold import Dilation
 from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
+from codegen.verify.advance import advance_check
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
@@ -129,6 +130,7 @@ class Comparison:
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
+        self.advance = None if warp is not None else advance_check(host)  # the extruder against the formula
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -156,6 +158,8 @@ class Comparison:
             self.predicted[m] += want
         self.paired = self.paired and counts_agree
         matched = matched and self.paired
+        if self.advance is not None:
+            self.advance.add(sim_s, sim.motor, sim.dir)
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
@@ -286,7 +290,7 @@ class Comparison:
             if self.wrong_dir[m] is not None:
                 first, count = self.wrong_dir[m]
                 problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
-        problems += self.problems + self.program.finish()
+        problems += self.problems + self.program.finish() + (self.advance.problems() if self.advance else [])
         if not self.paired:
             not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
                                 "placed on the path's segments")

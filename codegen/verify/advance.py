@@ -1,0 +1,60 @@
+"""Pressure advance in the simulator: the extruder's simulated position at every pulse against Klipper's formula.
+
+The tables carry the advanced extruder as the host fitted it (codegen/motion/advance.py); this check does not
+read that fit. It takes the plan before shaping (the segments with their K), evaluates the formula exactly at
+every simulated extruder pulse (on the plan's clock: the shaped clock less its delay) and measures how far the
+pulse's half-step boundary lies from it. Within a step it holds: the Bresenham coupling and the timing window
+move a slave's step by less. A kept build's plan is needed (`host.planned`); a held run's clock is dilated, so
+it is not checked there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codegen.motion.advance import AdvanceReference, advance_reference
+from codegen.motion.shaped_motion import planned_motion
+from codegen.pipeline.host import HostBuild
+from codegen.tables.checks import ADVANCE_LIMIT_STEPS
+from codegen.toolpath.segments import Segments
+
+
+class AdvanceCheck:
+    """`add` the simulated pulses a chapter at a time (seconds on the twin's clock), then `problems`."""
+
+    def __init__(self, reference: AdvanceReference, motor: int, steps_per_mm: float, start_steps: int):
+        self.reference, self.motor, self.steps_per_mm = reference, motor, steps_per_mm
+        self.position = int(start_steps)  # the extruder's absolute step so far
+        self.worst = (0.0, 0.0, 0)  # steps, when (s), G-code line
+
+    def add(self, time: np.ndarray, motor: np.ndarray, direction: np.ndarray) -> None:
+        mine = motor == self.motor
+        if not np.any(mine):
+            return
+        after = self.position + np.cumsum(direction[mine])
+        self.position = int(after[-1])
+        worst = self.reference.worst(time[mine], direction[mine], after, self.steps_per_mm)
+        if worst[0] > self.worst[0]:
+            self.worst = worst
+
+    def problems(self) -> list[str]:
+        steps, time, line = self.worst
+        if steps <= ADVANCE_LIMIT_STEPS:
+            return []
+        return [f"motor e (the extruder) is {steps:.2f} steps from the pressure advance formula at {time:.4f} s"
+                + (f" on G-code line {line}" if line else "") + f" (limit {ADVANCE_LIMIT_STEPS:g} step)"]
+
+
+def advance_check(host: HostBuild, segments: Segments | None = None) -> AdvanceCheck | None:
+    """The check of a kept build whose extruder is advanced (None otherwise); `segments`: the plan's segments with
+    other K (the build's own: None)."""
+    shaping = host.settings.stages.shaping
+    if shaping is None or shaping.advance is None or host.planned is None:
+        return None
+    planned_segments, plan = host.planned
+    segments = planned_segments if segments is None else segments
+    motion = planned_motion(segments, plan)
+    reference = advance_reference(motion.breaks, motion.position[:, 3], motion.velocity[:, 3], motion.accel[:, 3],
+                                  motion.origin, segments, shaping.advance.half, shaping.shift)
+    e = host.kin.motors.index("e")
+    return AdvanceCheck(reference, e, float(host.kin.limits.steps_per_mm[e]), int(host.start_steps[e]))
