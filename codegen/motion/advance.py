@@ -168,13 +168,15 @@ class AdvanceReference:
     def worst(self, time: np.ndarray, direction: np.ndarray, after: np.ndarray,
               steps_per_mm: float) -> tuple[float, float, int]:
         """The extruder's pulses (times on the shaped clock, directions, absolute positions in steps after each):
-        the largest distance (steps) of a pulse's half-step boundary from g where it happens, its time on the
-        shaped clock and its G-code line (0: none); (0, 0, 0) without pulses."""
+        the largest distance (steps) of g from the extruder's position at a pulse, its time on the shaped clock and
+        its G-code line (0: none); (0, 0, 0) without pulses. At a pulse the position is both the one before it
+        and the one after, so the distance is to the nearer: 0 while g lies between them (a step made where g
+        crosses the half step has 0), one step when the pulse comes a step and a half early or late."""
         if not len(time):
             return 0.0, 0.0, 0
         plan_time = np.asarray(time, dtype=float) - self.shift
-        boundary = after - 0.5 * direction
-        distance = np.abs(smoothed(self.source, plan_time, self.half) * steps_per_mm - boundary)
+        boundary = after - 0.5 * direction  # between the positions before and after
+        distance = np.maximum(np.abs(smoothed(self.source, plan_time, self.half) * steps_per_mm - boundary) - 0.5, 0.0)
         k = int(np.argmax(distance))
         piece = np.clip(np.searchsorted(self.piece_breaks, plan_time[k], side="right") - 1, 0,
                         len(self.piece_line) - 1)

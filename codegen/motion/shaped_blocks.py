@@ -42,19 +42,18 @@ class ShapedBlocks:
 
 
 def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: float, start: np.ndarray,
-                  end: np.ndarray | None = None, chord_limits: np.ndarray | None = None) -> ShapedBlocks:
+                  end: np.ndarray | None = None) -> ShapedBlocks:
     """`segments`: the plan's (the shaped motion's origins); `max_gap` (s): the longest the player waits between
     events (a rest becomes step-less events that carry its time); `start`, `end` (4,): where the tool is at the
     motion's ends, exactly (None: the motion's own end), so that consecutive stretches round their shared point
-    alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding);
-    `chord_limits` (M,): steps each motor may stray from its chord (None: CHORD_LIMIT each)."""
+    alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding)."""
     if not kin.linear:
         raise ValueError("shaped motion is cut into blocks for linear kinematics only (cartesian, corexy)")
     pieces = cut(shaped, _turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
     fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
     for _ in range(CUT_ROUNDS):
-        extra = _cuts(pieces, bounds, fresh, segments, kin, (start, end), chord_limits)
+        extra = _cuts(pieces, bounds, fresh, segments, kin, (start, end))
         if not len(extra):
             break
         pieces = cut(pieces, extra)
@@ -102,7 +101,7 @@ def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
 
 
 def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segments, kin: Kinematics,
-          points: tuple, chord_limits: np.ndarray | None) -> np.ndarray:
+          points: tuple) -> np.ndarray:
     """The times to cut the `fresh` blocks at this round: each whose slave strays too far from its chord at its
     worst point, each with more master steps than a block holds, or (once none of them does) whose staircase
     strays too far, at its middle."""
@@ -130,8 +129,6 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     inside = np.abs(off + c1 * tau + 0.5 * c2 * tau * tau)
     at_start = np.where((piece == first[block])[:, None], 0.0, np.abs(off))
     stray = np.maximum(inside, at_start)
-    if chord_limits is not None:  # each motor's stray as a share of its own limit, in CHORD_LIMIT's steps
-        stray = stray * (CHORD_LIMIT / chord_limits)[None, :]
     worst_motor = np.argmax(stray, axis=1)
     worst = stray[np.arange(len(block)), worst_motor]
     worst_time = motion.breaks[piece] + np.where(inside[np.arange(len(block)), worst_motor] >= at_start[

@@ -25,12 +25,9 @@ from codegen.motion.advance import AdvanceReference, advance_reference
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Window
 from codegen.motion.planner import Plan, segment_lengths
-from codegen.motion.shaped_blocks import CHORD_LIMIT, shaped_blocks
+from codegen.motion.shaped_blocks import shaped_blocks
 from codegen.motion.shaped_motion import AXES, ShapingSettings, advanced, between, planned_motion, shape, smoothing
 from codegen.toolpath.segments import Segments, concat
-
-
-ADVANCED_CHORD_LIMIT = 0.2  # steps an advanced extruder may stray from its blocks' chords
 
 
 @dataclass
@@ -71,8 +68,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     begin = window.plan.t_start[0]
     stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
     start = segments.start[0] if tail is None else tail.point
-    blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last else None,
-                           chord_limits(kin, settings))
+    blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last else None)
     corners_t, jumps = shaped_corners(window.plan, kin, settings)
     worst, at, seg = smoothing(stretch, planned, settings)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
@@ -83,16 +79,6 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     return ShapedWindow(Window(window.first, blocks.chords, blocks.steps, shaped_plan, window.curve_cut),
                         blocks.events, np.maximum(origin - before, 0), corners_t, jumps, worst, at,
                         int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]), reference)
-
-
-def chord_limits(kin: Kinematics, settings: ShapingSettings) -> np.ndarray | None:
-    """How far each motor may stray from its blocks' chords: an advanced extruder ADVANCED_CHORD_LIMIT, so that with
-    the Bresenham coupling's own half step and more its pulses stay within a step of the formula."""
-    if settings.advance is None:
-        return None
-    limits = np.full(len(kin.motors), CHORD_LIMIT)
-    limits[kin.motors.index("e")] = ADVANCED_CHORD_LIMIT
-    return limits
 
 
 def _tail(segments: Segments, plan: Plan, settings: ShapingSettings, point: np.ndarray) -> ShapingTail:

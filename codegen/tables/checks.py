@@ -51,8 +51,8 @@ class Findings:
     smoothing_mm: float | None = None
     smoothing_at: tuple[float, ...] | None = None
     smoothing_line: int = 0
-    # Pressure advance's (codegen/motion/advance.py): the largest distance (steps) of an extruder pulse's half-step
-    # boundary from Klipper's formula where it happens, when (s) and its G-code line; None: no pressure advance.
+    # Pressure advance's (codegen/motion/advance.py): the largest distance (steps) of Klipper's formula from the
+    # extruder's position at a pulse, when (s) and its G-code line; None: no pressure advance.
     advance_steps: float | None = None
     advance_time_s: float = 0.0
     advance_line: int = 0
@@ -262,7 +262,7 @@ class Checker:
             findings.advance_steps, findings.advance_time_s, findings.advance_line = self.advance
             if self.advance[0] > ADVANCE_LIMIT_STEPS:
                 findings.problems.append(
-                    f"motor e strays {self.advance[0]:.2f} steps from the pressure advance formula (limit "
+                    f"motor e (the extruder) is {self.advance[0]:.2f} steps from the pressure advance formula (limit "
                     f"{ADVANCE_LIMIT_STEPS:g} step) at {self.advance[1]:.4f} s"
                     + (f" on G-code line {self.advance[2]}" if self.advance[2] else ""))
         for name, got, want in zip(names, final, expected_final):

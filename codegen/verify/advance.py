@@ -2,10 +2,12 @@
 
 The tables carry the advanced extruder as the host fitted it (codegen/motion/advance.py); this check does not
 read that fit. It takes the plan before shaping (the segments with their K), evaluates the formula exactly at
-every simulated extruder pulse (on the plan's clock: the shaped clock less its delay) and measures how far the
-pulse's half-step boundary lies from it. Within a step it holds: the Bresenham coupling and the timing window
-move a slave's step by less. A kept build's plan is needed (`host.planned`); a held run's clock is dilated, so
-it is not checked there.
+every simulated extruder pulse (on the plan's clock: the shaped clock less its delay) and measures how far it
+lies from the extruder's position there (the nearer of the positions before and after the pulse,
+`AdvanceReference.worst`). It holds within a step: a step made where the formula crosses the half step is 0 off;
+the blocks' chords (half a step from the motion at most) and the Bresenham coupling of a slave (about half a step
+more) move a pulse by less than a step and a half. A kept build's plan is needed (`host.planned`); a held run's
+clock is dilated, so it is not checked there.
 """
 
 from __future__ import annotations
