@@ -164,6 +164,8 @@ class AdvanceReference:
     shift: float  # s the shaped clock (the pulses') runs behind the plan's
     piece_breaks: np.ndarray  # (K + 1,) the plan's pieces
     piece_line: np.ndarray  # (K,)
+    begin: float = -np.inf  # s, the shaped clock's stretch it answers for (a window's: the plan before it is gone)
+    end: float = np.inf
 
     def worst(self, time: np.ndarray, direction: np.ndarray, after: np.ndarray,
               steps_per_mm: float) -> tuple[float, float, int]:
@@ -184,7 +186,9 @@ class AdvanceReference:
 
 
 def advance_reference(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
-                      origin: np.ndarray, segments: Segments, half: float, shift: float) -> AdvanceReference:
-    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them)."""
+                      origin: np.ndarray, segments: Segments, half: float, shift: float,
+                      span: tuple[float, float] = (-np.inf, np.inf)) -> AdvanceReference:
+    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them), for the pulses in `span`
+    (s, shaped clock)."""
     return AdvanceReference(advanced_source(breaks, position, velocity, accel, origin, segments, half), half, shift,
-                            breaks, segments.line[origin])
+                            breaks, segments.line[origin], *span)

@@ -75,7 +75,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
     reference = None if settings.advance is None else advance_reference(
         planned.breaks, planned.position[:, 3], planned.velocity[:, 3], planned.accel[:, 3], planned.origin, segments,
-        settings.advance.half, settings.shift)
+        settings.advance.half, settings.shift, (begin, stretch.breaks[-1]))
     return ShapedWindow(Window(window.first, blocks.chords, blocks.steps, shaped_plan, window.curve_cut),
                         blocks.events, np.maximum(origin - before, 0), corners_t, jumps, worst, at,
                         int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]), reference)

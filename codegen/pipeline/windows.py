@@ -28,6 +28,7 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
 from codegen.link.ring import LinkBudget, Ring, Shortfall
+from codegen.motion.advance import AdvanceReference
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
 from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
@@ -69,6 +70,7 @@ class Played:
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
     planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
+    advance: AdvanceReference | None = None  # an advanced extruder's formula over the window (codegen/motion/advance.py)
 
 
 @dataclass
@@ -266,7 +268,8 @@ class Stages:
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
-                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
+                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned,
+                        advance=None if shaped is None else shaped.advance)
         # The checks see the neighbouring windows' segments around this one's (a shaped window's next are not yet).
         parts = [p for p in (before.before, window.segments, after if shaped is None else None) if p is not None]
         around = concat(*parts)

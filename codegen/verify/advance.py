@@ -6,8 +6,9 @@ every simulated extruder pulse (on the plan's clock: the shaped clock less its d
 lies from the extruder's position there (the nearer of the positions before and after the pulse,
 `AdvanceReference.worst`). It holds within a step: a step made where the formula crosses the half step is 0 off;
 the blocks' chords (half a step from the motion at most) and the Bresenham coupling of a slave (about half a step
-more) move a pulse by less than a step and a half. A kept build's plan is needed (`host.planned`); a held run's
-clock is dilated, so it is not checked there.
+more) move a pulse by less than a step and a half. A kept build's whole plan gives the formula (`host.planned`);
+verify in bounded memory has each window's, its chapter's windows' (`Chapter.advance`), each for the pulses of its
+own stretch. A held run's clock is dilated, so it is not checked there.
 """
 
 from __future__ import annotations
@@ -24,20 +25,26 @@ from codegen.toolpath.segments import Segments
 class AdvanceCheck:
     """`add` the simulated pulses a chapter at a time (seconds on the twin's clock), then `problems`."""
 
-    def __init__(self, reference: AdvanceReference, motor: int, steps_per_mm: float, start_steps: int):
-        self.reference, self.motor, self.steps_per_mm = reference, motor, steps_per_mm
+    def __init__(self, references: list[AdvanceReference], motor: int, steps_per_mm: float, start_steps: int):
+        """`references`: the whole program's formula ([]: each chapter brings its windows')."""
+        self.references, self.motor, self.steps_per_mm = references, motor, steps_per_mm
         self.position = int(start_steps)  # the extruder's absolute step so far
         self.worst = (0.0, 0.0, 0)  # steps, when (s), G-code line
 
-    def add(self, time: np.ndarray, motor: np.ndarray, direction: np.ndarray) -> None:
+    def add(self, time: np.ndarray, motor: np.ndarray, direction: np.ndarray,
+            references: list[AdvanceReference] | None = None) -> None:
+        """`references`: the chapter's windows' formulas (None: the whole program's)."""
         mine = motor == self.motor
         if not np.any(mine):
             return
-        after = self.position + np.cumsum(direction[mine])
+        time, direction = time[mine], direction[mine]
+        after = self.position + np.cumsum(direction)
         self.position = int(after[-1])
-        worst = self.reference.worst(time[mine], direction[mine], after, self.steps_per_mm)
-        if worst[0] > self.worst[0]:
-            self.worst = worst
+        for reference in references or self.references:
+            inside = (time >= reference.begin) & (time <= reference.end)
+            worst = reference.worst(time[inside], direction[inside], after[inside], self.steps_per_mm)
+            if worst[0] > self.worst[0]:
+                self.worst = worst
 
     def problems(self) -> list[str]:
         steps, time, line = self.worst
@@ -48,15 +55,18 @@ class AdvanceCheck:
 
 
 def advance_check(host: HostBuild, segments: Segments | None = None) -> AdvanceCheck | None:
-    """The check of a kept build whose extruder is advanced (None otherwise); `segments`: the plan's segments with
-    other K (the build's own: None)."""
+    """The check of a build whose extruder is advanced (None otherwise): against a kept build's whole plan, or the
+    chapters' (the bounded verify's); `segments`: the kept plan's segments with other K (the build's own: None)."""
     shaping = host.settings.stages.shaping
-    if shaping is None or shaping.advance is None or host.planned is None:
+    if shaping is None or shaping.advance is None:
         return None
-    planned_segments, plan = host.planned
-    segments = planned_segments if segments is None else segments
-    motion = planned_motion(segments, plan)
-    reference = advance_reference(motion.breaks, motion.position[:, 3], motion.velocity[:, 3], motion.accel[:, 3],
-                                  motion.origin, segments, shaping.advance.half, shaping.shift)
+    references = []
+    if host.planned is not None:
+        planned_segments, plan = host.planned
+        segments = planned_segments if segments is None else segments
+        motion = planned_motion(segments, plan)
+        references.append(advance_reference(motion.breaks, motion.position[:, 3], motion.velocity[:, 3],
+                                            motion.accel[:, 3], motion.origin, segments, shaping.advance.half,
+                                            shaping.shift))
     e = host.kin.motors.index("e")
-    return AdvanceCheck(reference, e, float(host.kin.limits.steps_per_mm[e]), int(host.start_steps[e]))
+    return AdvanceCheck(references, e, float(host.kin.limits.steps_per_mm[e]), int(host.start_steps[e]))

@@ -83,6 +83,7 @@ class Verdict:
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
     gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
+    advance_steps: float | None = None  # the simulated extruder's largest distance from the pressure advance formula
 
     @property
     def path_measured(self) -> bool:
@@ -159,7 +160,7 @@ class Comparison:
         self.paired = self.paired and counts_agree
         matched = matched and self.paired
         if self.advance is not None:
-            self.advance.add(sim_s, sim.motor, sim.dir)
+            self.advance.add(sim_s, sim.motor, sim.dir, chapter.advance)
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
@@ -321,7 +322,8 @@ class Comparison:
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
                        homing_problems + problems, homing, display, not_compared, laser,
-                       self.program.checked if self.program.active else None)
+                       self.program.checked if self.program.active else None,
+                       None if self.advance is None else self.advance.worst[0])
 
     def step_span(self, trace) -> tuple[int, int] | None:
         """The first and the last STEP rise of the run, homing's (in `trace`) included."""

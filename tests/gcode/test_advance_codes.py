@@ -11,8 +11,8 @@ import numpy as np
 from codegen.gcode import toolpath_from_gcode
 from codegen.toolpath.items import Limits
 from codegen.toolpath.segments import REF_ARC, Flattener
-from tests.gcode.helpers import make_job
 from tests.gcode.helpers import errors as errors_without
+from tests.gcode.helpers import make_job
 
 
 def advancing(gcode: str):
