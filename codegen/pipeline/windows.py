@@ -70,7 +70,7 @@ class Played:
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
     planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
-    advance: AdvanceReference | None = None  # an advanced extruder's formula over the window (codegen/motion/advance.py)
+    advance: AdvanceReference | None = None  # an advanced extruder's formula over the window (motion/advance.py)
 
 
 @dataclass
@@ -90,6 +90,8 @@ class Totals:
     power_records: int = 0
     ceiling_records: int = 0  # the feed override's headroom (codegen/tables/headroom.py)
     ceiling_bytes: int = 0  # theirs and their runs' splits
+    advance_slowed: int = 0  # plans of windows slowed where the advanced extruder broke its limits
+    advance_slowed_line: int = 0  # the G-code line of the first such place (0: none, or not G-code)
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -289,6 +291,8 @@ class Stages:
                 checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+            if shaped is not None and shaped.advance is not None:
+                self._note_extruder_limits(hits, pulses, planned)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
         ring = None if before.ring is None else before.ring.copy()
@@ -309,6 +313,21 @@ class Stages:
                 return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
         return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
+
+    def _note_extruder_limits(self, hits: list, pulses: Pulses, planned: Window) -> None:
+        """Where the advanced extruder breaks its rate or acceleration (the window is then planned again, slower):
+        counted, and the first place's G-code line kept for a note."""
+        e = self.kin.motors.index("e")
+        (rate_end, _), (accel_begin, _) = hits[e]
+        if not len(rate_end) and not len(accel_begin):
+            return
+        tick, _ = pulses.of_motor(e)
+        times = np.concatenate([tick[rate_end] / self.target.tick_hz, accel_begin]) - self.shaping.shift
+        segment = np.clip(np.searchsorted(planned.plan.t_start, times.min(), side="right") - 1, 0,
+                          len(planned.segments) - 1)
+        self.totals.advance_slowed += 1
+        if not self.totals.advance_slowed_line:
+            self.totals.advance_slowed_line = int(planned.segments.line[segment])
 
     def _advance_worst(self, shaped, pulses: Pulses, position: np.ndarray) -> tuple[float, float, int]:
         """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`)."""

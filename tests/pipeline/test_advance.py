@@ -152,3 +152,20 @@ def test_a_delta_is_refused_at_the_key(tmp_path):
     (diagnostic,) = caught.value.diagnostics
     assert diagnostic.where.line == 9 and diagnostic.message.startswith(
         "machine.pressure_advance: pressure advance needs cartesian or corexy kinematics (delta: not yet")
+
+
+def test_the_plan_slows_where_the_advance_breaks_the_extruders_limits_and_says_where(tmp_path):
+    """K 0.1 on an extruder allowed 20 mm/s and 300 mm/s^2: the advanced pulses break them at first, so the plan
+    slows the moves under them until they hold (checked on the pulses), with a note at the first such line."""
+    gcode = "G90\nM83\nG1 X60 Y10 E2 F3000\nG1 X60 Y50 E2\nG1 X20 Y20 F9000\nG1 X40 Y40 E1.5 F2400\n"
+    text = job_text(gcode, "{k: 0.1}").replace("max_velocity: 80, max_accel: 5000", "max_velocity: 20, max_accel: 300")
+    host = built(tmp_path, text)
+    plain = built(tmp_path, text.replace("  pressure_advance: {k: 0.1}\n", ""), "plain")
+    f = host.findings
+    assert f.ok and f.rate_ratio["e"] <= 1.0 and f.accel_ratio["e"] <= 1.0 and f.advance_steps <= 1.0
+    assert host.totals.duration_s > plain.totals.duration_s + 0.3  # slower than the plan without the advance
+    (note,) = [w for w in host.warnings if "pressure advance" in w.message]
+    assert note.severity == "note" and 14 <= note.where.line <= 17  # a move's line (the release spills over)
+    assert note.message.startswith(f"pressure advance: the plan was slowed {host.totals.advance_slowed} times to "
+                                   "keep motor e within its max_velocity and max_accel")
+    assert not [w for w in plain.warnings if "pressure advance" in w.message]
