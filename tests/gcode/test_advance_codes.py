@@ -7,7 +7,9 @@ from __future__ import annotations
 from types import SimpleNamespace as NS
 
 import numpy as np
+import pytest
 
+from codegen.errors import JobError
 from codegen.gcode import toolpath_from_gcode
 from codegen.toolpath.items import Limits
 from codegen.toolpath.segments import REF_ARC, Flattener
@@ -28,11 +30,9 @@ def run(gcode: str):
 
 
 def errors(gcode: str) -> list[tuple[int, int, str]]:
-    try:
+    with pytest.raises(JobError) as caught:
         run(gcode)
-    except Exception as caught:  # JobError
-        return [(d.where.line, d.where.col, d.message) for d in caught.diagnostics]
-    raise AssertionError("no error")
+    return [(d.where.line, d.where.col, d.message) for d in caught.value.diagnostics]
 
 
 def test_m900_and_m572_set_k_from_their_line():

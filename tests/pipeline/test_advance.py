@@ -55,7 +55,7 @@ def test_the_extruder_leads_by_k_times_its_velocity_while_cruising(tmp_path):
     host = built(tmp_path, job_text(LINE))
     plain = built(tmp_path, job_text(LINE, advance=None), "plain")
     assert host.findings.ok and plain.findings.ok, host.findings.problems
-    segments, plan = host.planned
+    _, plan = host.planned
     shift = host.settings.stages.shaping.shift
     assert shift == 0.02  # half the smoothing time: x and y unshaped, but on the delayed clock
     cruise = plan.t_start[0] + plan.t_acc[0] + np.array([0.1, 0.5, 1.0])
