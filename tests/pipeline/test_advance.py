@@ -169,3 +169,16 @@ def test_the_plan_slows_where_the_advance_breaks_the_extruders_limits_and_says_w
     assert note.message.startswith(f"pressure advance: the plan was slowed {host.totals.advance_slowed} times to "
                                    "keep motor e within its max_velocity and max_accel")
     assert not [w for w in plain.warnings if "pressure advance" in w.message]
+
+
+def test_a_machine_without_an_extruder_is_refused_at_the_key(tmp_path):
+    path = tmp_path / "plotter.yaml"
+    path.write_text("machine:\n  kinematics: cartesian\n  steppers:\n"
+                    "    x: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+                    "    y: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}\n"
+                    "  pressure_advance: {k: 0.05}\nprogram:\n  gcode: |\n    G1 X1\n")
+    with pytest.raises(JobError) as caught:
+        load_job(path)
+    (diagnostic,) = caught.value.diagnostics
+    assert (diagnostic.where.line, diagnostic.message) == (
+        6, "machine.pressure_advance: pressure advance needs an extruder (motor 'e')")
