@@ -218,6 +218,9 @@ def _print_verdict(result: dict) -> None:
         done = result["gcode_checked"]
         print(f"  G-code read again: {done['ends']} line ends, {done['feeds']} feeds, {done['arcs']} arcs and "
               f"{done['dwells']} dwells as written")
+    if "pressure_advance_steps" in result:
+        print(f"  pressure advance: the simulated extruder within {result['pressure_advance_steps']:.3f} steps of the "
+              "formula at every pulse")
     for reason in result["not_compared"]:
         print(f"  not compared: {reason}")
     if result.get("display") is not None:

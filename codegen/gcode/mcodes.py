@@ -1,5 +1,5 @@
 """The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M205
-least feed rates, M220 feed rate factor, M221 flow, G4.
+least feed rates, M220 feed rate factor, M221 flow, G4, M900 / M572 pressure advance (a Limits item).
 
 Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
 when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
@@ -179,6 +179,26 @@ def dwell(it, block, params):
     return None
 
 
+def _set_advance(it, block, params, letter: str):
+    if letter in params:
+        it.items.append(Limits(it.source(block), advance=_number(it, block, params, letter, strict=False)))
+    return None
+
+
+@_guarded
+def linear_advance(it, block, params):
+    """M900 K (Marlin's linear advance, here Klipper's smooth pressure advance: s, mm per mm/s): K from this line
+    on (machine.pressure_advance has the smoothing time); without K nothing changes."""
+    return _set_advance(it, block, params, "K")
+
+
+@_guarded
+def pressure_advance(it, block, params):
+    """M572 D0 S (RepRapFirmware): K = S from this line on; D names the extruder (only 0 here; none: 0)."""
+    _only_zero(it, block, params, "D", "extruder")
+    return _set_advance(it, block, params, "S")
+
+
 def finish_moves(it, block, params):
     """M400 (Marlin): waits for the moves to finish, so the plan comes to rest there (a rest of WAIT_REST_S)."""
     it.items.append(Dwell(WAIT_REST_S, it.source(block)))
@@ -212,4 +232,6 @@ HANDLERS = {
     "M220": feed_factor,
     "M221": flow,
     "M400": finish_moves,
+    "M900": linear_advance,
+    "M572": pressure_advance,
 }

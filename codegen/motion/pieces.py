@@ -35,6 +35,7 @@ class FrontEndSettings:
 
     tolerance_mm: float  # machine.tolerance
     ranges: Mapping[str, tuple[float, float] | None]  # stepper name -> its `range` (mm of motor travel), None: any
+    advance: float = 0.0  # s, the pressure advance K the program starts with (M900/M572 change it)
 
 
 def front_end(settings: FrontEndSettings, kin: Kinematics, program: Program,
@@ -68,7 +69,8 @@ def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
             break
         with watch("segments"):
             if flattener is None:
-                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file)
+                flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file,
+                                      settings.advance)
             first = flattener.items
             segments = drop_empty(flattener(batch))
             program.settings += flattener.settings

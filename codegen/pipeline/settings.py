@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from codegen.kinematics.base import Kinematics, StepperLimits
+from codegen.motion.advance import AdvanceSettings
 from codegen.motion.jog import JogSettings
 from codegen.motion.pieces import FrontEndSettings
 from codegen.motion.planner import PlannerLimits
@@ -24,6 +25,8 @@ from codegen.program.homing import HomedStepper, HomingSettings
 from codegen.tables.hold import RAMP_SHARE, HoldSettings, plans_ramp_share
 from codegen.tables.laser import LaserSettings
 from codegen.targets import TargetInfo
+
+ADVANCE_FIT_STEPS = 0.05  # how far the advanced extruder's quadratic pieces may stray from Klipper's formula
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,9 @@ def job_settings(job) -> JobSettings:
 
 def front_end_settings(job) -> FrontEndSettings:
     machine = job.machine
-    return FrontEndSettings(machine.tolerance, {name: s.range for name, s in machine.steppers.items()})
+    advance = machine.pressure_advance
+    return FrontEndSettings(machine.tolerance, {name: s.range for name, s in machine.steppers.items()},
+                            0.0 if advance is None else advance.k)
 
 
 def stage_settings(job) -> StageSettings:
@@ -54,13 +59,22 @@ def stage_settings(job) -> StageSettings:
 
 
 def shaping_settings(job) -> ShapingSettings | None:
-    """The input shaper of each axis x, y, z (None where it has none); None when the machine shapes no axis."""
-    shaper = job.machine.input_shaper
-    if shaper is None or not shaper.axes:
+    """The input shaper of each axis x, y, z (None where it has none) and the extruder's pressure advance; None
+    when the machine shapes no axis and advances no extruder."""
+    shaper, advance = job.machine.input_shaper, advance_settings(job)
+    axes = {} if shaper is None else shaper.axes
+    if not axes and advance is None:
         return None
-    axes = shaper.axes
     return ShapingSettings(tuple(make_shaper(axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
-                                 for a in ("x", "y", "z")), shaper.max_smoothing)
+                                 for a in ("x", "y", "z")), None if shaper is None else shaper.max_smoothing, advance)
+
+
+def advance_settings(job) -> AdvanceSettings | None:
+    """The pressure advance's smoothing time, and its fit: within ADVANCE_FIT_STEPS extruder steps of the formula."""
+    advance = job.machine.pressure_advance
+    if advance is None:
+        return None
+    return AdvanceSettings(advance.smooth_time, ADVANCE_FIT_STEPS / job.machine.steppers["e"].steps_per_mm)
 
 
 def homing_settings(job) -> HomingSettings:

@@ -8,8 +8,8 @@ blocks; rate runs start afresh at every window (one run more per window than a r
 might need). The path check measures a window's first and last steps against the neighbouring windows'
 segments too.
 
-With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
-plan before shaping is what a retry slows.
+With input shaping or pressure advance a window is played as the blocks of its shaped motion (its extruder
+advanced: codegen/pipeline/shaping.py), and the plan before shaping is what a retry slows.
 
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
@@ -28,6 +28,7 @@ import numpy as np
 from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
 from codegen.link.ring import LinkBudget, Ring, Shortfall
+from codegen.motion.advance import AdvanceReference
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
 from codegen.motion.planner import (ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile,
@@ -69,6 +70,7 @@ class Played:
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
     planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
+    advance: AdvanceReference | None = None  # an advanced extruder's formula over the window (motion/advance.py)
 
 
 @dataclass
@@ -88,6 +90,8 @@ class Totals:
     power_records: int = 0
     ceiling_records: int = 0  # the feed override's headroom (codegen/tables/headroom.py)
     ceiling_bytes: int = 0  # theirs and their runs' splits
+    advance_slowed: int = 0  # plans of windows slowed where the advanced extruder broke its limits
+    advance_slowed_line: int = 0  # the G-code line of the first such place (0: none, or not G-code)
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -266,7 +270,8 @@ class Stages:
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
-                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
+                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned,
+                        advance=None if shaped is None else shaped.advance)
         # The checks see the neighbouring windows' segments around this one's (a shaped window's next are not yet).
         parts = [p for p in (before.before, window.segments, after if shaped is None else None) if p is not None]
         around = concat(*parts)
@@ -280,10 +285,14 @@ class Stages:
             else:
                 corners_t, jumps = shaped.corners_t, shaped.jumps
             checker = copy.deepcopy(before.checker)
-            if shaped is not None:
+            if shaped is not None and self.shaping.shaped:
                 checker.add_smoothing(shaped.smoothing_mm, shaped.smoothing_at, shaped.smoothing_line)
+            if shaped is not None and shaped.advance is not None:
+                checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+            if shaped is not None and shaped.advance is not None:
+                self._note_extruder_limits(hits, pulses, planned)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
         ring = None if before.ring is None else before.ring.copy()
@@ -304,6 +313,28 @@ class Stages:
                 return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
         return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
+
+    def _note_extruder_limits(self, hits: list, pulses: Pulses, planned: Window) -> None:
+        """Where the advanced extruder breaks its rate or acceleration (the window is then planned again, slower):
+        counted, and the first place's G-code line kept for a note."""
+        e = self.kin.motors.index("e")
+        (rate_end, _), (accel_begin, _) = hits[e]
+        if not len(rate_end) and not len(accel_begin):
+            return
+        tick, _ = pulses.of_motor(e)
+        times = np.concatenate([tick[rate_end] / self.target.tick_hz, accel_begin]) - self.shaping.shift
+        segment = np.clip(np.searchsorted(planned.plan.t_start, times.min(), side="right") - 1, 0,
+                          len(planned.segments) - 1)
+        self.totals.advance_slowed += 1
+        if not self.totals.advance_slowed_line:
+            self.totals.advance_slowed_line = int(planned.segments.line[segment])
+
+    def _advance_worst(self, shaped, pulses: Pulses, position: np.ndarray) -> tuple[float, float, int]:
+        """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`)."""
+        e = self.kin.motors.index("e")
+        tick, direction = pulses.of_motor(e)
+        after = self.checker.start_steps[e] + position[e] + np.cumsum(direction)
+        return shaped.advance.worst(tick / self.target.tick_hz, direction, after, self.kin.limits.steps_per_mm[e])
 
     @staticmethod
     def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,

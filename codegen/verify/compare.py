@@ -20,6 +20,7 @@ from codegen.tables.checks import Checker, Findings
 from codegen.tables.hold import Dilation
 from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
+from codegen.verify.advance import advance_check
 from codegen.verify.chapters import Chapter, whole_chapter
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
@@ -85,6 +86,7 @@ class Verdict:
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
     gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
     vibration: dict | None = None  # per resonating axis, the toolhead's residual vibration (verify/vibration.py)
+    advance_steps: float | None = None  # the simulated extruder's largest distance from the pressure advance formula
 
     @property
     def path_measured(self) -> bool:
@@ -134,6 +136,7 @@ class Comparison:
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
         self.vibration, self.vibration_notes = vibration_check(host, resonance, held=warp is not None)
+        self.advance = None if warp is not None else advance_check(host)  # the extruder against the formula
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -161,6 +164,8 @@ class Comparison:
             self.predicted[m] += want
         self.paired = self.paired and counts_agree
         matched = matched and self.paired
+        if self.advance is not None:
+            self.advance.add(sim_s, sim.motor, sim.dir, chapter.advance)
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
@@ -293,7 +298,7 @@ class Comparison:
             if self.wrong_dir[m] is not None:
                 first, count = self.wrong_dir[m]
                 problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
-        problems += self.problems + self.program.finish()
+        problems += self.problems + self.program.finish() + (self.advance.problems() if self.advance else [])
         if not self.paired:
             not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
                                 "placed on the path's segments")
@@ -325,7 +330,8 @@ class Comparison:
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
                        homing_problems + problems, homing, display, not_compared, laser,
                        self.program.checked if self.program.active else None,
-                       None if self.vibration is None else self.vibration.figures())
+                       None if self.vibration is None else self.vibration.figures(),
+                       None if self.advance is None else self.advance.worst[0])
 
     def step_span(self, trace) -> tuple[int, int] | None:
         """The first and the last STEP rise of the run, homing's (in `trace`) included."""

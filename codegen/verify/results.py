@@ -48,6 +48,7 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         "display": verdict.display,
         **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
         **({"gcode_checked": verdict.gcode_checked} if verdict.gcode_checked is not None else {}),
+        **({"pressure_advance_steps": rounded(verdict.advance_steps, 4)} if verdict.advance_steps is not None else {}),
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
                   "table_bytes": host.totals.table_bytes},
         "problems": verdict.problems + f.problems,

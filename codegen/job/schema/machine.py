@@ -1,5 +1,5 @@
 """The machine's models: steppers, delta geometry, homing, the link, the laser, jog keys and feed hold (the input
-shaper's in shaping.py)."""
+shaper's in shaping.py, pressure advance's in advance.py)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Annotated, Any, Optional
 from pydantic import BeforeValidator, Field, PrivateAttr, ValidationInfo, field_validator, model_validator
 
 from codegen.errors import SourceRef
+from codegen.job.schema.advance import PressureAdvance
 from codegen.job.schema.fields import (BACKOFF, DELTA_SIZE, HOMING_SPEED, JUNCTION, KINEMATICS, LEAST_ACCEL, MOTORS,
                                        REACH_MM, SLOWEST_TOP_SPEED, STEPS_PER_MM, TOLERANCE, XY, Angles, Flag, Model,
                                        Positive, choice, fail, number_value)
@@ -160,6 +161,7 @@ class Machine(Model):
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
     feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none
     input_shaper: Optional[InputShaper] = None  # shapers per axis (codegen/job/schema/shaping.py); None: unshaped
+    pressure_advance: Optional[PressureAdvance] = None  # the extruder's lead (schema/advance.py); None: none
 
     @property
     def motor_names(self) -> tuple[str, ...]:
