@@ -25,7 +25,7 @@ def stepper(spm=80.0, vmax=200.0, amax=3000.0):
 
 
 def machine(kinematics="cartesian", motors=("x", "y"), **limits):
-    return SimpleNamespace(kinematics=kinematics, motor_names=tuple(motors),
+    return SimpleNamespace(kinematics=kinematics, motor_names=tuple(motors), home_point=(0.0, 0.0, 0.0),
                            steppers={m: stepper(**limits.get(m, {})) for m in motors})
 
 

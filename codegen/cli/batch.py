@@ -105,6 +105,8 @@ def child_flags(args) -> list[str]:
     flags += [flag for dest, flag in SWITCHES.items() if getattr(args, dest)]
     for name, heater, at_s in args.fault:  # parsed by fault_spec: written back in its form
         flags += ["--fault", f"{name}{':' + heater if heater else ''}@{at_s!r}"]
+    for r in args.resonance:  # parsed by resonance_option: likewise
+        flags += ["--resonance", f"{r.name}={r.freq!r},{r.damping!r}"]
     for dest, flag in ONE_JOB.items():
         if getattr(args, dest):
             flags += [flag, getattr(args, dest)]

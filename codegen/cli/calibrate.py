@@ -1,7 +1,8 @@
 """`printer-codegen calibrate ringing|pressure-advance JOB.yaml [--out FILE.gcode]`: a calibration print for the
 job's machine (codegen/calibrate/), written as FILE.gcode and the job file that runs it (FILE.yaml beside it: the
 machine of JOB.yaml, the G-code as its program), and the table of which band has which value on stdout (`--json`:
-one JSON object). Both jobs plan and verify like any other."""
+one JSON object). Both jobs plan and verify like any other: the pressure advance job's machine has
+`pressure_advance` (the machine's, else K --start with Klipper's smoothing time), which M900 needs."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from codegen.calibrate.layout import placement
 from codegen.cli.config import job_yaml
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.job import load_job
-from codegen.job.schema import SHAPER_MAX_DAMPING
+from codegen.job.schema import DEFAULT_SMOOTH_TIME, SHAPER_MAX_DAMPING
 from codegen.job.schema.shaping import DEFAULT_SHAPER_DAMPING, SHAPER_HZ
 from codegen.pipeline.normalized import Section, normalized_job
 
@@ -109,6 +110,9 @@ def cmd_ringing(args) -> int:
 
 def cmd_pressure_advance(args) -> int:
     job = load_job(Path(args.job), program_required=False)
+    if job.machine.kinematics == "delta":
+        raise _refuse(str(job.path), "calibrate pressure-advance: pressure advance needs cartesian or corexy "
+                                     "kinematics (delta: not yet)")
     _sweep(args, 0.0, 10.0, "s")  # K: Klipper's typical 0 to 1 s, Marlin's K up to 10
     test = PressureAdvanceTest(args.start, args.end, args.step, args.slow, args.fast, args.length,
                                layer=args.layer_height)
@@ -116,7 +120,10 @@ def cmd_pressure_advance(args) -> int:
         calibration = pressure_advance_pattern(test, _placement(job, (args.length, args.length)))
     except ValueError as error:
         raise _refuse(str(job.path), f"calibrate pressure-advance: {error}") from None
-    return _write(args, job, normalized_job(job)["machine"], "pressure-advance", calibration)
+    machine = normalized_job(job)["machine"]
+    if machine.get("pressure_advance") is None:  # M900 K needs it (its smoothing time: Klipper's default)
+        machine["pressure_advance"] = {"k": args.start, "smooth_time": DEFAULT_SMOOTH_TIME}
+    return _write(args, job, machine, "pressure-advance", calibration)
 
 
 def _placement(job, size: tuple[float, float]):

@@ -30,7 +30,8 @@ from codegen.verify.compare import compare, simulated_switches
 from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
 from codegen.verify.hold import hold_lines, hold_verify, pauses
 from codegen.verify.report_samples import whole_run_samples
-from codegen.verify.results import verify_json
+from codegen.verify.resonance import resonance_option
+from codegen.verify.results import verify_json, vibration_lines
 from codegen.verify.shipped import shipped_problems
 from codegen.verify.waveform import write_vcd
 
@@ -163,7 +164,7 @@ def cmd_verify(args) -> int:
         budget = int((host.plan.total * 1.2 + 1.0) * host.target.f_cpu)
         switches = simulated_switches(host)
         trace = simulator.simulate(image.hex_path, host.firmware_config(), budget, switches=switches)
-        result = verify_json(host, compare(host, trace, switches), image)
+        result = verify_json(host, compare(host, trace, switches, resonance=tuple(args.resonance)), image)
     result = _shipped(host, image, result)
     return _conclude_verify(args, host, result, trace, _verify_headline(host, result, out_dir))
 
@@ -218,6 +219,9 @@ def _print_verdict(result: dict) -> None:
         done = result["gcode_checked"]
         print(f"  G-code read again: {done['ends']} line ends, {done['feeds']} feeds, {done['arcs']} arcs and "
               f"{done['dwells']} dwells as written")
+    if "pressure_advance_steps" in result:
+        print(f"  pressure advance: the simulated extruder within {result['pressure_advance_steps']:.3f} steps of the "
+              "formula at every pulse")
     for reason in result["not_compared"]:
         print(f"  not compared: {reason}")
     if result.get("display") is not None:
@@ -226,6 +230,8 @@ def _print_verdict(result: dict) -> None:
         print("\n".join(heater_lines(result)))
     if "hold" in result:
         print("\n".join(hold_lines(result["hold"])))
+    for line in vibration_lines(result.get("vibration", {})):
+        print(line)
     if "laser" in result:
         laser = result["laser"]
         print(f"  laser: PWM {laser['pwm_hz']:g} Hz, power within {laser['max_power_error_pct']:.2f} % of full scale "
@@ -324,6 +330,10 @@ def parser() -> argparse.ArgumentParser:
                            help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
                                 "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "
                                 "(hotend, bed) defaults to the hot end, e.g. thermistor-open:bed@30")
+            v.add_argument("--resonance", action="append", default=[], type=resonance_option, metavar="AXIS=HZ[,ZETA]",
+                           help="model the toolhead on AXIS as a spring of HZ and damping ratio ZETA (default 0.1; "
+                                "repeatable) driven by the simulated pulses, and report its residual vibration after "
+                                "every acceleration change, shaped and unshaped; by default the job's input shaper's")
             cli_batch.add_options(v)
         if name == "plan":
             v.add_argument("--tables", help="write the table stream (codegen/tables/format.py) to this file as it is made")

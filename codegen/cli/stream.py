@@ -137,7 +137,7 @@ def run_outputs(args) -> RunOutputs:
     """--trace's and --vcd's files, written as the run is compared (and taken off `args`: they are done), and
     whether --report's samples are gathered."""
     outputs = RunOutputs(Path(args.trace) if args.trace else None, Path(args.vcd) if args.vcd else None,
-                         args.report is not None)
+                         args.report is not None, resonance=tuple(getattr(args, "resonance", ())))
     args.trace = args.vcd = None
     return outputs
 

@@ -49,6 +49,7 @@ PARAMS = {
     "M106": "SP", "M107": "P",
     "M201": "XYZE", "M203": "XYZE", "M204": "PRST", "M205": "XYZEJSTB", "M220": "SBR", "M221": "ST", "M400": "",
     "M593": "XYFD",
+    "M900": "K", "M572": "DS",  # with machine.pressure_advance only (else harmless at K0/S0)
     # Grbl (codegen/gcode/grbl.py)
     "G10": "LPXYZ", "G53": "", "G28.1": "", "G30": "XYZ", "G30.1": "", "G92.1": "", "G93": "",
     "G43.1": "Z", "G49": "", "M7": "", "M8": "", "M9": "",
@@ -57,6 +58,7 @@ PARAMS = {
 SUPPORTED = frozenset(PARAMS)
 # The letters a code takes without a number: G28's axes (`G28 X Y`, as Marlin), M593's, M220's B (save) and R.
 BARE_LETTERS = {"G28": "XYZ", "M593": "XY", "M220": "BR"}
+ADVANCE_CODES = frozenset({"M900", "M572"})  # pressure advance: supported where the job has machine.pressure_advance
 AXIS_TAKERS = frozenset(c for c, p in PARAMS.items() if any(a in p for a in AXIS_LETTERS))
 
 # Codes that change nothing this toolchain models: skipped with one warning each (errors with --strict).

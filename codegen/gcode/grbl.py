@@ -90,7 +90,7 @@ class GrblState:
 
     def go_stored(self, block, name: str, params) -> bool | None:
         """G28 (with a stored position) and G30: rapid by the given point, then to the stored position."""
-        stored = self.stored[name] or [0.0, 0.0, self.home_z]
+        stored = self.stored[name] or self.home_point
         named = [i for i, letter in enumerate("XYZ") if letter in params]
         if named:
             self.line_move(block, "G0", {letter: params[letter] for letter in "XYZ" if letter in params})

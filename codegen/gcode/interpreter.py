@@ -19,8 +19,8 @@ import math
 import codegen.gcode.mcodes as mcodes
 import codegen.toolpath.limits as limits
 from codegen.errors import Diagnostic
-from codegen.gcode.codes import (AXIS_LETTERS, AXIS_TAKERS, BARE_LETTERS, HARMLESS_PARAMS, MOTION, PARAMS, PLANES,
-                                 PROBES, SUPPORTED, code_name, group_of, harmless_reason)
+from codegen.gcode.codes import (ADVANCE_CODES, AXIS_LETTERS, AXIS_TAKERS, BARE_LETTERS, HARMLESS_PARAMS, MOTION,
+                                 PARAMS, PLANES, PROBES, SUPPORTED, code_name, group_of, harmless_reason)
 from codegen.gcode.diagnostics import Diagnostics, Stop
 from codegen.gcode.dialect import Dialect, DialectState
 from codegen.gcode.grbl import PROBE_REASON, SYSTEMS, GrblState, system_command
@@ -46,7 +46,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         has_z = "z" in self.motors or self.kinematics == "delta"
         self.movable = (True, True, has_z, "e" in self.motors)
         self.fixed = tuple(i for i in range(4) if not self.movable[i])
-        self.home_z = float(machine.delta.height) if self.kinematics == "delta" else 0.0
+        self.home_point = list(machine.home_point)  # x, y, z (mm) where G28 leaves the tool
         self.reach = limits.axis_reach(machine)  # mm, per axis: where a move may go
         start = [0.0] * 4
         start[: len(program.start)] = [float(v) for v in program.start]
@@ -68,6 +68,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         self.dynamic = False  # M4 (Grbl's laser mode: power follows the speed), else M3's constant power
         self.power = 1.0
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
+        self.advances = getattr(machine, "pressure_advance", None) is not None  # M900 and M572 set its K
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
         self.shapers = ShaperState(machine, self.kinematics)  # M593
         self.origin, self.strict = origin, strict
@@ -301,7 +302,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
             groups[group] = name
             if name in PROBES:
                 problems.append((k, f"'{name}' {PROBE_REASON}"))
-            elif name in SUPPORTED:
+            elif name in SUPPORTED and (name not in ADVANCE_CODES or self.advances):
                 names[name] = k
                 if name in MOTION:
                     motion = name
@@ -316,10 +317,8 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
                              f"'{motion}' and '{taker}' on one line: both take the axis words"))
         if harmless:
             for name, k, _ in harmless:  # pressure advance moves the extruder off the plan: only "off" is harmless
-                letter = {"M900": "K", "M572": "S"}.get(name)
-                if letter is not None and params.get(letter, 0.0) != 0.0:
-                    problems.append((self.word_index(block, letter), f"'{name} {self.word(block, letter)}': "
-                                     f"pressure (linear) advance is not modelled; only {letter}0 (off)"))
+                if (problem := mcodes.advance_refused(self, block, name, params)) is not None:
+                    problems.append(problem)
             if problems:
                 return None, None
             takes = [self.harmless_takes(block, name, k) for name, k, _ in harmless]

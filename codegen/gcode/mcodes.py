@@ -1,5 +1,6 @@
 """The printer codes of the interpreter: heaters and fan (Output), limits (Limits), M204 accelerations, M205
-least feed rates, M220 feed rate factor, M221 flow, G4, M400; M593 in codegen/gcode/shaper_codes.py.
+least feed rates, M220 feed rate factor, M221 flow, G4, M400, M900 / M572 pressure advance (a Limits item); M593 in
+codegen/gcode/shaper_codes.py.
 
 Each handler takes the interpreter, the block and the line's parameters ({letter: value}); it returns False
 when the code is in error (the line then does nothing). Values follow Marlin: M201 mm/s^2, M203 mm/s,
@@ -180,6 +181,36 @@ def dwell(it, block, params):
     return None
 
 
+def _set_advance(it, block, params, letter: str):
+    if letter in params:
+        it.items.append(Limits(it.source(block), advance=_number(it, block, params, letter, strict=False)))
+    return None
+
+
+@_guarded
+def linear_advance(it, block, params):
+    """M900 K (Marlin's linear advance, here Klipper's smooth pressure advance: s, mm per mm/s): K from this line
+    on (machine.pressure_advance has the smoothing time); without K nothing changes."""
+    return _set_advance(it, block, params, "K")
+
+
+@_guarded
+def pressure_advance(it, block, params):
+    """M572 D0 S (RepRapFirmware): K = S from this line on; D names the extruder (only 0 here; none: 0)."""
+    _only_zero(it, block, params, "D", "extruder")
+    return _set_advance(it, block, params, "S")
+
+
+def advance_refused(it, block, name: str, params) -> tuple[int, str] | None:
+    """Without machine.pressure_advance, M900 and M572 are harmless at K 0 (off) only: the problem (its word's
+    index and message) of another K; None: none."""
+    letter = {"M900": "K", "M572": "S"}.get(name)
+    if letter is None or params.get(letter, 0.0) == 0.0:
+        return None
+    return it.word_index(block, letter), (f"'{name} {it.word(block, letter)}': pressure (linear) advance needs "
+                                          f"machine.pressure_advance in the job; without it only {letter}0 (off)")
+
+
 def finish_moves(it, block, params):
     """M400 (Marlin): waits for the moves to finish, so the plan comes to rest there (a rest of WAIT_REST_S)."""
     it.items.append(Dwell(WAIT_REST_S, it.source(block)))
@@ -214,4 +245,6 @@ HANDLERS = {
     "M221": flow,
     "M400": finish_moves,
     "M593": input_shaping,
+    "M900": linear_advance,
+    "M572": pressure_advance,
 }

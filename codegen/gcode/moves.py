@@ -237,7 +237,7 @@ class Moves:
         named = [i for i in range(3) if "XYZ"[i] in params]
         if self.kinematics == "delta" or not named:
             named = [i for i in range(3) if self.movable[i]]
-        home = (0.0, 0.0, self.home_z)
+        home = self.home_point
         tgt = self.pos[:]
         axes = []
         for i in named:

@@ -9,7 +9,7 @@ from codegen.errors import Diagnostic, closest, suggest
 from codegen.job.reading import Marks, YPath, dotted
 from codegen.job.schema import (DEFAULT_MAX_TEMP_C, HEATERS, MOTORS, REQUIRED_MOTORS, SHAPED_AXES, SHAPES, AxisShaper,
                                 BangBang, Control, CustomSensor, Delta, Heater, Homing, InputShaper, Job, Jog, Link,
-                                Machine, PidGains, PlantOverrides, Program, Stepper)
+                                Machine, PidGains, PlantOverrides, PressureAdvance, Program, Stepper)
 
 # ---- validation: every problem of the file, as diagnostics ----
 
@@ -123,6 +123,13 @@ def machine_issues(m: dict) -> list[Issue]:
     if kin == "delta" and m.get("input_shaper") is not None:  # its carriages are not yet cut from shaped motion
         issues.append((("input_shaper",), "input shaping needs cartesian or corexy kinematics (delta: not yet)",
                        ("input_shaper",), "key"))
+    if kin == "delta" and m.get("pressure_advance") is not None:  # the advanced extruder is cut as shaped motion is
+        issues.append((("pressure_advance",), "pressure advance needs cartesian or corexy kinematics (delta: not "
+                       "yet: its carriages are not cut from the shaped motion that carries the advanced extruder)",
+                       ("pressure_advance",), "key"))
+    if m.get("pressure_advance") is not None and isinstance(steppers, dict) and "e" not in steppers:
+        issues.append((("pressure_advance",), "pressure advance needs an extruder (motor 'e')", ("pressure_advance",),
+                       "key"))
     return issues
 
 
@@ -183,7 +190,7 @@ def known_keys(path: tuple) -> tuple[str, ...] | None:
     model = {
         (): Job, ("machine",): Machine, ("machine", "delta"): Delta, ("machine", "link"): Link,
         ("machine", "homing"): Homing, ("machine", "jog"): Jog, ("program",): Program,
-        ("machine", "input_shaper"): InputShaper,
+        ("machine", "input_shaper"): InputShaper, ("machine", "pressure_advance"): PressureAdvance,
     }.get(tuple(path))
     if model is None and len(path) == 3 and path[:2] == ("machine", "input_shaper") and path[2] in SHAPED_AXES:
         model = AxisShaper

@@ -9,6 +9,7 @@ first, no more segments go on to the planner.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Iterator, Mapping
 
 import numpy as np
@@ -36,6 +37,8 @@ class FrontEndSettings:
 
     tolerance_mm: float  # machine.tolerance
     ranges: Mapping[str, tuple[float, float] | None]  # stepper name -> its `range` (mm of motor travel), None: any
+    advance: float = 0.0  # s, the pressure advance K the program starts with (M900/M572 change it)
+    smooth_time: float = 0.0  # s, pressure advance's smoothing (0: none): an M593's rest lets it settle too
 
 
 def front_end(settings: FrontEndSettings, kin: Kinematics, program: Program,
@@ -70,7 +73,7 @@ def pieces(settings: FrontEndSettings, kin: Kinematics, program: Program,
         with watch("segments"):
             if flattener is None:
                 flattener = Flattener(program.start, settings.tolerance_mm, program.plays_runtime, program.gcode_file,
-                                      settle_time)
+                                      partial(settle_time, smooth_time=settings.smooth_time), settings.advance)
             first = flattener.items
             segments = drop_empty(flattener(batch))
             program.settings += flattener.settings

@@ -8,6 +8,10 @@ impulse time. `shape` computes those pieces exactly (numpy over the pieces, a lo
 
 The shaped clock runs `shift` later than the plan's (the largest mean impulse time), so that the earliest impulse
 of any axis starts at the plan's start: no event comes before the program's.
+
+With pressure advance the extruder axis is Klipper's advanced and smoothed extruder (codegen/motion/advance.py,
+`advanced`) on the same clock, which then runs at least half the smoothing time behind the plan; x, y and z stay
+as shaped (unshaped where an axis has no shaper).
 """
 
 from __future__ import annotations
@@ -16,25 +20,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.motion.advance import AdvanceSettings, advanced_extruder
 from codegen.motion.planner import Plan
 from codegen.motion.shapers import Shaper, make_shaper
 from codegen.toolpath.segments import Segments
 
-AXES = 4  # x, y, z, e: the extruder is never shaped (Klipper's neither)
+AXES = 4  # x, y, z, e: the extruder is never shaped (Klipper's neither), only advanced
 SAME_PIECE = 1e-9  # relative: neighbouring pieces whose quadratics agree this closely are one
 
 
 @dataclass(frozen=True)
 class ShapingSettings:
-    """The shaper of each axis (None: unshaped) and the smoothing allowed (mm; None: no limit)."""
+    """The shaper of each axis (None: unshaped), the smoothing allowed (mm; None: no limit), and the extruder's
+    pressure advance (None: none)."""
 
     shapers: tuple[Shaper | None, ...]  # x, y, z
     max_smoothing: float | None = None
+    advance: AdvanceSettings | None = None
+
+    @property
+    def shaped(self) -> bool:
+        """Some axis has a shaper (else only the extruder is advanced)."""
+        return any(s is not None for s in self.shapers)
 
     @property
     def shift(self) -> float:
-        """s the shaped clock runs behind the plan's: the largest mean impulse time."""
-        return max((s.mean_time for s in self.shapers if s is not None), default=0.0)
+        """s the shaped clock runs behind the plan's: the largest mean impulse time, and the advance's half
+        smoothing time (it reads the plan that far ahead)."""
+        return max([s.mean_time for s in self.shapers if s is not None]
+                   + ([self.advance.half] if self.advance is not None else []), default=0.0)
 
     def offsets(self, axis: int) -> tuple[np.ndarray, np.ndarray]:
         """An axis's impulse amplitudes and times relative to their mean (one impulse at 0 when unshaped)."""
@@ -45,21 +59,27 @@ class ShapingSettings:
 
     @property
     def spread(self) -> float:
-        """s the shaped motion lasts longer than the plan."""
-        return max((float(self.offsets(a)[1][-1]) for a in range(AXES)), default=0.0) + self.shift
+        """s the shaped motion lasts longer than the plan (the advanced extruder reads half a smoothing time on)."""
+        late = [float(self.offsets(a)[1][-1]) for a in range(AXES)] + ([self.advance.half] if self.advance else [])
+        return max(late) + self.shift
 
 
-def shaping_of(specs: tuple, max_smoothing: float | None = None) -> ShapingSettings | None:
-    """The settings of the shapers given as (type, freq, damping) for x, y, z (None: unshaped); None when they
-    shape no axis."""
-    if all(spec is None for spec in specs):
+def shaping_of(specs: tuple, max_smoothing: float | None = None,
+               advance: AdvanceSettings | None = None) -> ShapingSettings | None:
+    """The settings of the shapers given as (type, freq, damping) for x, y, z (None: unshaped) with the extruder's
+    pressure advance (None: none); None when they shape no axis and advance no extruder (with pressure advance,
+    unshaped axes still take the shaped motion's path: its extruder is advanced)."""
+    if all(spec is None for spec in specs) and advance is None:
         return None
-    return ShapingSettings(tuple(None if spec is None else make_shaper(*spec) for spec in specs), max_smoothing)
+    return ShapingSettings(tuple(None if spec is None else make_shaper(*spec) for spec in specs), max_smoothing,
+                           advance)
 
 
-def settle_time(change) -> float:
-    """s the motion shaped before an M593 (an InputShaping item) goes on after the plan's: its shapers' spread."""
-    before = shaping_of(change.before)
+def settle_time(change, smooth_time: float = 0.0) -> float:
+    """s the motion shaped before an M593 (an InputShaping item) goes on after the plan's: its shapers' spread,
+    with pressure advance's smoothing (`smooth_time`, s; 0: none) in it."""
+    advance = AdvanceSettings(smooth_time, 0.0) if smooth_time > 0 else None
+    before = shaping_of(change.before, advance=advance)
     return 0.0 if before is None else before.spread
 
 
@@ -160,6 +180,37 @@ def shape(motion: Motion, settings: ShapingSettings) -> Motion:
             accel[:, axis] += amplitude * a
     origin = motion.origin[motion.piece_of(middle - settings.shift)]
     return _merged(Motion(breaks, position, velocity, accel, origin))
+
+
+def advanced(shaped: Motion, planned: Motion, segments: Segments, settings: ShapingSettings) -> Motion:
+    """The shaped motion with its extruder axis advanced (codegen/motion/advance.py) from the plan's (`planned`,
+    whose pieces' origins index `segments`), on the shaped clock; both go on resting beyond their ends."""
+    extruder = advanced_extruder(planned.breaks, planned.position[:, 3], planned.velocity[:, 3],
+                                 planned.accel[:, 3], planned.origin, segments, settings.advance)
+    e_breaks = extruder.breaks + settings.shift
+    first, last = min(shaped.breaks[0], e_breaks[0]), max(shaped.breaks[-1], e_breaks[-1])
+    whole = cut(_rest_beyond(shaped, first, last), e_breaks)
+    begin = whole.breaks[:-1]
+    k = extruder.piece_of(begin + 0.5 * np.diff(whole.breaks) - settings.shift)
+    dt = np.clip(begin - settings.shift, extruder.breaks[0], extruder.breaks[-1]) - extruder.breaks[k]
+    outside = (begin < e_breaks[0]) | (begin >= e_breaks[-1])  # the extruder rests there
+    inside = extruder.position[k] + extruder.velocity[k] * dt + 0.5 * extruder.accel[k] * dt * dt
+    whole.position[:, 3] = np.where(begin >= e_breaks[-1], extruder.end, inside)
+    whole.velocity[:, 3] = np.where(outside, 0.0, extruder.velocity[k] + extruder.accel[k] * dt)
+    whole.accel[:, 3] = np.where(outside, 0.0, extruder.accel[k])
+    return _merged(whole)
+
+
+def _rest_beyond(motion: Motion, first: float, last: float) -> Motion:
+    """The motion from `first` to `last` (s), resting before its first break and after its last."""
+    before, after = first < motion.breaks[0], last > motion.breaks[-1]
+    still = np.zeros((1, AXES))
+    parts = ([(motion.position[:1], motion.origin[:1])] if before else []) + [(motion.position, motion.origin)] + (
+        [(motion.end[None, :], motion.origin[-1:])] if after else [])
+    breaks = np.concatenate([[first] if before else [], motion.breaks, [last] if after else []])
+    position = np.concatenate([p for p, _ in parts])
+    pad = lambda x: np.concatenate(([still] if before else []) + [x] + ([still] if after else []))  # noqa: E731
+    return Motion(breaks, position, pad(motion.velocity), pad(motion.accel), np.concatenate([o for _, o in parts]))
 
 
 def _merged(motion: Motion) -> Motion:

@@ -13,7 +13,7 @@ from typing import BinaryIO, Callable
 import numpy as np
 
 from codegen import progress
-from codegen.errors import BuildError, Diagnostic
+from codegen.errors import BuildError, Diagnostic, SourceRef
 from codegen.firmware.avr.heaters import job_heaters, stream_heaters
 from codegen.firmware.config import FirmwareConfig, HeaterFirmware, MotorPins
 from codegen.kinematics import make_kinematics
@@ -73,7 +73,8 @@ class HostBuild:
 
     @property
     def shaped(self) -> bool:
-        """Some stretch of the program is shaped (the machine's shapers or an M593's)."""
+        """Some stretch of the program is played as shaped motion (the machine's shapers or an M593's, or pressure
+        advance: its extruder advanced)."""
         return any(s is not None for s in self.shapings)
 
     @property
@@ -209,8 +210,8 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
                                       link is not None and not played_out)
     host = HostBuild(job, settings, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
-                     program.warnings + heater_notes, homing, program.heater_program, laser=laser,
-                     shapings=tuple(eras.all()))
+                     program.warnings + heater_notes + _advance_notes(stages.totals, program), homing,
+                     program.heater_program, laser=laser, shapings=tuple(eras.all()))
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if runtime is not None:
@@ -232,6 +233,17 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
             if runtime is not None:
                 host.compressed.schedule = with_runtime(host.compressed.schedule, runtime(), host.segments.item)
     return host
+
+
+def _advance_notes(totals: Totals, program: Program) -> list[Diagnostic]:
+    """A note where the plan was slowed to keep the advanced extruder within its limits (the first place)."""
+    if not totals.advance_slowed:
+        return []
+    line = totals.advance_slowed_line
+    where = SourceRef(program.gcode_file, line, 1) if line and program.gcode_file else SourceRef(str(program.job.path))
+    return [Diagnostic(where, f"pressure advance: the plan was slowed {totals.advance_slowed} times to keep motor e "
+                              "within its max_velocity and max_accel (K times the extruder's acceleration adds to "
+                              "its speed), the first here", "note")]
 
 
 def _tables_only(played: Played) -> Played:

@@ -14,16 +14,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from codegen.kinematics.base import Kinematics, StepperLimits
+from codegen.motion.advance import AdvanceSettings
 from codegen.motion.jog import JogSettings
 from codegen.motion.pieces import FrontEndSettings
 from codegen.motion.planner import PlannerLimits
 from codegen.motion.shaped_motion import ShapingSettings, shaping_of
-from codegen.motion.shapers import make_shaper
 from codegen.pipeline.windows import StageSettings
 from codegen.program.homing import HomedStepper, HomingSettings
 from codegen.tables.hold import RAMP_SHARE, HoldSettings, plans_ramp_share
 from codegen.tables.laser import LaserSettings
 from codegen.targets import TargetInfo
+
+ADVANCE_FIT_STEPS = 0.05  # how far the advanced extruder's quadratic pieces may stray from Klipper's formula
 
 
 @dataclass(frozen=True)
@@ -45,7 +47,9 @@ def job_settings(job) -> JobSettings:
 
 def front_end_settings(job) -> FrontEndSettings:
     machine = job.machine
-    return FrontEndSettings(machine.tolerance, {name: s.range for name, s in machine.steppers.items()})
+    advance = machine.pressure_advance
+    return FrontEndSettings(machine.tolerance, {name: s.range for name, s in machine.steppers.items()},
+                            0.0 if advance is None else advance.k, 0.0 if advance is None else advance.smooth_time)
 
 
 def stage_settings(job) -> StageSettings:
@@ -54,28 +58,38 @@ def stage_settings(job) -> StageSettings:
 
 
 def shaping_settings(job) -> ShapingSettings | None:
-    """The input shaper of each axis x, y, z (None where it has none); None when the machine shapes no axis."""
+    """The input shaper of each axis x, y, z (None where it has none) and the extruder's pressure advance; None
+    when the machine shapes no axis and advances no extruder."""
     shaper = job.machine.input_shaper
-    if shaper is None or not shaper.axes:
+    axes = {} if shaper is None else shaper.axes
+    return shaping_of(tuple((axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
+                            for a in ("x", "y", "z")), None if shaper is None else shaper.max_smoothing,
+                      advance_settings(job))
+
+
+def advance_settings(job) -> AdvanceSettings | None:
+    """The pressure advance's smoothing time, and its fit: within ADVANCE_FIT_STEPS extruder steps of the formula."""
+    advance = job.machine.pressure_advance
+    if advance is None:
         return None
-    axes = shaper.axes
-    return ShapingSettings(tuple(make_shaper(axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
-                                 for a in ("x", "y", "z")), shaper.max_smoothing)
+    return AdvanceSettings(advance.smooth_time, ADVANCE_FIT_STEPS / job.machine.steppers["e"].steps_per_mm)
 
 
 class ShapingEras:
     """The input shapers of each era of the program (codegen/toolpath/segments.py `shaping`): era 0 the machine's,
     era k what the k-th M593 of `program.shapings` set (as the front end hands them on), with the machine's
-    max_smoothing."""
+    max_smoothing and the job's pressure advance in every era (K travels per segment: Segments.advance), so that
+    a stretch after `M593 F0` is still played as shaped motion, its xyz unshaped, while the extruder is advanced."""
 
     def __init__(self, job, program):
         self.program = program
         self.max_smoothing = None if job.machine.input_shaper is None else job.machine.input_shaper.max_smoothing
+        self.advance = advance_settings(job)
         self.known = {0: shaping_settings(job)}
 
     def __call__(self, era: int) -> ShapingSettings | None:
         if era not in self.known:
-            self.known[era] = shaping_of(self.program.shapings[era - 1].shapers, self.max_smoothing)
+            self.known[era] = shaping_of(self.program.shapings[era - 1].shapers, self.max_smoothing, self.advance)
         return self.known[era]
 
     def all(self) -> list[ShapingSettings | None]:

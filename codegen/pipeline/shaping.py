@@ -1,5 +1,6 @@
 """A window of the plan, shaped: the blocks of its shaped motion with their events, the corners the checks allow
-for, and the smoothing (codegen/motion/shaped_motion.py, shaped_blocks.py).
+for, and the smoothing (codegen/motion/shaped_motion.py, shaped_blocks.py); with pressure advance, its extruder
+advanced (codegen/motion/advance.py).
 
 The stages after the planner (codegen/pipeline/windows.py) then compress, play and check the blocks as they would
 the plan's own segments (one straight segment a block); where the pulses break a limit, the plan's segments
@@ -20,11 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
+from codegen.motion.advance import AdvanceReference, advance_reference
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Window
 from codegen.motion.planner import Plan, segment_lengths
 from codegen.motion.shaped_blocks import shaped_blocks
-from codegen.motion.shaped_motion import AXES, ShapingSettings, between, planned_motion, shape, smoothing
+from codegen.motion.shaped_motion import AXES, ShapingSettings, advanced, between, planned_motion, shape, smoothing
 from codegen.toolpath.segments import Segments, concat
 
 
@@ -49,6 +51,7 @@ class ShapedWindow:
     smoothing_at: np.ndarray  # (3,) mm: the planned point there
     smoothing_line: int  # its G-code line (0: none)
     tail: ShapingTail  # for the next window
+    advance: AdvanceReference | None = None  # what the advanced extruder's pulses are held against; None: none
 
 
 def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, max_gap: float,
@@ -62,6 +65,8 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
         segments, plan, before = concat(tail.segments, segments), Plan.join([tail.plan, plan]), len(tail.segments)
     planned = planned_motion(segments, plan)
     shaped = shape(planned, settings)
+    if settings.advance is not None:
+        shaped = advanced(shaped, planned, segments, settings)
     begin = window.plan.t_start[0]
     stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
     start = segments.start[0] if tail is None else tail.point
@@ -70,9 +75,12 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     worst, at, seg = smoothing(stretch, planned, settings)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
+    reference = None if settings.advance is None else advance_reference(
+        planned.breaks, planned.position[:, 3], planned.velocity[:, 3], planned.accel[:, 3], planned.origin, segments,
+        settings.advance.half, settings.shift, (begin, stretch.breaks[-1]))
     return ShapedWindow(Window(window.first, blocks.chords, blocks.steps, shaped_plan, window.curve_cut),
                         blocks.events, np.maximum(origin - before, 0), corners_t, jumps, worst, at,
-                        int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]))
+                        int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]), reference)
 
 
 def _tail(segments: Segments, plan: Plan, settings: ShapingSettings, point: np.ndarray) -> ShapingTail:
@@ -99,12 +107,13 @@ def block_plan(chords: Segments, bounds: np.ndarray) -> Plan:
 def shaped_corners(plan: Plan, kin: Kinematics, settings: ShapingSettings) -> tuple[np.ndarray, np.ndarray]:
     """The plan's corners (codegen/tables/checks.py `corner_jumps`) shaped: each axis's velocity jump splits into
     its shaper's impulses, a share A_i of it at tau_i after the corner (on the shaped clock); each motor takes
-    its axes' shares (a corexy belt both of x and y, at their own times)."""
+    its axes' shares (a corexy belt both of x and y, at their own times). An advanced extruder's velocity has no
+    jump: its smoothing spreads every change over the smoothing time."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
     change = plan.v_entry[j][:, None] * (plan.direction[j] - plan.direction[j - 1])  # (J, 4) mm/s per axis
     per_axis = np.abs(kin.matrix.T * kin.limits.steps_per_mm[None, :])  # (4, M) steps per mm of each axis
     times, jumps = [], []
-    for axis in range(AXES):
+    for axis in range(AXES if settings.advance is None else AXES - 1):
         for amplitude, tau in zip(*settings.offsets(axis)):
             times.append(plan.t_start[j] + settings.shift + tau)
             jumps.append(amplitude * np.abs(change[:, axis])[:, None] * per_axis[axis][None, :])

@@ -8,15 +8,16 @@ blocks; rate runs start afresh at every window (one run more per window than a r
 might need). The path check measures a window's first and last steps against the neighbouring windows'
 segments too.
 
-With input shaping a window is played as the blocks of its shaped motion (codegen/pipeline/shaping.py), and the
-plan before shaping is what a retry slows. Each era of the program's shapers (between M593s: windows end there,
-codegen/motion/lookahead.py) has its own; an era's last window plays its shaped motion to rest (the plan rests
-there long enough), and the next era's first starts afresh.
+With input shaping or pressure advance a window is played as the blocks of its shaped motion (its extruder
+advanced: codegen/pipeline/shaping.py), and the plan before shaping is what a retry slows. Each era of the
+program's shapers (between M593s: windows end there, codegen/motion/lookahead.py) has its own, the job's pressure
+advance in each; an era's last window plays its shaped motion to rest (the plan rests there long enough), and the
+next era's first starts afresh.
 
 Where the twin's pulses break a motor's limit (a coarse motor's 8 steps across the Bresenham phases of
 several blocks, a delta carriage between cut points), the window is planned again with the segments under
-that stretch slowed (its entry speed stays: the window before is final), and the next window starts no
-faster than it now ends.
+that stretch slowed (codegen/pipeline/slowing.py; its entry speed stays: the window before is final), and the
+next window starts no faster than it now ends.
 """
 
 from __future__ import annotations
@@ -29,13 +30,15 @@ import numpy as np
 
 from codegen.errors import BuildError
 from codegen.kinematics.base import Kinematics
-from codegen.link.ring import LinkBudget, Ring, Shortfall
+from codegen.link.ring import LinkBudget, Ring
+from codegen.motion.advance import AdvanceReference
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Lookahead, Window, merge
-from codegen.motion.planner import ACCEL_WINDOW_S, RATE_WINDOW, PlannerLimits, finish, jitter_rate, passes, profile
+from codegen.motion.planner import PlannerLimits, finish, jitter_rate, passes, profile
 from codegen.motion.shaped_motion import ShapingSettings
 from codegen.motion.stepgen import generate
 from codegen.pipeline.shaping import ShapingTail, shaped_window
+from codegen.pipeline.slowing import link_slow_down, reaches_back, slow_down
 from codegen.stopwatch import Stopwatch
 from codegen.tables.checks import Checker, MotorTrain, corners_after
 from codegen.tables.compress import Compressed, compress
@@ -51,7 +54,6 @@ from codegen.toolpath.segments import Segments, concat
 
 RATE_ROUNDS = 8  # plans of a window at most: a stretch over a motor's rate or acceleration slows it
 LINK_ROUNDS = 16  # and where the ring runs short: slowing one stretch may move a shortfall on to the next
-RETRY_SHARE = 0.95  # of the rate and acceleration those segments (and their neighbours) then aim at
 
 
 @dataclass
@@ -70,6 +72,7 @@ class Played:
     ceiling_bytes: int = 0  # what the feed override's ceiling records add to the tables (their runs' splits too)
     table_schedule: Schedule | None = None  # as the table stream carries it (runtime records in place): for `observe`
     planned: Window | None = None  # a shaped window's plan before shaping (`window` holds its blocks); None: unshaped
+    advance: AdvanceReference | None = None  # an advanced extruder's formula over the window (motion/advance.py)
 
 
 @dataclass
@@ -89,6 +92,8 @@ class Totals:
     power_records: int = 0
     ceiling_records: int = 0  # the feed override's headroom (codegen/tables/headroom.py)
     ceiling_bytes: int = 0  # theirs and their runs' splits
+    advance_slowed: int = 0  # plans of windows slowed where the advanced extruder broke its limits
+    advance_slowed_line: int = 0  # the G-code line of the first such place (0: none, or not G-code)
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -275,7 +280,8 @@ class Stages:
         error = float(np.max(np.abs(pulses.event_tick - events.time * target.tick_hz), initial=0.0))
         played = Played(window, compressed, before.origin_fx, len(events.time), error,
                         events if self.keep or self.observe else None, pulses if self.keep or self.observe else None,
-                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned)
+                        before.block_item, power_error, ceiling_bytes, planned=None if shaped is None else planned,
+                        advance=None if shaped is None else shaped.advance)
         # The checks see the neighbouring windows' segments around this one's (a shaped window's next are not yet).
         parts = [p for p in (before.before, window.segments, after if shaped is None else None) if p is not None]
         around = concat(*parts)
@@ -289,10 +295,14 @@ class Stages:
             else:
                 corners_t, jumps = shaped.corners_t, shaped.jumps
             checker = copy.deepcopy(before.checker)
-            if shaped is not None:
+            if shaped is not None and shaping.shaped:
                 checker.add_smoothing(shaped.smoothing_mm, shaped.smoothing_at, shaped.smoothing_line)
+            if shaped is not None and shaped.advance is not None:
+                checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
+            if shaped is not None and shaped.advance is not None:
+                self._note_extruder_limits(hits, pulses, planned, shaping.shift)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
         ring = None if before.ring is None else before.ring.copy()
@@ -302,7 +312,7 @@ class Stages:
                            None if shaped is None or era_ends else shaped.tail)
         # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
         planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
-        scale = self._slow_down(planned.plan, planned_segment, pulses, hits)
+        scale = slow_down(planned.plan, planned_segment, pulses, hits)
         if ring is not None:
             with watch("link"):
                 reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
@@ -310,50 +320,32 @@ class Stages:
                 shortfalls = ring.add(reads, sizes)
             if scale is None and shortfalls:
                 record_segment = planned_segment[np.minimum(record_event, len(event_segment) - 1)]
-                return played, carried, (*self._link_slow_down(planned.plan, shortfalls, record_segment, sizes,
+                return played, carried, (*link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
-        return played, carried, None if scale is None else (*scale, None, _reaches_back(hits, window.plan.t_start[0]))
+        return played, carried, None if scale is None else (*scale, None, reaches_back(hits, window.plan.t_start[0]))
 
-    @staticmethod
-    def _link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray, sizes: np.ndarray,
-                        rate: float) -> tuple[np.ndarray, np.ndarray]:
-        """From the first stretch that drains the ring on, the segments whose records are denser than the link
-        carries, each slowed to the link's bytes a second (the ring absorbs no burst there any more: one round
-        suffices where slowing the stretches alone would move each shortfall on); and the segments of each
-        stretch, in acceleration, by the time it lacks: records come densest where a motor speeds up from rest (a
-        block and a run at once, then short runs), which a lower top speed leaves as it was."""
-        n = len(plan.duration)
-        span = slice(shortfalls[0].first, None)
-        need = np.bincount(record_segment[span], weights=sizes[span], minlength=n)
-        speed, accel = np.ones(n), np.ones(n)
-        dense = need * 1.0 > plan.duration * rate * RETRY_SHARE
-        speed[dense] = plan.duration[dense] * rate * RETRY_SHARE / need[dense]
-        for short in shortfalls:
-            seconds = short.end_s - short.begin_s
-            share = RETRY_SHARE * seconds / (seconds + short.extra_s) if seconds > 0 else RETRY_SHARE
-            stretch = slice(record_segment[short.first], record_segment[short.last] + 1)
-            accel[stretch] = np.minimum(accel[stretch], share ** 2)  # from rest, a distance takes 1 / sqrt(accel)
-        return speed, accel
+    def _note_extruder_limits(self, hits: list, pulses: Pulses, planned: Window, shift: float) -> None:
+        """Where the advanced extruder breaks its rate or acceleration (the window is then planned again, slower):
+        counted, and the first place's G-code line kept for a note; `shift`: s the era's shaped clock runs behind
+        the plan's."""
+        e = self.kin.motors.index("e")
+        (rate_end, _), (accel_begin, _) = hits[e]
+        if not len(rate_end) and not len(accel_begin):
+            return
+        tick, _ = pulses.of_motor(e)
+        times = np.concatenate([tick[rate_end] / self.target.tick_hz, accel_begin]) - shift
+        segment = np.clip(np.searchsorted(planned.plan.t_start, times.min(), side="right") - 1, 0,
+                          len(planned.segments) - 1)
+        self.totals.advance_slowed += 1
+        if not self.totals.advance_slowed_line:
+            self.totals.advance_slowed_line = int(planned.segments.line[segment])
 
-    @staticmethod
-    def _slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list):
-        """The share of their peak speed and acceleration the segments under a stretch over a limit keep
-        (None where the checks found nothing); `event_segment`: the window's segment of every event."""
-        if not any(len(rate[0]) or len(accel[0]) for rate, accel in hits):
-            return None
-        n = len(plan.duration)
-        speed, accel = np.ones(n), np.ones(n)
-        for m, ((rate_end, rate_ratio), (begin, accel_ratio)) in enumerate(hits):
-            mine = event_segment[pulses.event[pulses.motor == m]]
-            for end, ratio in zip(rate_end, rate_ratio):
-                span = slice(max(mine[max(end - RATE_WINDOW, 0)] - 1, 0), mine[end] + 2)
-                speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio)
-            for t, ratio in zip(begin, accel_ratio):
-                first, last = np.searchsorted(plan.t_start, [t, t + 2 * ACCEL_WINDOW_S], side="right") - 1
-                span = slice(max(first - 1, 0), last + 2)
-                speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio))  # bends: v^2
-                accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio)
-        return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
+    def _advance_worst(self, shaped, pulses: Pulses, position: np.ndarray) -> tuple[float, float, int]:
+        """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`)."""
+        e = self.kin.motors.index("e")
+        tick, direction = pulses.of_motor(e)
+        after = self.checker.start_steps[e] + position[e] + np.cumsum(direction)
+        return shaped.advance.worst(tick / self.target.tick_hz, direction, after, self.kin.limits.steps_per_mm[e])
 
     def _plan_again(self, window: Window, speed: np.ndarray, accel: np.ndarray) -> tuple[Window, float]:
         """The window with its segments slowed: the same entry speed, an exit no faster than before (v^2)."""
@@ -368,13 +360,6 @@ class Stages:
         again = finish(prof, w, plan.t_start[0])
         again.corner[0], again.corner[-1] = plan.corner[0], plan.corner[-1]
         return replace(window, segments=slowed, plan=again), float(w[-1])
-
-
-def _reaches_back(hits: list, t0: float) -> bool:
-    """Whether a stretch over a limit begins before the window (at `t0`): its first of 8 steps, or its first
-    20 ms, in the window before. Only then is that window played again with this one: a stretch of this window's
-    own is slowed in it alone, so a long program whose every window is slowed once takes time in proportion."""
-    return any(np.any(rate_end < RATE_WINDOW) or np.any(begin < t0) for (rate_end, _), (begin, _) in hits)
 
 
 def _record_reads(schedule, pulses: Pulses, origin_fx: int, tick_hz: int):

@@ -4,8 +4,9 @@ Delta machines always home, every carriage up to its tower's max switch. Cartesi
 the job says so (`program.home: true`) or when their G-code starts with G28: x, y and z go down to their min
 switches, where each axis is at the low end of its `range` (0 without one; a corexy's x and y at 0: its ranges
 are the belts'). A corexy moves both belts for either axis, so it homes as Marlin and Klipper do, one axis at a
-time: x (with z) first, then y. The firmware does the motion; the host gives it the speeds, the travel after
-which a switch that never closed is a fault, and where the tool then is.
+time: x (with z) first, then y. The firmware does the motion; the host gives it the speeds and the travel after
+which a switch that never closed is a fault. Where the tool then is, is the machine's `home_point`
+(codegen/job/schema/machine.py), where the G-code's G28 leaves it too.
 """
 
 from __future__ import annotations
@@ -13,8 +14,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Mapping
-
-import numpy as np
 
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.kinematics.base import Kinematics
@@ -73,18 +72,6 @@ class HomingSettings:
 
 def homes(settings: HomingSettings, leading_g28: bool) -> bool:
     return settings.always or leading_g28
-
-
-def home_position(settings: HomingSettings, kin: Kinematics) -> np.ndarray:
-    """Where the tool is once homed (4-vector, mm)."""
-    if settings.kinematics == "delta":
-        return kin.home()
-    position = np.zeros(4)
-    for axis, name in enumerate("xyz"):
-        stepper = settings.steppers.get(name)
-        if stepper is not None and stepper.range:
-            position[axis] = stepper.range[0]
-    return position
 
 
 def homing_axes(settings: HomingSettings, kin: Kinematics, tick_hz: int) -> tuple[HomingAxis, ...]:

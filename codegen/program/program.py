@@ -22,7 +22,7 @@ from codegen.errors import Diagnostic
 from codegen.gcode import GcodeStream
 from codegen.kinematics.base import Kinematics
 from codegen.program.heaters import HeaterProgram
-from codegen.program.homing import HomingSettings, home_position, homes
+from codegen.program.homing import HomingSettings, homes
 from codegen.shapes import build_toolpath as toolpath_from_shapes
 from codegen.toolpath.items import Arc, Curve, Home, Line, Lines, Toolpath, expanded
 
@@ -41,7 +41,7 @@ class Program:
         machine's kinematics come in `homing` and `kin`."""
         self.job, self.kin, self.homing = job, kin, homing
         self.always_homes = homes(homing, False)
-        self.home = home_position(homing, kin) if self.always_homes else None
+        self.home = np.array([*job.machine.home_point, 0.0]) if self.always_homes else None
         if self.always_homes:
             start = self.home.copy()
             if job.program.start_source is not None:

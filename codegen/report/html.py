@@ -186,6 +186,9 @@ def _verify_header(host, result: dict) -> str:
     if "trip" in result:
         trip = result["trip"]
         pairs.append(("thermal protection trip", f"{trip['reason']} on {trip['heater']} at {trip['time_s']} s"))
+    pairs += [(f"vibration {axis} (µm)", f"{v['residual_peak_um']:.2f} peak, {v['residual_rms_um']:.2f} RMS; "
+               f"unshaped {v['unshaped_peak_um']:.2f}, {v['unshaped_rms_um']:.2f}")
+              for axis, v in result.get("vibration", {}).items()]
     pairs += [("not compared", reason) for reason in result.get("not_compared", [])]
     return _table(pairs) + _motor_table(result["motors"], (
         ("steps", "steps"), ("final", "net steps"), ("expected_final", "job's net steps"),
@@ -234,6 +237,15 @@ def _heater_section(host, result: dict, trace, timeline) -> Section:
                                                          result.get("table_start_s")))
 
 
+def _vibration_section(vibration: dict) -> Section:
+    title = "toolhead vibration at the worst acceleration change, shaped against unshaped"
+    if not any(v["worst"] is not None for v in vibration.values()):
+        return Section("vibration", title, missing="no acceleration change was measured")
+    return Section("vibration", title, plots.vibration_figure(vibration),
+                   caption="The toolhead modelled as a damped spring driven by the pulses (verify --resonance); the "
+                           "residual each run leaves, as measured once the commanded acceleration is constant again.")
+
+
 def write_verify_report(path: Path, host, result: dict, trace, samples: RunSamples) -> None:
     """verify --report: the planned and simulated paths, the simulated motors' motion, the timing against the twin,
     and for a stream its ring fill, for heaters their temperatures, drawn from `samples` (gathered as the run was
@@ -251,5 +263,7 @@ def write_verify_report(path: Path, host, result: dict, trace, samples: RunSampl
         sections.append(_ring_section(host, result, trace, duration))
     if "heaters" in result:
         sections.append(_heater_section(host, result, trace, samples.timeline))
+    if "vibration" in result:
+        sections.append(_vibration_section(result["vibration"]))
     _write(path, _page(f"verify {host.job.name}", result["pass"], _verify_header(host, result), sections,
                        result.get("problems", [])))

@@ -263,3 +263,33 @@ def heater_figure(curves: dict[str, tuple], holds: list[dict], table_start_s: fl
                      "dotted: the table's start)")
     axs[-1].set_xlabel("simulated time from power-up (s)")
     return png(fig)
+
+
+def vibration_figure(vibration: dict) -> bytes:
+    """Per axis, the toolhead's residual vibration after its worst acceleration change (codegen/verify/vibration.py:
+    the place where the shaped run rings most), shaped against unshaped: each the free ringing the model measured
+    there, Re(z exp(p t)), from where the change has settled in that run (unshaped at once, shaped after its
+    shaper's span), in um against ms after the change."""
+    axes = {name: v for name, v in vibration.items() if v["worst"] is not None}
+    fig = Figure(figsize=(8.0, 2.6 * len(axes)), layout="constrained")
+    for ax, (name, v) in zip(np.atleast_1d(fig.subplots(len(axes), 1, squeeze=False)[:, 0]), axes.items()):
+        worst = v["worst"]
+        omega = 2 * math.pi * v["freq_hz"]
+        pole = complex(-v["damping"] * omega, omega * math.sqrt(1 - v["damping"] ** 2))
+        span = max(worst["length_s"], worst["residual_delay_s"])
+        runs = [("unshaped", worst["unshaped_um"], worst["unshaped_phase_rad"], 0.0, "tab:red")]
+        if v["shaper"] is not None:
+            runs.append((f"shaped ({v['shaper']})", worst["residual_um"], worst["residual_phase_rad"],
+                         worst["residual_delay_s"], "tab:blue"))
+        for label, amplitude, phase, delay, colour in runs:
+            t = np.linspace(delay, span, 400)
+            ax.plot(t * 1e3, (amplitude * np.exp(1j * phase + pole * (t - delay))).real, color=colour,
+                    label=f"{label}: {amplitude:.2f} µm")
+        ax.axhline(0.0, color="0.6", linewidth=0.6)
+        ax.set_xlabel("time after the change (ms)")
+        ax.set_ylabel(f"{name} vibration (µm)")
+        line = f" (line {worst['line']})" if worst["line"] else ""
+        ax.set_title(f"{name} at {v['freq_hz']:g} Hz, damping {v['damping']:g}: the worst place, "
+                     f"{worst['time_s']:.4f} s{line}", fontsize="medium")
+        ax.legend(fontsize="small")
+    return png(fig)

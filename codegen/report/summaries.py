@@ -36,6 +36,7 @@ def plan_summary(host: HostBuild) -> dict:
         "path_limit_mm": rounded(f.path_limit_mm),
         "max_timing_error_us": rounded(totals.max_timing_error_ticks / host.target.tick_hz * 1e6, 3),
         **({"input_shaper": shaper_plan(host)} if f.smoothing_mm is not None else {}),
+        **({"pressure_advance": advance_plan(host)} if f.advance_steps is not None else {}),
         "pass": f.ok,
         "problems": list(f.problems),
         **(host.link_plan.summary() if host.link_plan is not None else
@@ -56,6 +57,14 @@ def shaper_plan(host: HostBuild) -> dict:
     return {"axes": axes, "m593_changes": max(len(host.shapings) - 1, 0),
             "smoothing_mm": rounded(f.smoothing_mm), "smoothing_at": [rounded(c) for c in f.smoothing_at],
             "smoothing_line": f.smoothing_line, "max_smoothing_mm": None if machine is None else machine.max_smoothing}
+
+
+def advance_plan(host: HostBuild) -> dict:
+    """Pressure advance: the job's K and smoothing time, and the extruder's pulses against the formula: the largest
+    distance (steps) of a pulse's half step from it, when and the G-code line (codegen/motion/advance.py)."""
+    f, machine = host.findings, host.job.machine.pressure_advance
+    return {"k": machine.k, "smooth_time_s": machine.smooth_time, "max_deviation_steps": rounded(f.advance_steps, 4),
+            "at_s": rounded(f.advance_time_s, 6), "line": f.advance_line}
 
 
 def feed_hold_plan(host: HostBuild) -> dict:
@@ -151,6 +160,12 @@ def human_plan(summary: dict) -> str:
         line = f" on G-code line {shaper['smoothing_line']}" if shaper["smoothing_line"] else ""
         lines.append(f"  input shaper {axes}: smoothing {shaper['smoothing_mm']:.4f} mm{limit}, the most at "
                      f"({', '.join(f'{c:.3f}' for c in shaper['smoothing_at'])}){line}")
+    if "pressure_advance" in summary:
+        advance = summary["pressure_advance"]
+        line = f" on G-code line {advance['line']}" if advance["line"] else ""
+        lines.append(f"  pressure advance K {advance['k']:g} s, smoothing {advance['smooth_time_s']:g} s: the extruder "
+                     f"within {advance['max_deviation_steps']:.3f} steps of the formula, the most at "
+                     f"{advance['at_s']:.4f} s{line}")
     if summary.get("flash_bytes") is not None and summary["table_bytes"] > summary["flash_bytes"]:
         lines.append(f"  too big for a flash image: the tables alone are {summary['table_bytes']} bytes, the "
                      f"{summary['mcu']} has {summary['flash_bytes']}; stream the job (--stream)")

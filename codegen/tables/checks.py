@@ -25,6 +25,7 @@ from codegen.tables.motor_checks import AccelCheck, RateCheck
 from codegen.toolpath.segments import REF_ARC, Segments, concat
 
 CHUNK = 1 << 20
+ADVANCE_LIMIT_STEPS = 1.0  # how far an advanced extruder's pulse may be from the pressure advance formula
 
 
 @dataclass
@@ -50,6 +51,11 @@ class Findings:
     smoothing_mm: float | None = None
     smoothing_at: tuple[float, ...] | None = None
     smoothing_line: int = 0
+    # Pressure advance's (codegen/motion/advance.py): the largest distance (steps) of Klipper's formula from the
+    # extruder's position at a pulse, when (s) and its G-code line; None: no pressure advance.
+    advance_steps: float | None = None
+    advance_time_s: float = 0.0
+    advance_line: int = 0
 
     @property
     def ok(self) -> bool:
@@ -180,6 +186,7 @@ class Checker:
         self.kin, self.start_steps = kin, np.asarray(start_steps, dtype=np.int64)
         self.max_smoothing = max_smoothing
         self.smoothing: tuple[float, tuple[float, ...], int] | None = None  # the worst so far: mm, where, line
+        self.advance: tuple[float, float, int] | None = None  # the worst so far: steps, when, line
         spm = kin.limits.steps_per_mm
         self.rates = [RateCheck(float(r)) for r in kin.limits.max_rate]
         self.accels = [AccelCheck(float(a)) for a in kin.limits.max_accel * spm]
@@ -221,6 +228,11 @@ class Checker:
         if self.smoothing is None or mm > self.smoothing[0]:
             self.smoothing = (float(mm), tuple(float(c) for c in at), int(line))
 
+    def add_advance(self, steps: float, time: float, line: int) -> None:
+        """An advanced extruder's largest distance from the formula in a stretch, when and its G-code line."""
+        if self.advance is None or steps > self.advance[0]:
+            self.advance = (float(steps), float(time), int(line))
+
     def add_tool(self, tables: np.ndarray, program: np.ndarray) -> None:
         """The tool of the next blocks as the tables have it against the program's (its segments' flags): the
         compressor carries a block's tool over from its segment, and nothing after it checks that it did."""
@@ -246,6 +258,13 @@ class Checker:
         )
         if self.smoothing is not None:
             findings.smoothing_mm, findings.smoothing_at, findings.smoothing_line = self.smoothing
+        if self.advance is not None:
+            findings.advance_steps, findings.advance_time_s, findings.advance_line = self.advance
+            if self.advance[0] > ADVANCE_LIMIT_STEPS:
+                findings.problems.append(
+                    f"motor e (the extruder) is {self.advance[0]:.2f} steps from the pressure advance formula (limit "
+                    f"{ADVANCE_LIMIT_STEPS:g} step) at {self.advance[1]:.4f} s"
+                    + (f" on G-code line {self.advance[2]}" if self.advance[2] else ""))
         for name, got, want in zip(names, final, expected_final):
             if got != want:
                 findings.problems.append(f"motor {name} ends at step {got}, the job ends at step {want}")

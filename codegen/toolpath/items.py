@@ -154,13 +154,15 @@ class Dwell:
 @dataclass(frozen=True)
 class Limits:
     """Machine limits the program sets from here on (G-code M201/M203/M205); the planner keeps the smaller
-    of these and the machine's own. Axis names x, y, z, e; None: unchanged."""
+    of these and the machine's own. Axis names x, y, z, e; None: unchanged. And the extruder's pressure advance K
+    from here on (M900, M572: codegen/motion/advance.py)."""
 
     source: SourceRef
     max_velocity: dict[str, float] | None = None  # mm/s per axis (M203)
     max_accel: dict[str, float] | None = None  # mm/s^2 per axis (M201)
     jerk: dict[str, float] | None = None  # mm/s per axis, Marlin's classic jerk (M205 X Y Z E)
     junction_deviation: float | None = None  # mm (M205 J)
+    advance: float | None = None  # s, pressure advance K (M900 K, M572 S)
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ class Segments:
     axis_accel: np.ndarray  # (n, 4) mm/s^2 per axis the program allows
     jerk: np.ndarray  # (n, 4) mm/s per axis, Marlin's classic jerk at the piece's start (nan: not set)
     junction_deviation: np.ndarray  # (n,) mm the program set (nan: the machine's)
+    advance: np.ndarray  # (n,) s, the pressure advance K in force (codegen/motion/advance.py; 0: none)
     shaping: np.ndarray  # (n,) int: the input shapers' era, the M593s before the piece (0: the machine's shapers)
     ref_kind: np.ndarray  # (n,) REF_LINE | REF_ARC | REF_CURVE
     ref_center: np.ndarray  # (n, 2) arc centre in its plane
@@ -87,24 +88,27 @@ def arc_chord_count(radius: float, sweep: float, tolerance: float) -> int:
 
 
 class _LimitState:
-    """The program's limits as they stand, snapshotted once per change."""
+    """The program's limits (and pressure advance K) as they stand, snapshotted once per change."""
 
-    def __init__(self):
-        self.rows = [(np.full(4, np.inf), np.full(4, np.inf), np.full(4, np.nan), np.nan)]
+    def __init__(self, advance: float = 0.0):
+        self.rows = [(np.full(4, np.inf), np.full(4, np.inf), np.full(4, np.nan), np.nan, advance)]
 
     def apply(self, item: Limits) -> None:
-        velocity, accel, jerk, jd = (np.array(a, copy=True) if isinstance(a, np.ndarray) else a
-                                     for a in self.rows[-1])
+        velocity, accel, jerk, jd, advance = (np.array(a, copy=True) if isinstance(a, np.ndarray) else a
+                                              for a in self.rows[-1])
         for target, values in ((velocity, item.max_velocity), (accel, item.max_accel), (jerk, item.jerk)):
             for axis, value in (values or {}).items():
                 target[AXIS[axis]] = value
         if item.junction_deviation is not None:
             jd = item.junction_deviation
-        self.rows.append((velocity, accel, jerk, jd))
+        if item.advance is not None:
+            advance = item.advance
+        self.rows.append((velocity, accel, jerk, jd, advance))
 
     def arrays(self, index: np.ndarray) -> tuple[np.ndarray, ...]:
         velocity, accel, jerk = (np.array([r[k] for r in self.rows])[index] for k in range(3))
-        return velocity, accel, jerk, np.array([r[3] for r in self.rows])[index]
+        return (velocity, accel, jerk, np.array([r[3] for r in self.rows])[index],
+                np.array([r[4] for r in self.rows], dtype=float)[index])
 
 
 def flatten(toolpath: Toolpath, tolerance: float) -> Segments:
@@ -121,11 +125,12 @@ class Flattener:
     and begins a new era of shapers (`shapings` gathers the items, taken by the caller)."""
 
     def __init__(self, start: np.ndarray, tolerance: float, runtime: bool = False, gcode_file: str | None = None,
-                 settle: Callable[[InputShaping], float] | None = None):
+                 settle: Callable[[InputShaping], float] | None = None, advance: float = 0.0):
         """`gcode_file`: the pieces of items written there keep their line (verify reads the G-code again);
-        `settle`: s the motion shaped before an InputShaping item takes to rest (None: WAIT_REST_S)."""
+        `settle`: s the motion shaped before an InputShaping item takes to rest (None: WAIT_REST_S); `advance`: the
+        pressure advance K the program starts with (the job's)."""
         self.tolerance, self.gcode_file, self.settle = tolerance, gcode_file, settle
-        self.limits = _LimitState()
+        self.limits = _LimitState(advance)
         self.position = np.asarray(start, dtype=float)
         self.items = 0
         self.runtime = runtime
@@ -244,13 +249,13 @@ def _segments(groups: list[tuple], limits: _LimitState, fines: list) -> Segments
     along = rank / each(counts)  # of the item, where each piece starts
     growth = np.divide(change, sweep, out=np.zeros(len(sweep)), where=sweep != 0.0)
     first_fine = each(fine_rows)
-    velocity, axis_accel, jerk, jd = limits.arrays(each(state))
+    velocity, axis_accel, jerk, jd, advance = limits.arrays(each(state))
     jerk = np.where((rank > 0)[:, None], np.nan, jerk)  # only where a move starts: chords carry on smoothly
     return Segments(
         start=starts, end=ends, feed=each(feed), tool=each(tool), power=each(power), dynamic=each(dynamic),
         dwell=each(dwell), item=each(owners), line=each(line),
         accel=each(accel), axis_velocity=velocity.reshape(-1, 4), axis_accel=axis_accel.reshape(-1, 4),
-        jerk=jerk.reshape(-1, 4), junction_deviation=jd, shaping=each(era), ref_kind=each(kind),
+        jerk=jerk.reshape(-1, 4), junction_deviation=jd, advance=advance, shaping=each(era), ref_kind=each(kind),
         ref_center=each(center).reshape(-1, 2),
         ref_radius=each(radius) + each(change) * along, ref_angle=each(angle) + each(sweep) * along,
         ref_growth=each(growth), ref_plane=each(plane).reshape(-1, 2),

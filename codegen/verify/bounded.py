@@ -34,6 +34,7 @@ from codegen.verify.compare import Comparison, Verdict, simulated_switches
 from codegen.verify.heaters import (HEAT_LIMIT_S, HELD_AFTER_FACTOR, HELD_AFTER_S, HeatedTrace, heater_figures,
                                     job_plants, table_start_s, trip_result, with_holds)
 from codegen.verify.report_samples import RunSamples
+from codegen.verify.resonance import AxisResonance
 from codegen.verify.results import verify_json
 from codegen.verify.run_reader import RunReader
 from codegen.verify.steps_csv import StepsCsv
@@ -50,6 +51,7 @@ class RunOutputs:
     vcd: Path | None = None
     report: bool = False
     sent_table: Path | None = None  # a stream's table bytes as the link sends them: decoded, held against the plan
+    resonance: tuple[AxisResonance, ...] = ()  # verify --resonance (codegen/verify/resonance.py)
 
 
 @dataclass
@@ -77,7 +79,7 @@ class BoundedComparison:
                  chapter_pulses: int = CHAPTER_PULSES, outputs: RunOutputs = RunOutputs()):
         self.host, self.strict, self.link, self.switches = host, strict, link, switches
         self.sent = None if outputs.sent_table is None else StreamTableCheck(outputs.sent_table, len(host.kin.motors))
-        self.streamed, self.chapter_pulses = streamed, chapter_pulses
+        self.streamed, self.chapter_pulses, self.resonance = streamed, chapter_pulses, outputs.resonance
         self.began = time.perf_counter()
         self.reader = self.comparison = self.chapters = None
         self.steps_csv = outputs.steps_csv  # verify --trace: the pulses written as they are compared
@@ -130,7 +132,7 @@ class BoundedComparison:
 
     def _comparison(self, reader: RunReader) -> Comparison:
         """The run's comparison (a held run's, with its dilated clock: codegen/verify/hold_bounded.py)."""
-        return Comparison(self.host, reader, self.streamed)
+        return Comparison(self.host, reader, self.streamed, resonance=self.resonance)
 
     def _twin(self, chapter: Chapter) -> Chapter:
         """The twin's chapter the run is compared with (a held run's on its dilated clock)."""

@@ -10,11 +10,12 @@ and the runtime records so far are on the twin's clock (`Chapters.timeline`: the
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
+from codegen.motion.advance import AdvanceReference
 from codegen.motion.blocks import Events
 from codegen.motion.planner import Plan
 from codegen.pipeline.join import join_compressed, join_events, join_plan, join_pulses, join_segments
@@ -66,6 +67,8 @@ class Chapter:
     first_event: int  # the program's index of its first event
     laser_before: int  # the PWM counts in force when it begins
     last: bool
+    planned: tuple[Segments, Plan] | None = None  # a shaped job's segments and plan before shaping
+    advance: list[AdvanceReference] = field(default_factory=list)  # its windows' pressure advance formulas
 
     @property
     def schedule(self) -> Schedule:
@@ -80,7 +83,7 @@ class Chapter:
 def whole_chapter(host, pulses: Pulses | None = None) -> Chapter:
     """A kept host build's whole program as one chapter (with `pulses`: a held run's dilated twin instead)."""
     return Chapter(host.segments, host.plan, host.events, pulses or host.pulses, host.compressed, None, None, 0, 0,
-                   True)
+                   True, host.planned)
 
 
 class Chapters:
@@ -128,8 +131,12 @@ class Chapters:
         pulses = join_pulses(windows)
         segments = join_segments(windows)
         compressed = join_compressed(windows, False, pulses)
+        planned = None
+        if windows[0].planned is not None:
+            planned = join_segments(windows, planned=True), join_plan(windows, planned=True)
         chapter = Chapter(segments, join_plan(windows), join_events(windows), pulses, compressed, self.before, after,
-                          self.events, self.laser, last)
+                          self.events, self.laser, last, planned,
+                          [w.advance for w in windows if w.advance is not None])
         self.events += len(pulses.event_tick)
         if len(compressed.schedule.run_power):
             counts = played_counts(compressed.schedule, self.laser)

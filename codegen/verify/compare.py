@@ -12,18 +12,21 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from codegen.firmware.homing import homing_steps
 from codegen.pipeline.host import HostBuild, trains_from
 from codegen.sim.avr_edges import Steps
 from codegen.tables.checks import Checker, Findings, corners_after
 from codegen.tables.hold import Dilation
 from codegen.tables.twin import Pulses
 from codegen.toolpath.segments import concat
+from codegen.verify.advance import advance_check
 from codegen.verify.chapters import Chapter, whole_chapter
+from codegen.verify.homing import homing_report
 from codegen.verify.laser import LaserVerdict, laser_verdict, merge_laser
 from codegen.verify.pins import homing_pace_problems, pin_problems
 from codegen.verify.plan_checks import PlanChecks
 from codegen.verify.program_check import ProgramCheck
+from codegen.verify.resonance import AxisResonance
+from codegen.verify.vibration import vibration_check
 
 MAX_TIMING_ERROR_US = 5.0
 DURATION_AGREEMENT = 0.01
@@ -36,34 +39,6 @@ def simulated_switches(host: HostBuild) -> dict[int, int]:
     spm = host.kin.limits.steps_per_mm
     return {k: h.direction * round(SWITCH_DISTANCE_MM[k % len(SWITCH_DISTANCE_MM)] * spm[h.motors[0]])
             for k, h in enumerate(host.homing)}
-
-
-def homing_report(host: HostBuild, trace, switches: dict[int, int | None]) -> tuple[dict, list[str]]:
-    """Homing steps per motor against what the switch positions imply: per axis that moves it, fast + back
-    off + slow approach steps, ending at the switch (a corexy's belts home in x and again in y). A switch at
-    None never closes."""
-    problems = [trace.homing_fault or "homing failed"] if trace.homing_failed else []  # "homing failed in the ..."
-    home = np.asarray(trace.step_phase) == "home"
-    expected: dict[int, dict] = {}
-    for k, h in enumerate(host.homing):
-        switch = switches.get(k)
-        towards = None if switch is None else int(switch) * h.direction
-        for m, d in zip(h.motors, h.motor_directions):
-            mine = expected.setdefault(m, {"steps": 0, "net": 0, "switches": []})
-            mine["steps"] += h.max_steps if towards is None else sum(homing_steps(h, abs(towards)))
-            mine["net"] += 0 if towards is None else d * towards
-            mine["switches"].append(h.switch)
-    report = {}
-    for m, want in expected.items():
-        name = host.kin.motors[m]
-        mine = home & (trace.step_motor == m)
-        steps, net = int(mine.sum()), int(trace.step_dir[mine].sum())
-        report[name] = {"steps": steps, "expected_steps": want["steps"], "net": net, "expected_net": want["net"],
-                        "switch": ", ".join(want["switches"])}
-        if not trace.homing_failed and (steps != want["steps"] or net != want["net"]):
-            problems.append(f"motor {name} homed in {steps} steps ending {net} from its start; its switches "
-                            f"({report[name]['switch']}) imply {want['steps']} steps ending {want['net']}")
-    return report, problems
 
 
 @dataclass
@@ -81,6 +56,8 @@ class Verdict:
     not_compared: list[str] = field(default_factory=list)  # figures that could not be measured, and why
     laser: LaserVerdict | None = None  # a PWM laser's power (codegen/verify/laser.py)
     gcode_checked: dict | None = None  # what was held against the G-code read again (None: no G-code)
+    vibration: dict | None = None  # per resonating axis, the toolhead's residual vibration (verify/vibration.py)
+    advance_steps: float | None = None  # the simulated extruder's largest distance from the pressure advance formula
 
     @property
     def path_measured(self) -> bool:
@@ -100,9 +77,10 @@ class Comparison:
     A streaming firmware (`streamed`) counts positions from the job's start: it does not know where a job puts the
     machine. A held or overridden run (codegen/verify/hold.py) is compared with its dilated twin; `warp` maps the
     plan's times onto its clock (seconds to seconds; it may know only the chapter being added's: it is called there);
-    `dilation` (codegen/tables/hold.py) has its feed factors."""
+    `dilation` (codegen/tables/hold.py) has its feed factors. `resonance`: verify --resonance's axes."""
 
-    def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None):
+    def __init__(self, host: HostBuild, levels, streamed: bool = False, warp=None, dilation=None,
+                 resonance: tuple[AxisResonance, ...] = ()):
         """`levels`: the run's clock and slow outputs so far (timer_start_cycle, f_cpu, tool_edges, laser_duty: a
         SimTrace, or what the caller keeps up to date as it reads the run)."""
         self.host, self.levels, self.f_cpu = host, levels, levels.f_cpu
@@ -128,6 +106,8 @@ class Comparison:
         self.gap_cycles = (host.target.run_gap_ticks(motors, host.settings.stages.step_pulse_us) * self.f_cpu
                            // host.target.tick_hz // 2)
         self.plan_checks = PlanChecks(host, timing=warp is None)  # corner speeds, the rate runs' window
+        self.vibration, self.vibration_notes = vibration_check(host, resonance, held=warp is not None)
+        self.advance = None if warp is not None else advance_check(host)  # the extruder against the formula
 
     def add(self, chapter: Chapter, sim: Steps, clock: np.ndarray) -> None:
         """`sim`: the chapter's simulated pulses in time order (cycles as simulated: the tool's and the laser's
@@ -155,6 +135,8 @@ class Comparison:
             self.predicted[m] += want
         self.paired = self.paired and counts_agree
         matched = matched and self.paired
+        if self.advance is not None:
+            self.advance.add(sim_s, sim.motor, sim.dir, chapter.advance)
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps
@@ -166,6 +148,8 @@ class Comparison:
             self.span_cycles = [self.span_cycles[0] if self.span_cycles else int(sim.cycle[0]), int(sim.cycle[-1])]
         self._motion(chapter, sim, sim_s, matched)
         self.program.add(chapter)
+        if self.vibration is not None:
+            self.vibration.add(chapter, sim_s, sim.motor, sim.dir)
 
     def _pair(self, m: int, sim_s: np.ndarray, sim_dir: np.ndarray, twin_s: np.ndarray,
               twin_dir: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -273,7 +257,7 @@ class Comparison:
             pace, self.problems = [], []
         elif trace.state not in ("done", "held"):  # held: the table played, the image holds its heaters
             problems.append(f"the simulation ended in state '{trace.state}' after {trace.cycles} cycles")
-        not_compared, timing = list(self.plan_checks.not_compared), {}
+        not_compared, timing = self.plan_checks.not_compared + self.vibration_notes, {}
         for m, name in enumerate(names):
             got, want = int(self.made[m]), int(self.predicted[m])
             if got != want:
@@ -285,7 +269,7 @@ class Comparison:
             if self.wrong_dir[m] is not None:
                 first, count = self.wrong_dir[m]
                 problems.append(f"motor {name}: step {first} goes the wrong way ({count} steps differ)")
-        problems += self.problems + self.program.finish()
+        problems += self.problems + self.program.finish() + (self.advance.problems() if self.advance else [])
         if not self.paired:
             not_compared.append("path error: the simulated steps do not pair with the twin's, so they cannot be "
                                 "placed on the path's segments")
@@ -316,7 +300,9 @@ class Comparison:
         display = None if trace.display is None else list(trace.display.lines)
         return Verdict(findings, duration, planned, self.tick0 / f_cpu * 1e6, timing, width, setup,
                        homing_problems + problems, homing, display, not_compared, laser,
-                       self.program.checked if self.program.active else None)
+                       self.program.checked if self.program.active else None,
+                       None if self.vibration is None else self.vibration.figures(),
+                       None if self.advance is None else self.advance.worst[0])
 
     def step_span(self, trace) -> tuple[int, int] | None:
         """The first and the last STEP rise of the run, homing's (in `trace`) included."""
@@ -352,11 +338,12 @@ def _chapter_dilation(dilation: Dilation | None, chapter: Chapter) -> Dilation |
 
 
 def compare(host: HostBuild, full_trace, switches: dict[int, int], streamed: bool = False,
-            dilated: Pulses | None = None, warp=None, dilation=None) -> Verdict:
+            dilated: Pulses | None = None, warp=None, dilation=None,
+            resonance: tuple[AxisResonance, ...] = ()) -> Verdict:
     """A whole simulated run (the table's steps, after any homing) against a kept host build's twin (`dilated`: a
     held run's), as one chapter; homing on its own."""
     trace = full_trace.run_only()
-    comparison = Comparison(host, trace, streamed, warp, dilation)
+    comparison = Comparison(host, trace, streamed, warp, dilation, resonance)
     order = np.argsort(trace.step_cycle, kind="stable")
     sim = Steps(trace.step_cycle[order], trace.step_motor[order], trace.step_dir[order])
     comparison.add(whole_chapter(host, dilated), sim, sim.cycle)

@@ -48,7 +48,40 @@ def verify_json(host: HostBuild, verdict, image) -> dict:
         "display": verdict.display,
         **({"laser": verdict.laser.as_json()} if verdict.laser else {}),
         **({"gcode_checked": verdict.gcode_checked} if verdict.gcode_checked is not None else {}),
+        **({"pressure_advance_steps": rounded(verdict.advance_steps, 4)} if verdict.advance_steps is not None else {}),
         "image": {"flash_bytes": image.flash_bytes, "ram_bytes": image.ram_bytes,
                   "table_bytes": host.totals.table_bytes},
         "problems": verdict.problems + f.problems,
+        **({"vibration": vibration_json(verdict.vibration)} if verdict.vibration else {}),
+        **({"smoothing_mm": rounded(host.findings.smoothing_mm)} if host.findings.smoothing_mm is not None else {}),
     }
+
+
+def vibration_json(vibration: dict) -> dict:
+    """`vibration.<axis>` (codegen/verify/vibration.py figures), rounded."""
+    def tidy(value):
+        if isinstance(value, dict):
+            return {k: tidy(v) for k, v in value.items()}
+        return rounded(value, 4) if isinstance(value, float) else value
+    return {axis: tidy(figures) for axis, figures in vibration.items()}
+
+
+def vibration_lines(vibration: dict) -> list[str]:
+    """verify's text lines of the toolhead's residual vibration, an axis a line."""
+    lines = []
+    for axis, v in vibration.items():
+        worst = v["worst"] or {}
+        place = f", the most at {worst['time_s']:.4f} s" if worst else ""
+        place += f" (line {worst['line']})" if worst.get("line") else ""
+        if v["shaper"] is None:
+            lines.append(f"  vibration {axis} ({v['freq_hz']:g} Hz, damping {v['damping']:g}, unshaped): residual "
+                         f"{v['residual_peak_um']:.2f} um peak, {v['residual_rms_um']:.2f} um RMS after "
+                         f"{v['places']} acceleration changes{place}")
+            continue
+        ratio = "" if v["ratio"] is None else f": {100 * v['ratio']:.1f} % of unshaped"
+        lines.append(f"  vibration {axis} ({v['freq_hz']:g} Hz, damping {v['damping']:g}, {v['shaper']}): residual "
+                     f"{v['residual_peak_um']:.2f} um peak, {v['residual_rms_um']:.2f} um RMS after {v['places']} "
+                     f"acceleration changes{place}; unshaped {v['unshaped_peak_um']:.2f} um peak, "
+                     f"{v['unshaped_rms_um']:.2f} um RMS{ratio} (the shaper's theory: "
+                     f"{100 * v['theory_ratio']:.1f} %)")
+    return lines

@@ -10,7 +10,8 @@ import pytest
 
 from codegen.cli import batch
 from codegen.cli.main import parser
-from tests.helpers import EXAMPLES, run_cli as run
+from tests.helpers import EXAMPLES
+from tests.helpers import run_cli as run
 
 needs_tools = pytest.mark.skipif(any(shutil.which(t) is None for t in ("avr-gcc", "simavr", "sdcc", "s51")),
                                  reason="needs gcc-avr, simavr, sdcc and s51 (scripts/setup.sh installs them)")
@@ -118,17 +119,18 @@ def test_every_verify_option_reaches_the_children():
     would quietly verify without it."""
     verify = parser()._subparsers._group_actions[0].choices["verify"]
     handled = set(batch.VALUES) | set(batch.SWITCHES) | set(batch.ONE_JOB) | {
-        "help", "job", "out", "json", "quiet", "fault", "jobs", "junit"}
+        "help", "job", "out", "json", "quiet", "fault", "resonance", "jobs", "junit"}
     assert {action.dest for action in verify._actions} <= handled
 
 
 def test_child_flags_read_back_as_given():
     argv = ["--target", "mcs51", "--strict", "--stream", "--baud", "9600", "--hold", "1.25", "--override", "50",
-            "--fault", "thermistor-open:bed@30", "--fault", "heater-dead@2.5"]
+            "--fault", "thermistor-open:bed@30", "--fault", "heater-dead@2.5", "--resonance", "x=48.2,0.07",
+            "--resonance", "y=52"]
     given = parser().parse_args(["verify", "a.yaml", "b.yaml", *argv])
     flags = batch.child_flags(given)
     again = parser().parse_args(["verify", "a.yaml", *flags])
-    for dest in ("target", "strict", "stream", "baud", "hold", "override", "fault"):
+    for dest in ("target", "strict", "stream", "baud", "hold", "override", "fault", "resonance"):
         assert getattr(again, dest) == getattr(given, dest), dest
 
 

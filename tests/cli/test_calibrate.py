@@ -11,7 +11,6 @@ import shutil
 import numpy as np
 import pytest
 
-from codegen.errors import JobError
 from codegen.job import load_job
 from codegen.motion.shapers import make_shaper
 from codegen.pipeline.host import host_build
@@ -40,6 +39,16 @@ program:
   start: [10, 10]
   shapes:
     - line: {to: [11, 11]}
+"""
+DELTA = """name: delta
+machine:
+  kinematics: delta
+  steppers:
+    a: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+    b: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+    c: {steps_per_mm: 80, max_velocity: 200, max_accel: 3000}
+    e: {steps_per_mm: 100, max_velocity: 80, max_accel: 5000}
+  delta: {radius: 105.2, diagonal_rod: 215, height: 250}
 """
 SMALL_TOWER = ("--height", "6", "--size", "20", "--layer-height", "0.5", "--start", "30", "--end", "65", "--step",
                "10")
@@ -129,15 +138,15 @@ def test_pressure_advance_pattern_sets_k_before_each_line(capsys, tmp_path):
 
 
 def test_the_pressure_advance_job_plans(capsys, tmp_path):
-    calibrate(capsys, tmp_path, "pressure-advance", PRINTER, "--end", "0.01")
-    try:
-        host = host_build(load_job(tmp_path / "pressure-advance.yaml"))
-    except JobError as error:  # until M900 K is modelled (issue 29's pressure advance)
-        message = error.diagnostics[0].message
-        if "M900" in message and ("not modelled" in message or "unsupported" in message):
-            pytest.skip(f"the interpreter refuses M900: {message}")
-        raise
+    calibrate(capsys, tmp_path, "pressure-advance", PRINTER, "--end", "0.01", "--start", "0.002")
+    job = load_job(tmp_path / "pressure-advance.yaml")
+    assert (job.machine.pressure_advance.k, job.machine.pressure_advance.smooth_time) == (0.002, 0.04)
+    host = host_build(job)
     assert host.findings.ok, host.findings.problems
+    assert host.findings.advance_steps is not None and host.findings.advance_steps <= 1.0
+    segments, _ = host.planned
+    drawn = segments.end[:, 3] > segments.start[:, 3]
+    assert sorted(set(np.round(segments.advance[drawn], 6))) == [0.002, 0.007]  # each line's M900 K
 
 
 @pytest.mark.parametrize("test, machine, options, message", [
@@ -147,6 +156,7 @@ def test_the_pressure_advance_job_plans(capsys, tmp_path):
     ("ringing", PRINTER, ("--type", "3hump_ei", "--damping", "0.25"),
      "--damping: error: 0.25: the damping ratio of 3hump_ei must be > 0 and <= 0.2"),
     ("pressure-advance", PLOTTER, (), "error: calibrate pressure-advance: pressure advance needs a printer"),
+    ("pressure-advance", DELTA, (), "error: calibrate pressure-advance: pressure advance needs cartesian or corexy"),
 ])
 def test_bad_options_are_exit_2(capsys, tmp_path, test, machine, options, message):
     job = tmp_path / "machine.yaml"

@@ -23,6 +23,7 @@ def make_job(gcode: str, motors=PRINTER, start=(0, 0), feed=1200, travel_feed=No
     fake.laser = NS(pwm_hz=1000) if laser else None
     if kinematics == "delta":
         fake.delta = NS(height=250.0, diagonal_rod=215.0)
+        fake.home_point = (0.0, 0.0, 250.0)
     return NS(machine=fake, path=path,
               program=NS(start=start, feed=feed, travel_feed=travel_feed, gcode=gcode,
                          gcode_source=SourceRef("job.yaml", 8, 5), **program))

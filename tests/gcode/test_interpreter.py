@@ -351,13 +351,16 @@ def test_m205_least_feed_rates():
 
 
 def test_pressure_advance_only_off():
-    """M900 K0 / M572 S0 change nothing and are skipped; a non-zero advance would move the extruder off the plan."""
+    """Without machine.pressure_advance, M900 K0 / M572 S0 change nothing and are skipped; a non-zero advance would
+    move the extruder off the plan (tests/gcode/test_advance_codes.py: with it)."""
     assert [w.message for w in run("M900 K0\nM572 S0\n")[1]] == [
         "'M900' ignored (linear advance off (K0), as without it)",
         "'M572' ignored (pressure advance off (S0), as without it)"]
     assert errors("M900 K0.05\nM572 S0.04\n") == [
-        (8, 10, "'M900 K0.05': pressure (linear) advance is not modelled; only K0 (off)"),
-        (9, 10, "'M572 S0.04': pressure (linear) advance is not modelled; only S0 (off)")]
+        (8, 10, "'M900 K0.05': pressure (linear) advance needs machine.pressure_advance in the job; without it only "
+                "K0 (off)"),
+        (9, 10, "'M572 S0.04': pressure (linear) advance needs machine.pressure_advance in the job; without it only "
+                "S0 (off)")]
 
 
 def test_an_arc_larger_than_any_machine_is_refused_at_its_word():

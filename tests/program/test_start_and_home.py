@@ -94,3 +94,40 @@ def test_an_explicit_start_without_homing_is_where_the_tool_is(tmp_path):
     host = build(tmp_path, CARTESIAN.format(start="  start: [30, 30]\n", home="false"))
     assert host.toolpath.start[:2].tolist() == [30.0, 30.0] and host.start_steps.tolist() == [2400, 2400]
     assert np.allclose(host.toolpath.items[0].start[:2], [30, 30])
+
+
+G28_PROGRAM = """
+name: plotter
+machine:
+  kinematics: {kinematics}
+  steppers:
+{steppers}
+program:
+  gcode: |
+    G28
+    G1 X10 F600
+    G28 X
+    G1 Y5 Z2
+"""
+CARTESIAN_STEPPERS = """    x: {steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-5, 200]}
+    y: {steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-3, 200]}
+    z: {steps_per_mm: 400, max_velocity: 10, max_accel: 200, range: [-1, 100]}"""
+COREXY_STEPPERS = """    a: {steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-300, 300]}
+    b: {steps_per_mm: 80, max_velocity: 100, max_accel: 2000, range: [-300, 300]}
+    z: {steps_per_mm: 400, max_velocity: 10, max_accel: 200, range: [-1, 100]}"""
+
+
+@pytest.mark.parametrize("kinematics, steppers, home, x_steps", [
+    ("cartesian", CARTESIAN_STEPPERS, [-5.0, -3.0, -1.0], 2 * 15 * 80),
+    ("corexy", COREXY_STEPPERS, [0.0, 0.0, -1.0], 2 * 10 * 80 + 5 * 80)])  # belt a: x there and back, then y
+def test_g28_leaves_the_tool_where_homing_does(tmp_path, kinematics, steppers, home, x_steps):
+    """The G-code's G28 goes to the min switches, at the low ends of the ranges, as the firmware's homing and
+    Klipper's position_endstop do: `G28 / G1 X10` moves x 15 mm from a switch at -5 (Klipper: 1,200 steps)."""
+    host = build(tmp_path, G28_PROGRAM.format(kinematics=kinematics, steppers=steppers))
+    assert host.findings.ok, host.findings.problems
+    assert host.toolpath.start[:3].tolist() == home
+    first, back_home, last = [item for item in host.toolpath.items if isinstance(item, Line)]
+    assert first.end[:3].tolist() == [10.0, home[1], home[2]]
+    assert back_home.end[:3].tolist() == home  # `G28 X` mid-program: x back to its switch
+    assert last.end[:3].tolist() == [home[0], 5.0, 2.0]
+    assert host.findings.steps["x" if kinematics == "cartesian" else "a"] == x_steps

@@ -6,7 +6,8 @@ checks that span several keys (the motors of a kinematics, `delta:` only with de
 the same mapping are wrong. `source`, `gcode_source` and `path` are set by the loader.
 
 The models live by part: fields.py (the field types and sane ranges), machine.py, heaters.py, shapes.py,
-shaping.py (the input shaper); the program and the job here. Everything is imported from here.
+shaping.py (the input shaper), advance.py (pressure advance); the program and the job here. Everything is
+imported from here.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Annotated, Any, Optional
 from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from codegen.errors import SourceRef
+from codegen.job.schema.advance import DEFAULT_SMOOTH_TIME, PressureAdvance
 from codegen.job.schema.fields import (DEFAULT_BOARDS, KINEMATICS, MOTORS, REACH_MM, REQUIRED_MOTORS, TARGETS, Flag,
                                        Model, Point, Positive, Text, choice, fail)
 from codegen.job.schema.heaters import (DEFAULT_MAX_TEMP_C, DEFAULT_SENSOR, HEATERS, BangBang, Control, CustomSensor,
@@ -31,7 +33,7 @@ __all__ = [
     "DEFAULT_MAX_TEMP_C", "SHAPES", "Job", "Program", "Machine", "Stepper", "Delta", "Homing", "Link", "Laser", "Jog",
     "FeedHold", "Heater", "CustomSensor", "PidGains", "BangBang", "Control", "PlantOverrides", "Shape", "Line",
     "Polyline", "Points", "Arc", "Circle", "Ellipse", "Sine", "Function", "Travel", "InputShaper", "AxisShaper",
-    "SHAPED_AXES", "SHAPER_MAX_DAMPING",
+    "SHAPED_AXES", "SHAPER_MAX_DAMPING", "PressureAdvance", "DEFAULT_SMOOTH_TIME",
 ]
 
 

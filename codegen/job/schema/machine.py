@@ -1,5 +1,5 @@
 """The machine's models: steppers, delta geometry, homing, the link, the laser, jog keys and feed hold (the input
-shaper's in shaping.py)."""
+shaper's in shaping.py, pressure advance's in advance.py)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Annotated, Any, Optional
 from pydantic import BeforeValidator, Field, PrivateAttr, ValidationInfo, field_validator, model_validator
 
 from codegen.errors import SourceRef
+from codegen.job.schema.advance import PressureAdvance
 from codegen.job.schema.fields import (BACKOFF, DELTA_SIZE, HOMING_SPEED, JUNCTION, KINEMATICS, LEAST_ACCEL, MOTORS,
                                        REACH_MM, SLOWEST_TOP_SPEED, STEPS_PER_MM, TOLERANCE, XY, Angles, Flag, Model,
                                        Positive, choice, fail, number_value)
@@ -160,10 +161,21 @@ class Machine(Model):
     laser: Optional[Laser] = None  # a PWM laser; None: the tool pin is only on or off
     feed_hold: Optional[FeedHold] = None  # hold, resume and override (keys or link frames); None: none
     input_shaper: Optional[InputShaper] = None  # shapers per axis (codegen/job/schema/shaping.py); None: unshaped
+    pressure_advance: Optional[PressureAdvance] = None  # the extruder's lead (schema/advance.py); None: none
 
     @property
     def motor_names(self) -> tuple[str, ...]:
         """The motors present, in the kinematics' canonical order (cartesian x, y, z, e; ...)."""
         return tuple(n for n in MOTORS[self.kinematics] if n in self.steppers)
+
+    @property
+    def home_point(self) -> tuple[float, float, float]:
+        """Where the tool is once homed (x, y, z, mm): a delta's nozzle at `height` above the bed centre; on
+        cartesian and corexy machines each axis at its min switch, the low end of its motor's `range` (0 without
+        one; a corexy's x and y at 0: its a and b ranges are the belts')."""
+        if self.kinematics == "delta":
+            return 0.0, 0.0, float(self.delta.height)
+        low = [self.steppers[a].range[0] if a in self.steppers and self.steppers[a].range else 0.0 for a in "xyz"]
+        return float(low[0]), float(low[1]), float(low[2])
 
 

@@ -1,0 +1,88 @@
+"""Pressure advance's formula and its fit (codegen/motion/advance.py): g, Klipper's smoothed advanced extruder,
+evaluated exactly; the quadratic pieces the blocks are cut from within their tolerance of it everywhere."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace as NS
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from codegen.motion.advance import AdvanceSettings, Quadratics, advanced_extruder, advanced_source, smoothed
+
+STEPS_PER_MM = 415.0
+FIT_STEPS = 0.05  # the pipeline's (codegen/pipeline/settings.py ADVANCE_FIT_STEPS)
+
+
+def continuous(lengths, velocity, accel, start=0.0) -> Quadratics:
+    """Pieces of the given lengths (s), velocities at their starts and accelerations, positions joined up."""
+    lengths, velocity, accel = (np.asarray(a, dtype=float) for a in (lengths, velocity, accel))
+    moved = velocity * lengths + 0.5 * accel * lengths**2
+    position = start + np.concatenate([[0.0], np.cumsum(moved)[:-1]])
+    return Quadratics(np.concatenate([[0.0], np.cumsum(lengths)]), position, velocity, accel)
+
+
+def brute_force(f: Quadratics, t: np.ndarray, half: float, n: int = 400_001) -> np.ndarray:
+    """g by the trapezoidal rule on a fine grid (f continuous: the rule's error is tiny)."""
+    u = np.linspace(-half, half, n)
+    weight = (half - np.abs(u)) / half**2
+    return np.array([np.trapezoid(f.at(ti + u) * weight, u) for ti in t])
+
+
+def test_smoothed_is_the_triangle_weighted_mean():
+    rng = np.random.default_rng(7)
+    f = continuous(rng.uniform(0.002, 0.05, 40), rng.uniform(-5, 5, 40), rng.uniform(-2000, 2000, 40), 300.0)
+    t = rng.uniform(f.breaks[0] + 0.03, f.breaks[-1] - 0.03, 25)
+    assert np.max(np.abs(smoothed(f, t, 0.02) - brute_force(f, t, 0.02))) < 1e-9
+
+
+def test_smoothing_leaves_lines_and_parabolas_as_klipper_has_them():
+    """A constant velocity passes unchanged; a constant acceleration a gains a h^2 / 12 (a / 2 times the triangle's
+    variance h^2 / 6)."""
+    line = continuous([10.0], [3.0], [0.0])
+    parabola = continuous([10.0], [1.0], [500.0])
+    t = np.array([1.0, 4.5, 9.0])
+    assert np.allclose(smoothed(line, t, 0.02), line.at(t), atol=1e-12, rtol=0)
+    assert np.allclose(smoothed(parabola, t, 0.02), parabola.at(t) + 500.0 * 0.02**2 / 12, atol=1e-9, rtol=0)
+
+
+def segments_of(moves: np.ndarray, k: np.ndarray) -> NS:
+    """Segments as advanced_source reads them: their moves (x, y, z, e) and K."""
+    return NS(start=np.zeros_like(moves), end=moves, advance=k)
+
+
+def test_the_advance_leads_by_k_times_the_extruder_velocity_where_it_applies():
+    """An extruding move with x (K applies), a retraction (e backwards: none), an extruding z-only move (none, as
+    in Klipper: x or y must move)."""
+    moves = np.array([[10.0, 0, 0, 1.0], [0, 0, 0, -1.0], [0, 0, 1.0, 0.5]])
+    f = advanced_source(np.array([0.0, 1.0, 2.0, 3.0]), np.array([0.0, 2.0, 1.0]), np.array([2.0, -1.0, 0.5]),
+                        np.zeros(3), np.arange(3), segments_of(moves, np.full(3, 0.05)), 0.02)
+    assert np.allclose(f.at(np.array([0.5, 1.5, 2.5])), [1.0 + 0.05 * 2.0, 1.5, 1.25])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), k=st.floats(0.0, 0.2), smooth_time=st.floats(0.005, 0.2))
+def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k, smooth_time):
+    """Random extruder motion (speeds and accelerations of a print, velocity jumps at corners, retractions, rests),
+    random K per segment: the fit against the exact formula at 16 points of every piece and at random times."""
+    rng = np.random.default_rng(seed)
+    n = 30
+    lengths = rng.choice([0.0005, 0.004, 0.03, 0.3], n) * rng.uniform(0.5, 1.5, n)
+    velocity = rng.uniform(-40.0, 40.0, n) * rng.choice([0.0, 0.1, 1.0], n)
+    accel = rng.uniform(-5000.0, 5000.0, n) * rng.choice([0.0, 0.1, 1.0], n)
+    velocity[-1] = accel[-1] = 0.0  # the program ends at rest
+    plan = continuous(lengths, velocity, accel, 100.0)
+    moves = np.column_stack([rng.choice([0.0, 1.0], n), np.zeros(n), np.zeros(n), rng.choice([-1.0, 1.0], n)])
+    segments = segments_of(moves, k * rng.choice([0.0, 1.0, 2.0], n))
+    advance = AdvanceSettings(smooth_time, FIT_STEPS / STEPS_PER_MM)
+    fit = advanced_extruder(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments, advance)
+    source = advanced_source(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments,
+                             advance.half)
+    share = np.linspace(0.0, 1.0, 16)
+    t = np.concatenate([(fit.breaks[:-1, None] + np.diff(fit.breaks)[:, None] * share[None, :]).ravel(),
+                        rng.uniform(fit.breaks[0], fit.breaks[-1], 500)])
+    error_steps = np.abs(fit.at(t) - smoothed(source, t, advance.half)) * STEPS_PER_MM
+    assert error_steps.max() <= FIT_STEPS * (1 + 1e-6) + 1e-7
+    assert fit.breaks[0] == plan.breaks[0] - advance.half and fit.breaks[-1] == plan.breaks[-1] + advance.half
+    assert abs(fit.end - plan.end) < 1e-9  # at rest a triangle's half width after the plan: where the plan ends
