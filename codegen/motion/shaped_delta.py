@@ -1,0 +1,125 @@
+"""A delta's shaped motion in carriage steps: where its carriages turn, how far they stray from a block's chord,
+and when its master carriage crosses each half step.
+
+Shaped motion is piecewise quadratic in x, y, z (codegen/motion/shaped_motion.py); a delta's carriages are its
+inverse kinematics, c_i = z + sqrt(rod^2 - |(x, y) - T_i|^2), which are not quadratic in time. So where the linear
+kinematics solve quadratics (codegen/motion/shaped_blocks.py), this module samples and solves numerically, numpy
+over all pieces, blocks or events at once: a carriage's turn is bracketed by samples of its velocity along each
+piece, then bisected; a block's largest stray from its chord is taken from samples along its pieces (the blocks
+are cut there, so the samples grow finer where it matters); a master event is solved by Newton's method on the
+master carriage's exact position, kept inside the bracket its piece gives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codegen.kinematics.base import Kinematics
+from codegen.motion.shaped_motion import Motion
+
+SAMPLES = 16  # intervals per piece at which the carriages are sampled (turns, strays)
+BISECTIONS = 48  # halvings of a turn's bracket (a piece's 1/SAMPLES): far below a tick
+NEWTON_ROUNDS = 40  # at most; a crossing takes a few from its quadratic first guess
+CROSSING_STEPS = 1e-6  # steps: how closely a master event's crossing is solved (far below a tick)
+
+
+def carriage_steps(motion: Motion, piece: np.ndarray, dt: np.ndarray,
+                   kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, M) every motor's position (steps), velocity and acceleration at dt (N,) s into pieces (N,)."""
+    spm = kin.limits.steps_per_mm
+    velocity = motion.velocity[piece] + motion.accel[piece] * dt[:, None]
+    position, speed, accel = kin.carriage_motion(motion.at_piece(piece, dt), velocity, motion.accel[piece])
+    return position * spm, speed * spm, accel * spm
+
+
+def carriage_turns(motion: Motion, kin: Kinematics, margin: float) -> np.ndarray:
+    """The times inside pieces (more than `margin` s from their ends) where a motor's velocity passes through zero:
+    between two samples of opposite sign, bisected."""
+    h = np.diff(motion.breaks)
+    share = np.linspace(0.0, 1.0, SAMPLES + 1)
+    piece = np.repeat(np.arange(len(motion)), SAMPLES + 1)
+    speed = carriage_steps(motion, piece, (h[:, None] * share[None, :]).ravel(), kin)[1]
+    sign = np.sign(speed).reshape(len(motion), SAMPLES + 1, -1)
+    which, interval, motor = np.nonzero(sign[:, :-1] * sign[:, 1:] < 0)
+    lo, hi = h[which] * share[interval], h[which] * share[interval + 1]
+    before = sign[which, interval, motor]
+    rows = np.arange(len(which))
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (lo + hi)
+        same = np.sign(carriage_steps(motion, which, middle, kin)[1][rows, motor]) == before
+        lo, hi = np.where(same, middle, lo), np.where(same, hi, middle)
+    tau = 0.5 * (lo + hi)
+    inside = (tau > margin) & (tau < h[which] - margin)
+    return np.unique(motion.breaks[which[inside]] + tau[inside])
+
+
+def carriage_ways(motion: Motion, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+    """(K, M) the way each motor moves along each piece (its turns cut: one way, or none), and (K,) the pieces
+    where nothing moves."""
+    ends = np.vstack([motion.position, motion.end[None, :]])
+    way = np.sign(np.diff(kin.to_motor(ends) * kin.limits.steps_per_mm, axis=0))
+    return way, ~np.any((motion.velocity != 0) | (motion.accel != 0), axis=1)
+
+
+def carriage_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: Kinematics):
+    """For blocks `which` (between `bounds`): every motor at their ends (steps, (B, M) each), and the largest
+    distance (steps) of a slave from its block's chord (slave against master: its Bresenham line) with its time,
+    from SAMPLES samples along each of the block's pieces."""
+    spm = kin.limits.steps_per_mm
+    x0, x1 = kin.to_motor(motion.at(bounds[which])) * spm, kin.to_motor(motion.at(bounds[which + 1])) * spm
+    first = np.searchsorted(motion.breaks, bounds[which])
+    count = (np.searchsorted(motion.breaks, bounds[which + 1]) - first) * SAMPLES
+    block = np.repeat(np.arange(len(which)), count)
+    sample = np.arange(len(block)) - np.repeat(np.cumsum(count) - count, count)
+    piece = first[block] + sample // SAMPLES
+    dt = np.diff(motion.breaks)[piece] * (sample % SAMPLES) / SAMPLES
+    p = carriage_steps(motion, piece, dt, kin)[0]
+    rows = np.arange(len(which))
+    master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
+    span = (x1 - x0)[rows, master][:, None]
+    ratio = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)
+    u = master[block]
+    off = p - x0[block] - ratio[block] * (p[np.arange(len(block)), u] - x0[block, u])[:, None]
+    stray = np.abs(off).max(axis=1)
+    pick = np.lexsort((stray, block))[np.cumsum(count) - 1]  # per block, its worst sample last
+    return x0, x1, stray[pick], motion.breaks[piece[pick]] + dt[pick]
+
+
+def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps: np.ndarray, master: np.ndarray,
+                       block: np.ndarray, k: np.ndarray, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+    """Time and phase (0 speeding up, 1 steady, 2 slowing down) of event k (1-based) of each block: where the
+    master carriage has gone k - 1/2 steps past its rounded start. Along a block the master moves one way, so its
+    pieces sort on one key (as in shaped_blocks' linear case); inside its piece each event is Newton's root of the
+    master's exact position, every step a bisection where Newton's would leave the bracket."""
+    rows = np.arange(len(x0))
+    sign = np.sign(steps[rows, master]).astype(float)
+    origin = x0[rows, master]
+    offset = np.concatenate([[0.0], np.cumsum(np.abs(steps[rows, master]) + 2.0)])  # room for each block's span
+    piece_block = np.searchsorted(bounds, motion.breaks[:-1], side="right") - 1
+    u = master[piece_block]
+    start = kin.to_motor(motion.position) * kin.limits.steps_per_mm
+    progress = sign[piece_block] * (start[np.arange(len(motion)), u] - origin[piece_block])
+    key = offset[piece_block] + np.maximum(progress, 0.0)
+    target = sign[block] * (np.round(origin[block]) - origin[block]) + k - 0.5
+    piece = np.searchsorted(key, offset[block] + target, side="right") - 1
+    first = np.searchsorted(motion.breaks, bounds[:-1])  # each block's pieces
+    last = np.searchsorted(motion.breaks, bounds[1:]) - 1
+    piece = np.clip(piece, first[block], last[block])
+    h = motion.breaks[piece + 1] - motion.breaks[piece]
+    events, um, s = np.arange(len(block)), master[block], sign[block]
+    _, v, a = carriage_steps(motion, piece, np.zeros(len(piece)), kin)
+    speed, accel = s * v[events, um], s * a[events, um]
+    ahead = np.maximum(target - progress[piece], 0.0)
+    root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
+    tau = np.clip(np.divide(2.0 * ahead, speed + root, out=np.zeros_like(ahead), where=speed + root > 0), 0.0, h)
+    lo, hi = np.zeros(len(tau)), h.copy()
+    for _ in range(NEWTON_ROUNDS):
+        p, v, a = carriage_steps(motion, piece, tau, kin)
+        miss = s * (p[events, um] - origin[block]) - target
+        speed, accel = s * v[events, um], s * a[events, um]
+        if np.all((np.abs(miss) <= CROSSING_STEPS) | ((miss < 0) & (tau >= h)) | ((miss > 0) & (tau <= 0))):
+            break
+        lo, hi = np.where(miss < 0, tau, lo), np.where(miss < 0, hi, tau)
+        step = tau - np.divide(miss, speed, out=np.full_like(tau, np.inf), where=speed > 0)
+        tau = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+    return motion.breaks[piece] + tau, np.where(accel > 0, 0, np.where(accel < 0, 2, 1)).astype(np.int8)
