@@ -21,6 +21,7 @@ SAMPLES = 16  # intervals per piece at which the carriages are sampled (turns, s
 BISECTIONS = 48  # halvings of a turn's bracket (a piece's 1/SAMPLES): far below a tick
 NEWTON_ROUNDS = 40  # at most; a crossing takes a few from its quadratic first guess
 CROSSING_STEPS = 1e-6  # steps: how closely a master event's crossing is solved (far below a tick)
+TIME_RESOLUTION = 1e-12  # s: a crossing's bracket this narrow is solved (a root at a piece's very end)
 
 
 def carriage_steps(motion: Motion, piece: np.ndarray, dt: np.ndarray,
@@ -89,8 +90,9 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
                        block: np.ndarray, k: np.ndarray, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
     """Time and phase (0 speeding up, 1 steady, 2 slowing down) of event k (1-based) of each block: where the
     master carriage has gone k - 1/2 steps past its rounded start. Along a block the master moves one way, so its
-    pieces sort on one key (as in shaped_blocks' linear case); inside its piece each event is Newton's root of the
-    master's exact position, every step a bisection where Newton's would leave the bracket."""
+    pieces sort on one key (as in shaped_blocks' linear case); inside its piece each event is the root of the
+    master's exact position, found by Newton's method of second order (the motion's quadratic about the last
+    guess, exact where the carriage is), a bisection of the bracket where a step would leave it."""
     rows = np.arange(len(x0))
     sign = np.sign(steps[rows, master]).astype(float)
     origin = x0[rows, master]
@@ -106,20 +108,24 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
     last = np.searchsorted(motion.breaks, bounds[1:]) - 1
     piece = np.clip(piece, first[block], last[block])
     h = motion.breaks[piece + 1] - motion.breaks[piece]
-    events, um, s = np.arange(len(block)), master[block], sign[block]
-    _, v, a = carriage_steps(motion, piece, np.zeros(len(piece)), kin)
-    speed, accel = s * v[events, um], s * a[events, um]
-    ahead = np.maximum(target - progress[piece], 0.0)
-    root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
-    tau = np.clip(np.divide(2.0 * ahead, speed + root, out=np.zeros_like(ahead), where=speed + root > 0), 0.0, h)
-    lo, hi = np.zeros(len(tau)), h.copy()
+    um, s, aim = master[block], sign[block], origin[block] + sign[block] * target
+    tau, lo, hi = np.zeros(len(block)), np.zeros(len(block)), h.copy()
+    phase = np.ones(len(block), dtype=np.int8)
+    todo = np.arange(len(block))
     for _ in range(NEWTON_ROUNDS):
-        p, v, a = carriage_steps(motion, piece, tau, kin)
-        miss = s * (p[events, um] - origin[block]) - target
-        speed, accel = s * v[events, um], s * a[events, um]
-        if np.all((np.abs(miss) <= CROSSING_STEPS) | ((miss < 0) & (tau >= h)) | ((miss > 0) & (tau <= 0))):
+        p, v, a = (part[np.arange(len(todo)), um[todo]] for part in carriage_steps(motion, piece[todo], tau[todo], kin))
+        ahead, speed, accel = s[todo] * (aim[todo] - p), s[todo] * v, s[todo] * a
+        phase[todo] = np.where(accel > 0, 0, np.where(accel < 0, 2, 1))
+        done = (np.abs(ahead) <= CROSSING_STEPS) | ((ahead > 0) & (tau[todo] >= h[todo])) | (
+            (ahead < 0) & (tau[todo] <= 0)) | (hi[todo] - lo[todo] <= TIME_RESOLUTION)
+        short = ahead > 0
+        lo[todo], hi[todo] = np.where(short, tau[todo], lo[todo]), np.where(short, hi[todo], tau[todo])
+        todo, ahead, speed, accel = todo[~done], ahead[~done], speed[~done], accel[~done]
+        if not len(todo):
             break
-        lo, hi = np.where(miss < 0, tau, lo), np.where(miss < 0, hi, tau)
-        step = tau - np.divide(miss, speed, out=np.full_like(tau, np.inf), where=speed > 0)
-        tau = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
-    return motion.breaks[piece] + tau, np.where(accel > 0, 0, np.where(accel < 0, 2, 1)).astype(np.int8)
+        # The master's motion as a quadratic about tau (its speed and acceleration there): its root by that model.
+        root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
+        step = tau[todo] + np.divide(2.0 * ahead, speed + root, out=np.full(len(todo), np.inf), where=speed + root > 0)
+        inside = (step > lo[todo]) & (step < hi[todo])
+        tau[todo] = np.where(inside, step, 0.5 * (lo[todo] + hi[todo]))
+    return motion.breaks[piece] + tau, phase

@@ -1,0 +1,116 @@
+"""Input shaping on a delta (codegen/motion/shaped_delta.py): x and y are shaped in cartesian space and the
+carriages follow through the inverse kinematics. Shaping moves no step and loses none, every master event is where
+the master carriage of the shaped motion crosses its half step, every limit holds on the shaped pulses, the image
+plays them in simavr, and the toolhead rings far less than unshaped."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from codegen.job import load_job
+from codegen.motion.shaped_motion import planned_motion, shape
+from codegen.pipeline.host import host_build
+from codegen.verify.chapters import whole_chapter
+from codegen.verify.resonance import AxisResonance
+from codegen.verify.vibration import VibrationCheck
+from tests.helpers import run_cli
+
+MZV = "{x: {type: mzv, freq: 40}, y: {type: mzv, freq: 40}}"
+CORNERS = [[-30, -30, 5], [30, -30, 5], [30, 30, 5], [-10, 10, 5], [-30, 30, 5]]  # corners of 90, 135 and 45 deg
+CROSSING_STEPS = 1e-3  # how far from its half step the shaped master carriage may be at an event
+
+needs_avr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
+                               reason="needs gcc-avr and simavr (scripts/setup.sh installs them)")
+
+
+def delta_job(folder: Path, shaper: str | None, points=CORNERS, name: str = "job", steps_per_mm: float = 80,
+              accel: float = 3000, feed: float = 6000, start=(0, 0, 250)) -> Path:
+    """The Kossel mini of examples/kossel-mini.yaml travelling from home to a polyline's start and along it."""
+    steppers = "".join(f"    {m}: {{steps_per_mm: {steps_per_mm}, max_velocity: 200, max_accel: {accel}}}\n"
+                       for m in "abc")
+    shaping = "" if shaper is None else f"  input_shaper: {shaper}\n"
+    path = folder / f"{name}.yaml"
+    path.write_text(f"machine:\n  kinematics: delta\n  steppers:\n{steppers}"
+                    f"  delta: {{radius: 105.2, diagonal_rod: 215, height: 250}}\n{shaping}"
+                    f"program:\n  start: {list(start)}\n  feed: {feed}\n  shapes:\n    - polyline: {{points: {points}}}\n")
+    return path
+
+
+def assert_events_on_the_shaped_carriages(host) -> None:
+    """At every event that steps its master, the master carriage of the shaped motion (the plan before shaping,
+    convolved again here, through the inverse kinematics) is half a step short of where the event leaves it."""
+    events, kin = host.events, host.kin
+    shaped = shape(planned_motion(*host.planned), host.settings.stages.shaping)
+    per_block = np.diff(events.block_first)
+    master = np.repeat(np.argmax(np.abs(events.block_steps), axis=1), per_block)
+    sign = np.repeat(np.sign(events.block_steps[np.arange(len(per_block)), master[events.block_first[:-1]]]),
+                     per_block)
+    stepping = np.flatnonzero(sign != 0)
+    rows = np.arange(len(stepping))
+    exact = kin.to_motor(shaped.at(events.time[stepping])) * kin.limits.steps_per_mm
+    after = host.pulses.event_position[stepping] + host.start_steps
+    miss = exact[rows, master[stepping]] - (after[rows, master[stepping]] - 0.5 * sign[stepping])
+    assert len(stepping) > 1000 and np.abs(miss).max() <= CROSSING_STEPS
+
+
+def test_a_shaped_delta_plans_every_check_passing_on_the_shaped_carriages(tmp_path):
+    shaped = host_build(load_job(delta_job(tmp_path, MZV, name="shaped")))
+    plain = host_build(load_job(delta_job(tmp_path, None, name="plain")))
+    f = shaped.findings
+    assert f.ok and plain.findings.ok, f.problems
+    assert f.final == plain.findings.final == f.expected_final  # the carriages end where the unshaped job's do
+    assert max(f.rate_ratio.values()) <= 1.0 and max(f.accel_ratio.values()) <= 1.0
+    assert f.max_path_error_mm <= f.path_limit_mm
+    assert 0.01 < f.smoothing_mm < 0.5  # MZV at 40 Hz cuts the corners at 3000 mm/s^2 by about 0.1 mm
+    assert_events_on_the_shaped_carriages(shaped)
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(points=st.lists(st.tuples(st.integers(-50, 50), st.integers(-50, 50), st.integers(0, 40)), min_size=2,
+                       max_size=4, unique=True),
+       shaper=st.sampled_from(["zv", "ei", "2hump_ei"]), freq=st.sampled_from([30, 55]))
+def test_any_shaped_delta_path_plans_on_its_carriages(tmp_path, points, shaper, freq):
+    """Moves through the middle of the bed and up and down, a carriage turning within a move (its velocity through
+    zero as the effector passes under its tower's line): the checks pass, and every event is on the carriages."""
+    path = delta_job(tmp_path, f"{{x: {{type: {shaper}, freq: {freq}}}, y: {{type: {shaper}, freq: {freq}}}}}",
+                     [list(p) for p in points], start=points[0])
+    host = host_build(load_job(path))
+    assert host.findings.ok, host.findings.problems
+    if host.totals.events > 1000:
+        assert_events_on_the_shaped_carriages(host)
+
+
+def test_a_delta_rings_far_less_shaped(tmp_path):
+    """verify's resonance model (codegen/verify/vibration.py) on the twin's carriage pulses: the effector's
+    residual vibration after the corners, shaped, is a fraction of the unshaped run's (the carriages' steps cost
+    the shaper a few percent of the cancellation a cartesian machine reaches)."""
+    path = delta_job(tmp_path, MZV, [[-15, 0, 5], [15, 0, 5], [15, 20, 5], [-15, 20, 5]], steps_per_mm=200,
+                     accel=12000, feed=3600, start=(-15, 0, 5))
+    host = host_build(load_job(path))
+    assert host.findings.ok, host.findings.problems
+    resonances = tuple(AxisResonance(axis, 40.0, 0.1) for axis in (0, 1))
+    check = VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
+                           host.target.max_gap_s)
+    check.add(whole_chapter(host), host.pulses.tick / host.target.tick_hz, host.pulses.motor, host.pulses.dir)
+    for axis, figures in check.figures().items():
+        assert figures["unshaped_peak_um"] > 100, axis
+        assert figures["residual_peak_um"] < 0.1 * figures["unshaped_peak_um"], (axis, figures)
+
+
+@needs_avr
+def test_a_shaped_delta_verifies_in_simavr(tmp_path, capsys):
+    path = delta_job(tmp_path, MZV, [[0, -20, 5], [20, 0, 5], [0, 20, 5]], start=(0, -20, 5))
+    code, out, _ = run_cli(capsys, "verify", path, "--out", tmp_path / "build", "--json", "--quiet")
+    result = json.loads(out)
+    assert code == 0 and result["pass"], result["problems"]
+    for motor in result["motors"].values():
+        assert motor["final"] == motor["expected_final"]
+        assert motor["max_rate_ratio"] <= 1.0 and motor["max_accel_ratio"] <= 1.0
+    assert result["max_path_error_mm"] <= result["path_limit_mm"] and result["smoothing_mm"] > 0
