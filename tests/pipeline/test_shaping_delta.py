@@ -39,7 +39,8 @@ def delta_job(folder: Path, shaper: str | None, points=CORNERS, name: str = "job
     path = folder / f"{name}.yaml"
     path.write_text(f"machine:\n  kinematics: delta\n  steppers:\n{steppers}"
                     f"  delta: {{radius: 105.2, diagonal_rod: 215, height: 250}}\n{shaping}"
-                    f"program:\n  start: {list(start)}\n  feed: {feed}\n  shapes:\n    - polyline: {{points: {points}}}\n")
+                    f"program:\n  start: {list(start)}\n  feed: {feed}\n"
+                    f"  shapes:\n    - polyline: {{points: {points}}}\n")
     return path
 
 
@@ -85,6 +86,24 @@ def test_any_shaped_delta_path_plans_on_its_carriages(tmp_path, points, shaper, 
     assert host.findings.ok, host.findings.problems
     if host.totals.events > 1000:
         assert_events_on_the_shaped_carriages(host)
+
+
+def test_where_shaping_would_break_a_carriages_limit_the_plan_slows_down(tmp_path):
+    """A corner from +x to +y at full speed (a large junction deviation), x shaped slowly and y not: x's speed
+    fades over 0.1 s while y's rises at once, and carriage a, whose tower lies behind both, would run at 0.77 of the
+    effector's speed where either axis alone makes it 0.49 or less (150 mm/s against its 100). The plan's segments
+    under that stretch are slowed until every carriage keeps its limits on the shaped pulses."""
+    points = [[-40, -10, 5], [0, -10, 5], [0, 30, 5]]
+    jobs = [delta_job(tmp_path, shaper, points, name, feed=9000, start=points[0])
+            for shaper, name in (("{x: {type: zv, freq: 5}}", "shaped"), (None, "plain"))]
+    for path in jobs:
+        path.write_text(path.read_text().replace("max_velocity: 200", "max_velocity: 100")
+                        .replace("  delta:", "  junction_deviation: 5\n  delta:"))
+    shaped, plain = (host_build(load_job(path)) for path in jobs)
+    f = shaped.findings
+    assert f.ok and max(f.rate_ratio.values()) <= 1.0 and max(f.accel_ratio.values()) <= 1.0, f.problems
+    spread = shaped.settings.stages.shaping.spread
+    assert shaped.totals.duration_s > plain.totals.duration_s + spread + 0.05
 
 
 def test_a_delta_rings_far_less_shaped(tmp_path):
