@@ -51,7 +51,7 @@ def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: 
     events (a rest becomes step-less events that carry its time); `start`, `end` (4,): where the tool is at the
     motion's ends, exactly (None: the motion's own end), so that consecutive stretches round their shared point
     alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding)."""
-    pieces = cut(shaped, _turns(shaped, kin) if kin.linear else carriage_turns(shaped, kin, TURN_MARGIN))
+    pieces = cut(shaped, _turns(shaped, kin) if kin.linear else carriage_turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
     fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
     for _ in range(CUT_ROUNDS):

@@ -18,24 +18,27 @@ from codegen.kinematics.base import Kinematics
 from codegen.motion.shaped_motion import Motion
 
 SAMPLES = 16  # intervals per piece at which the carriages are sampled (turns, strays)
-BISECTIONS = 48  # halvings of a turn's bracket (a piece's 1/SAMPLES): far below a tick
-NEWTON_ROUNDS = 40  # at most; a crossing takes a few from its quadratic first guess
+NEWTON_ROUNDS = 40  # at most; a root takes a few
 CROSSING_STEPS = 1e-6  # steps: how closely a master event's crossing is solved (far below a tick)
+TURN_SPEED = 1e-6  # steps/s: a turn's velocity is solved this closely to zero
+TURN_GAP = 1e-7  # s: turns closer than this are one (a carriage moves a thousandth of a step in it, or less)
 TIME_RESOLUTION = 1e-12  # s: a crossing's bracket this narrow is solved (a root at a piece's very end)
 
 
-def carriage_steps(motion: Motion, piece: np.ndarray, dt: np.ndarray,
-                   kin: Kinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, M) every motor's position (steps), velocity and acceleration at dt (N,) s into pieces (N,)."""
-    spm = kin.limits.steps_per_mm
+def carriage_steps(motion: Motion, piece: np.ndarray, dt: np.ndarray, kin: Kinematics,
+                   motor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, M) every motor's position (steps), velocity and acceleration at dt (N,) s into pieces (N,); with
+    `motor` (N,), (N,) each: only that motor's."""
+    spm = kin.limits.steps_per_mm if motor is None else kin.limits.steps_per_mm[motor]
     velocity = motion.velocity[piece] + motion.accel[piece] * dt[:, None]
-    position, speed, accel = kin.carriage_motion(motion.at_piece(piece, dt), velocity, motion.accel[piece])
+    position, speed, accel = kin.carriage_motion(motion.at_piece(piece, dt), velocity, motion.accel[piece], motor)
     return position * spm, speed * spm, accel * spm
 
 
-def carriage_turns(motion: Motion, kin: Kinematics, margin: float) -> np.ndarray:
-    """The times inside pieces (more than `margin` s from their ends) where a motor's velocity passes through zero:
-    between two samples of opposite sign, bisected."""
+def carriage_turns(motion: Motion, kin: Kinematics) -> np.ndarray:
+    """The times inside pieces where a motor's velocity passes through zero: between two samples of opposite sign,
+    by Newton's method (a bisection where its step would leave the bracket). Turns within TURN_GAP of a piece's end
+    or of another turn are one (the carriages all turn at once where the effector stops)."""
     h = np.diff(motion.breaks)
     share = np.linspace(0.0, 1.0, SAMPLES + 1)
     piece = np.repeat(np.arange(len(motion)), SAMPLES + 1)
@@ -43,15 +46,21 @@ def carriage_turns(motion: Motion, kin: Kinematics, margin: float) -> np.ndarray
     sign = np.sign(speed).reshape(len(motion), SAMPLES + 1, -1)
     which, interval, motor = np.nonzero(sign[:, :-1] * sign[:, 1:] < 0)
     lo, hi = h[which] * share[interval], h[which] * share[interval + 1]
-    before = sign[which, interval, motor]
-    rows = np.arange(len(which))
-    for _ in range(BISECTIONS):
-        middle = 0.5 * (lo + hi)
-        same = np.sign(carriage_steps(motion, which, middle, kin)[1][rows, motor]) == before
-        lo, hi = np.where(same, middle, lo), np.where(same, hi, middle)
-    tau = 0.5 * (lo + hi)
-    inside = (tau > margin) & (tau < h[which] - margin)
-    return np.unique(motion.breaks[which[inside]] + tau[inside])
+    before, tau = sign[which, interval, motor], 0.5 * (lo + hi)
+    todo = np.arange(len(which))
+    for _ in range(NEWTON_ROUNDS):
+        _, speed, accel = carriage_steps(motion, which[todo], tau[todo], kin, motor[todo])
+        done = (np.abs(speed) <= TURN_SPEED) | (hi[todo] - lo[todo] <= TIME_RESOLUTION)
+        same = np.sign(speed) == before[todo]
+        lo[todo], hi[todo] = np.where(same, tau[todo], lo[todo]), np.where(same, hi[todo], tau[todo])
+        todo, speed, accel = todo[~done], speed[~done], accel[~done]
+        if not len(todo):
+            break
+        step = tau[todo] - np.divide(speed, accel, out=np.full(len(todo), np.inf), where=accel != 0)
+        tau[todo] = np.where((step > lo[todo]) & (step < hi[todo]), step, 0.5 * (lo[todo] + hi[todo]))
+    inside = (tau > TURN_GAP) & (tau < h[which] - TURN_GAP)
+    times = np.sort(motion.breaks[which[inside]] + tau[inside])
+    return times[np.diff(times, prepend=-np.inf) > TURN_GAP]
 
 
 def carriage_ways(motion: Motion, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
@@ -74,7 +83,7 @@ def carriage_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: 
     sample = np.arange(len(block)) - np.repeat(np.cumsum(count) - count, count)
     piece = first[block] + sample // SAMPLES
     dt = np.diff(motion.breaks)[piece] * (sample % SAMPLES) / SAMPLES
-    p = carriage_steps(motion, piece, dt, kin)[0]
+    p = kin.to_motor(motion.at_piece(piece, dt)) * spm
     rows = np.arange(len(which))
     master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
     span = (x1 - x0)[rows, master][:, None]
@@ -82,8 +91,10 @@ def carriage_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: 
     u = master[block]
     off = p - x0[block] - ratio[block] * (p[np.arange(len(block)), u] - x0[block, u])[:, None]
     stray = np.abs(off).max(axis=1)
-    pick = np.lexsort((stray, block))[np.cumsum(count) - 1]  # per block, its worst sample last
-    return x0, x1, stray[pick], motion.breaks[piece[pick]] + dt[pick]
+    worst = np.maximum.reduceat(stray, np.cumsum(count) - count)  # every block has samples: its pieces last
+    at = np.flatnonzero(stray == worst[block])
+    pick = at[np.unique(block[at], return_index=True)[1]]  # per block, its first worst sample
+    return x0, x1, worst, motion.breaks[piece[pick]] + dt[pick]
 
 
 def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps: np.ndarray, master: np.ndarray,
@@ -113,7 +124,7 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
     phase = np.ones(len(block), dtype=np.int8)
     todo = np.arange(len(block))
     for _ in range(NEWTON_ROUNDS):
-        p, v, a = (part[np.arange(len(todo)), um[todo]] for part in carriage_steps(motion, piece[todo], tau[todo], kin))
+        p, v, a = carriage_steps(motion, piece[todo], tau[todo], kin, um[todo])
         ahead, speed, accel = s[todo] * (aim[todo] - p), s[todo] * v, s[todo] * a
         phase[todo] = np.where(accel > 0, 0, np.where(accel < 0, 2, 1))
         done = (np.abs(ahead) <= CROSSING_STEPS) | ((ahead > 0) & (tau[todo] >= h[todo])) | (
