@@ -30,8 +30,8 @@ def carriage_steps(motion: Motion, piece: np.ndarray, dt: np.ndarray, kin: Kinem
     """(N, M) every motor's position (steps), velocity and acceleration at dt (N,) s into pieces (N,); with
     `motor` (N,), (N,) each: only that motor's."""
     spm = kin.limits.steps_per_mm if motor is None else kin.limits.steps_per_mm[motor]
-    velocity = motion.velocity[piece] + motion.accel[piece] * dt[:, None]
-    position, speed, accel = kin.carriage_motion(motion.at_piece(piece, dt), velocity, motion.accel[piece], motor)
+    p, v, a, dt = motion.position[piece], motion.velocity[piece], motion.accel[piece], dt[:, None]
+    position, speed, accel = kin.carriage_motion(p + (v + 0.5 * a * dt) * dt, v + a * dt, a, motor)
     return position * spm, speed * spm, accel * spm
 
 
@@ -110,7 +110,7 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
     offset = np.concatenate([[0.0], np.cumsum(np.abs(steps[rows, master]) + 2.0)])  # room for each block's span
     piece_block = np.searchsorted(bounds, motion.breaks[:-1], side="right") - 1
     u = master[piece_block]
-    start = kin.to_motor(motion.position) * kin.limits.steps_per_mm
+    start, start_speed, start_accel = carriage_steps(motion, np.arange(len(motion)), np.zeros(len(motion)), kin)
     progress = sign[piece_block] * (start[np.arange(len(motion)), u] - origin[piece_block])
     key = offset[piece_block] + np.maximum(progress, 0.0)
     target = sign[block] * (np.round(origin[block]) - origin[block]) + k - 0.5
@@ -120,7 +120,8 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
     piece = np.clip(piece, first[block], last[block])
     h = motion.breaks[piece + 1] - motion.breaks[piece]
     um, s, aim = master[block], sign[block], origin[block] + sign[block] * target
-    tau, lo, hi = np.zeros(len(block)), np.zeros(len(block)), h.copy()
+    step = _quadratic_root(target - progress[piece], s * start_speed[piece, um], s * start_accel[piece, um])
+    tau, lo, hi = np.where(np.isfinite(step), np.clip(step, 0.0, h), 0.5 * h), np.zeros(len(block)), h.copy()
     phase = np.ones(len(block), dtype=np.int8)
     todo = np.arange(len(block))
     for _ in range(NEWTON_ROUNDS):
@@ -134,9 +135,14 @@ def carriage_crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps
         todo, ahead, speed, accel = todo[~done], ahead[~done], speed[~done], accel[~done]
         if not len(todo):
             break
-        # The master's motion as a quadratic about tau (its speed and acceleration there): its root by that model.
-        root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
-        step = tau[todo] + np.divide(2.0 * ahead, speed + root, out=np.full(len(todo), np.inf), where=speed + root > 0)
+        step = tau[todo] + _quadratic_root(ahead, speed, accel)
         inside = (step > lo[todo]) & (step < hi[todo])
         tau[todo] = np.where(inside, step, 0.5 * (lo[todo] + hi[todo]))
     return motion.breaks[piece] + tau, phase
+
+
+def _quadratic_root(ahead: np.ndarray, speed: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """s: how long a motion at `speed` speeding up by `accel` takes to go `ahead` (negative: back), the root of its
+    quadratic without cancellation (inf where it never gets there)."""
+    root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
+    return np.divide(2.0 * ahead, speed + root, out=np.full(len(ahead), np.inf), where=speed + root > 0)
