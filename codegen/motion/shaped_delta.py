@@ -64,11 +64,13 @@ def carriage_turns(motion: Motion, kin: Kinematics) -> np.ndarray:
 
 
 def carriage_ways(motion: Motion, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
-    """(K, M) the way each motor moves along each piece (its turns cut: one way, or none), and (K,) the pieces
-    where nothing moves."""
+    """(K, M) the way each motor moves along each piece (its turns cut: one way), a piece where it stays taking the
+    way it last moved (so that a turn across a carriage's standstill is one), and (K,) the pieces where nothing
+    moves."""
     ends = np.vstack([motion.position, motion.end[None, :]])
     way = np.sign(np.diff(kin.to_motor(ends) * kin.limits.steps_per_mm, axis=0))
-    return way, ~np.any((motion.velocity != 0) | (motion.accel != 0), axis=1)
+    last = np.maximum.accumulate(np.where(way != 0, np.arange(len(way))[:, None], 0), axis=0)
+    return np.take_along_axis(way, last, axis=0), ~np.any((motion.velocity != 0) | (motion.accel != 0), axis=1)
 
 
 def carriage_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: Kinematics):

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import codegen.motion.shaped_delta as shaped_delta
 from codegen.job import load_job
 from codegen.motion.shaped_motion import planned_motion, shape
 from codegen.pipeline.host import host_build
@@ -24,6 +25,7 @@ from tests.helpers import run_cli
 
 MZV = "{x: {type: mzv, freq: 40}, y: {type: mzv, freq: 40}}"
 CORNERS = [[-30, -30, 5], [30, -30, 5], [30, 30, 5], [-10, 10, 5], [-30, 30, 5]]  # corners of 90, 135 and 45 deg
+RINGING = [[-15, 0, 5], [15, 0, 5], [15, 20, 5], [-15, 20, 5]]  # sharp corners at 12,000 mm/s^2, 200 steps/mm
 CROSSING_STEPS = 1e-3  # how far from its half step the shaped master carriage may be at an event
 
 needs_avr = pytest.mark.skipif(shutil.which("avr-gcc") is None or shutil.which("simavr") is None,
@@ -110,8 +112,7 @@ def test_a_delta_rings_far_less_shaped(tmp_path):
     """verify's resonance model (codegen/verify/vibration.py) on the twin's carriage pulses: the effector's
     residual vibration after the corners, shaped, is a fraction of the unshaped run's (the carriages' steps cost
     the shaper a few percent of the cancellation a cartesian machine reaches)."""
-    path = delta_job(tmp_path, MZV, [[-15, 0, 5], [15, 0, 5], [15, 20, 5], [-15, 20, 5]], steps_per_mm=200,
-                     accel=12000, feed=3600, start=(-15, 0, 5))
+    path = delta_job(tmp_path, MZV, RINGING, steps_per_mm=200, accel=12000, feed=3600, start=RINGING[0])
     host = host_build(load_job(path))
     assert host.findings.ok, host.findings.problems
     resonances = tuple(AxisResonance(axis, 40.0, 0.1) for axis in (0, 1))
@@ -121,6 +122,18 @@ def test_a_delta_rings_far_less_shaped(tmp_path):
     for axis, figures in check.figures().items():
         assert figures["unshaped_peak_um"] > 100, axis
         assert figures["residual_peak_um"] < 0.1 * figures["unshaped_peak_um"], (axis, figures)
+
+
+def test_a_turn_across_a_standstill_is_one(tmp_path, monkeypatch):
+    """Where the effector stops in a corner every carriage turns at once: found a few picoseconds apart, the turns
+    leave a piece between them where no carriage moves. The turn is cut all the same (the way each carriage last
+    moved carries across), and the job makes the steps of the turns taken as one."""
+    path = delta_job(tmp_path, MZV, RINGING, steps_per_mm=200, accel=12000, feed=3600, start=RINGING[0])
+    one = host_build(load_job(path))
+    monkeypatch.setattr(shaped_delta, "TURN_GAP", 0.0)
+    apart = host_build(load_job(path))
+    assert apart.findings.ok and apart.findings.steps == one.findings.steps
+    assert apart.totals.events == one.totals.events
 
 
 @needs_avr
