@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import codegen.motion.pieces as pieces
 import codegen.motion.shaped_delta as shaped_delta
 from codegen.job import load_job
 from codegen.motion.shaped_motion import planned_motion, shape
@@ -106,6 +107,20 @@ def test_where_shaping_would_break_a_carriages_limit_the_plan_slows_down(tmp_pat
     assert f.ok and max(f.rate_ratio.values()) <= 1.0 and max(f.accel_ratio.values()) <= 1.0, f.problems
     spread = shaped.settings.stages.shaping.spread
     assert shaped.totals.duration_s > plain.totals.duration_s + spread + 0.05
+
+
+def test_a_shaped_delta_plays_in_windows_as_in_one(tmp_path, monkeypatch):
+    """Each window plays the shaped motion up to its own end, reading back into the plan before it: cut into many
+    windows, the shaped delta job makes the same steps, ends where it should, and keeps to the shaped carriages."""
+    path = delta_job(tmp_path, "{x: {type: ei, freq: 45}, y: {type: zv, freq: 60}}", CORNERS)
+    few = host_build(load_job(path))
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)
+    many = host_build(load_job(path))
+    assert many.totals.windows >= 3 * few.totals.windows
+    assert many.findings.ok, many.findings.problems
+    assert many.findings.steps == few.findings.steps and many.findings.final == few.findings.final
+    assert many.totals.duration_s == pytest.approx(few.totals.duration_s, abs=1e-9)
+    assert_events_on_the_shaped_carriages(many)
 
 
 def test_a_delta_rings_far_less_shaped(tmp_path):
