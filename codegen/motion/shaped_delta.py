@@ -5,9 +5,10 @@ Shaped motion is piecewise quadratic in x, y, z (codegen/motion/shaped_motion.py
 inverse kinematics, c_i = z + sqrt(rod^2 - |(x, y) - T_i|^2), which are not quadratic in time. So where the linear
 kinematics solve quadratics (codegen/motion/shaped_blocks.py), this module samples and solves numerically, numpy
 over all pieces, blocks or events at once: a carriage's turn is bracketed by samples of its velocity along each
-piece, then bisected; a block's largest stray from its chord is taken from samples along its pieces (the blocks
-are cut there, so the samples grow finer where it matters); a master event is solved by Newton's method on the
-master carriage's exact position, kept inside the bracket its piece gives.
+piece, then solved by Newton's method; a block's largest stray from its chord is taken from samples along its
+pieces (the blocks are cut there, so the samples grow finer where it matters); a master event is solved by
+Newton's method of second order on the master carriage's exact position. Every Newton step is kept inside the
+root's bracket (a bisection where it would leave it).
 """
 
 from __future__ import annotations
