@@ -53,9 +53,9 @@ def assert_events_on_the_shaped_carriages(host) -> None:
     events, kin = host.events, host.kin
     shaped = shape(planned_motion(*host.planned), host.settings.stages.shaping)
     per_block = np.diff(events.block_first)
-    master = np.repeat(np.argmax(np.abs(events.block_steps), axis=1), per_block)
-    sign = np.repeat(np.sign(events.block_steps[np.arange(len(per_block)), master[events.block_first[:-1]]]),
-                     per_block)
+    block_master = np.argmax(np.abs(events.block_steps), axis=1)
+    master = np.repeat(block_master, per_block)
+    sign = np.repeat(np.sign(events.block_steps[np.arange(len(per_block)), block_master]), per_block)
     stepping = np.flatnonzero(sign != 0)
     rows = np.arange(len(stepping))
     exact = kin.to_motor(shaped.at(events.time[stepping])) * kin.limits.steps_per_mm
