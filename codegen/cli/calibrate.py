@@ -86,8 +86,8 @@ def _sweep(args, low: float, high: float, unit: str) -> None:
 def cmd_ringing(args) -> int:
     job = load_job(Path(args.job), program_required=False)
     if job.machine.kinematics == "delta":
-        raise _refuse(str(job.path), "calibrate ringing: input shaping needs cartesian or corexy kinematics (delta: "
-                                     "not yet)")
+        raise _refuse(str(job.path), "calibrate ringing: a delta's tower is not laid out yet (M593 shapes a delta "
+                                     "in any G-code)")
     _sweep(args, *SHAPER_HZ, "Hz")
     machine = normalized_job(job)["machine"]
     shaper = dict(machine.get("input_shaper") or {"x": None, "y": None, "z": None, "max_smoothing": None})

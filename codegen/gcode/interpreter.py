@@ -70,7 +70,7 @@ class Interpreter(Moves, GrblState, Diagnostics, DialectState):
         self.pausable = getattr(machine, "feed_hold", None) is not None  # a resume key for M0/M1
         self.advances = getattr(machine, "pressure_advance", None) is not None  # M900 and M572 set its K
         self.accel_print = self.accel_travel = self.accel_retract = math.inf
-        self.shapers = ShaperState(machine, self.kinematics)  # M593
+        self.shapers = ShaperState(machine)  # M593
         self.origin, self.strict = origin, strict
         self.flat = list(start)
         self.count, self.cur, self.base = 1, 0, 0

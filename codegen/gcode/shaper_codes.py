@@ -22,7 +22,7 @@ class ShaperState:
     """The shapers of x, y and z as the program has set them so far: each axis's type, frequency (0: off) and
     damping, from the machine's `input_shaper` at the start."""
 
-    def __init__(self, machine, kinematics: str):
+    def __init__(self, machine):
         configured = getattr(machine, "input_shaper", None)
         axes = {} if configured is None else configured.axes
         self.type = {a: axes[a].type if a in axes else MARLIN_SHAPER for a in SHAPED_AXES}
@@ -30,7 +30,6 @@ class ShaperState:
         self.damping = {a: axes[a].damping if a in axes else DEFAULT_SHAPER_DAMPING for a in SHAPED_AXES}
         self.typed = set(axes)  # the axes whose type the machine gives
         self.noted = False
-        self.shapes = kinematics != "delta"  # a delta's carriages are not yet cut from shaped motion
 
     def specs(self) -> tuple[ShaperSpec | None, ...]:
         return tuple((self.type[a], self.freq[a], self.damping[a]) if self.freq[a] > 0 else None for a in SHAPED_AXES)
@@ -40,9 +39,6 @@ def input_shaping(it, block, params):
     """M593 [X] [Y] F D (see the module): an InputShaping item, unless the line sets neither F nor D (Marlin then
     reports the settings; nothing changes)."""
     state: ShaperState = it.shapers
-    if not state.shapes:
-        it.fail(block, "M593", "M593: input shaping needs cartesian or corexy kinematics (delta: not yet)")
-        return False
     axes = [a.lower() for a in M593_AXES if a in params] or ["x", "y"]
     freq, damping = params.get("F"), params.get("D")
     low, high = SHAPER_HZ

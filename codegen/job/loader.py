@@ -120,9 +120,6 @@ def machine_issues(m: dict) -> list[Issue]:
         issues.append((("delta",), "only allowed with kinematics: delta", ("delta",), "key"))
     if isinstance(m.get("jog"), dict) and isinstance(steppers, dict):
         issues += _jog_issues(kin, steppers, m["jog"])
-    if kin == "delta" and m.get("input_shaper") is not None:  # its carriages are not yet cut from shaped motion
-        issues.append((("input_shaper",), "input shaping needs cartesian or corexy kinematics (delta: not yet)",
-                       ("input_shaper",), "key"))
     if kin == "delta" and m.get("pressure_advance") is not None:  # the advanced extruder is cut as shaped motion is
         issues.append((("pressure_advance",), "pressure advance needs cartesian or corexy kinematics (delta: not "
                        "yet: its carriages are not cut from the shaped motion that carries the advanced extruder)",

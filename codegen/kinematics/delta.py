@@ -112,6 +112,29 @@ class Delta(Kinematics):
         rates = np.abs(directions[:, 2:3] - (dx * directions[:, :1] + dy * directions[:, 1:2]) / rise)
         return np.concatenate([rates, np.abs(directions[:, 3:4])], axis=1) if self.has_e else rates
 
+    def carriage_motion(self, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
+                        motor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(N, M) each motor's position (mm), velocity and acceleration where the effector is at `position` (N, 4)
+        moving at `velocity` and accelerating by `accel`: c = z + rise, rise' = -(dx vx + dy vy) / rise. With
+        `motor` (N,): only that motor's of each row, (N,) each."""
+        if motor is None:
+            dx, dy, rise = self._arms(position[:, :2])
+        else:
+            tower = self.towers[np.minimum(motor, 2)]
+            dx, dy = position[:, :1] - tower[:, :1], position[:, 1:2] - tower[:, 1:2]
+            with np.errstate(invalid="ignore"):
+                rise = np.sqrt(self.rod2 - dx * dx - dy * dy)
+        vx, vy, ax, ay = velocity[:, :1], velocity[:, 1:2], accel[:, :1], accel[:, 1:2]
+        along = dx * vx + dy * vy
+        speed = velocity[:, 2:3] - along / rise
+        bend = accel[:, 2:3] - (vx * vx + vy * vy + dx * ax + dy * ay) / rise - along * along / rise ** 3
+        parts, effector = (position[:, 2:3] + rise, speed, bend), (position, velocity, accel)
+        if motor is not None:  # the extruder (motor 3) is linear
+            return tuple(np.where(motor == 3, e[:, 3], part[:, 0]) for part, e in zip(parts, effector))
+        if not self.has_e:
+            return parts
+        return tuple(np.concatenate([part, e[:, 3:4]], axis=1) for part, e in zip(parts, effector))
+
     def motor_bend(self, directions: np.ndarray, points: np.ndarray) -> np.ndarray:
         """|d^2 carriage / ds^2| along a straight line (per mm of path, squared): at speed v a carriage
         accelerates by v^2 times this even when the effector does not."""

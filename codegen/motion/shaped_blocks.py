@@ -13,6 +13,9 @@ way, into chords:
 A block may span many pieces of the shaped motion: a straight cruise is one block whatever its pieces, a curve
 as few as its bend needs. Every master event is timed where the master's exact shaped motion crosses its half
 step (the quadratic of its piece solved, numpy over all events at once), as Klipper times its steps.
+
+A delta's carriages are not quadratic in time: codegen/motion/shaped_delta.py finds their turns, strays and
+crossings numerically; the cuts and blocks are the same.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import MAX_MODULUS, Events, bresenham_init
+from codegen.motion.shaped_delta import carriage_crossings, carriage_strays, carriage_turns, carriage_ways
 from codegen.motion.shaped_motion import Motion, cut
 from codegen.motion.staircase import STAIRCASE_LIMIT, staircase_bound, staircase_error
 from codegen.toolpath.segments import REF_LINE, Segments
@@ -47,9 +51,7 @@ def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: 
     events (a rest becomes step-less events that carry its time); `start`, `end` (4,): where the tool is at the
     motion's ends, exactly (None: the motion's own end), so that consecutive stretches round their shared point
     alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding)."""
-    if not kin.linear:
-        raise ValueError("shaped motion is cut into blocks for linear kinematics only (cartesian, corexy)")
-    pieces = cut(shaped, _turns(shaped, kin))
+    pieces = cut(shaped, _turns(shaped, kin) if kin.linear else carriage_turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
     fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
     for _ in range(CUT_ROUNDS):
@@ -90,11 +92,13 @@ def _still(motion: Motion, kin: Kinematics) -> np.ndarray:
 def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
     """The breaks every block must end at: the motion's ends, a motor's turn (between pieces that move it opposite
     ways), a rest's ends and where the tool switches."""
-    _, v, a = motor_motion(motion, kin)
-    h = np.diff(motion.breaks)[:, None]
-    way = np.sign(v * h + 0.5 * a * h * h)
+    if kin.linear:
+        _, v, a = motor_motion(motion, kin)
+        h = np.diff(motion.breaks)[:, None]
+        way, still = np.sign(v * h + 0.5 * a * h * h), _still(motion, kin)
+    else:
+        way, still = carriage_ways(motion, kin)
     turns = np.any(way[1:] * way[:-1] < 0, axis=1)
-    still = _still(motion, kin)
     tool, line = segments.tool[motion.origin], segments.line[motion.origin]
     inner = turns | (still[1:] != still[:-1]) | (tool[1:] != tool[:-1]) | (line[1:] != line[:-1])
     return np.flatnonzero(np.concatenate([[True], inner, [True]]))
@@ -106,6 +110,25 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     worst point, each with more master steps than a block holds, or (once none of them does) whose staircase
     strays too far, at its middle."""
     which = np.flatnonzero(fresh)
+    x0, x1, worst, worst_time = (_linear_strays if kin.linear else carriage_strays)(motion, bounds, which, kin)
+    master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
+    bad = (worst > CHORD_LIMIT) & ((x1 - x0)[np.arange(len(which)), master] != 0)
+    out = [worst_time[bad]]
+    middle = 0.5 * (bounds[which] + bounds[which + 1])
+    long = np.abs(np.round(x1) - np.round(x0)).max(axis=1) > MAX_MODULUS - 1
+    out.append(middle[long & ~bad])
+    if not np.any(bad | long):
+        chords = _chords(motion, bounds, segments, points).take(which)
+        limit = STAIRCASE_LIMIT * kin.path_quantum()
+        look = np.flatnonzero(staircase_bound(chords, kin) > limit)
+        out.append(middle[look[staircase_error(chords, kin, look) > limit]])
+    times = np.concatenate(out)
+    return times[(times > bounds[0]) & (times < bounds[-1]) & ~np.isin(times, bounds)]
+
+
+def _linear_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: Kinematics):
+    """For blocks `which`: every motor at their ends (steps), and the largest distance of a slave from its block's
+    chord (slave against master) with its time, exact: each piece's offset from the chord is a quadratic."""
     first = np.searchsorted(motion.breaks, bounds[which])
     last = np.searchsorted(motion.breaks, bounds[which + 1])
     count = last - first
@@ -135,18 +158,7 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
         np.arange(len(block)), worst_motor], tau[np.arange(len(block)), worst_motor], 0.0)
     order = np.lexsort((worst, block))  # per block, its worst piece last
     pick = order[np.cumsum(count) - 1]
-    bad = (worst[pick] > CHORD_LIMIT) & (span[:, 0] != 0)
-    out = [worst_time[pick[bad]]]
-    middle = 0.5 * (bounds[which] + bounds[which + 1])
-    long = np.abs(np.round(x1) - np.round(x0)).max(axis=1) > MAX_MODULUS - 1
-    out.append(middle[long & ~bad])
-    if not np.any(bad | long):
-        chords = _chords(motion, bounds, segments, points).take(which)
-        limit = STAIRCASE_LIMIT * kin.path_quantum()
-        look = np.flatnonzero(staircase_bound(chords, kin) > limit)
-        out.append(middle[look[staircase_error(chords, kin, look) > limit]])
-    times = np.concatenate(out)
-    return times[(times > bounds[0]) & (times < bounds[-1]) & ~np.isin(times, bounds)]
+    return x0, x1, worst[pick], worst_time[pick]
 
 
 def _chords(motion: Motion, bounds: np.ndarray, segments: Segments, points: tuple) -> Segments:
@@ -187,7 +199,8 @@ def _events(motion: Motion, bounds: np.ndarray, chords: Segments, steps: np.ndar
     time = bounds[block] + np.diff(bounds)[block] * k / np.repeat(count, count)  # a rest's
     phase = np.full(len(block), 3, dtype=np.int8)
     moving = ~rest[block]
-    time[moving], phase[moving] = _crossings(motion, bounds, x0, steps, master, block[moving], k[moving], kin)
+    crossings = _crossings if kin.linear else carriage_crossings
+    time[moving], phase[moving] = crossings(motion, bounds, x0, steps, master, block[moving], k[moving], kin)
     return Events(blocks, block_steps, modulus, init, chords.tool[blocks], first_event, time, phase)
 
 

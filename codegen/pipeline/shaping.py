@@ -71,7 +71,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
     start = segments.start[0] if tail is None else tail.point
     blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last or settles else None)
-    corners_t, jumps = shaped_corners(window.plan, kin, settings)
+    corners_t, jumps = shaped_corners(window.plan, window.segments, kin, settings)
     worst, at, seg = smoothing(stretch, planned, settings)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
@@ -104,19 +104,22 @@ def block_plan(chords: Segments, bounds: np.ndarray) -> Plan:
                 np.ones(len(length) + 1, dtype=bool))
 
 
-def shaped_corners(plan: Plan, kin: Kinematics, settings: ShapingSettings) -> tuple[np.ndarray, np.ndarray]:
+def shaped_corners(plan: Plan, segments: Segments, kin: Kinematics,
+                   settings: ShapingSettings) -> tuple[np.ndarray, np.ndarray]:
     """The plan's corners (codegen/tables/checks.py `corner_jumps`) shaped: each axis's velocity jump splits into
     its shaper's impulses, a share A_i of it at tau_i after the corner (on the shaped clock); each motor takes
-    its axes' shares (a corexy belt both of x and y, at their own times). An advanced extruder's velocity has no
-    jump: its smoothing spreads every change over the smoothing time."""
+    its axes' shares (a corexy belt both of x and y, at their own times; a delta's carriage by its Jacobian at the
+    corner). An advanced extruder's velocity has no jump: its smoothing spreads every change over the smoothing
+    time."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
     change = plan.v_entry[j][:, None] * (plan.direction[j] - plan.direction[j - 1])  # (J, 4) mm/s per axis
-    per_axis = np.abs(kin.matrix.T * kin.limits.steps_per_mm[None, :])  # (4, M) steps per mm of each axis
     times, jumps = [], []
     for axis in range(AXES if settings.advance is None else AXES - 1):
+        per_mm = kin.motor_factors(np.tile(np.eye(AXES)[axis], (len(j), 1)), segments.start[j])
+        per_axis = per_mm * kin.limits.steps_per_mm[None, :]  # (J, M) steps per mm of this axis at each corner
         for amplitude, tau in zip(*settings.offsets(axis)):
             times.append(plan.t_start[j] + settings.shift + tau)
-            jumps.append(amplitude * np.abs(change[:, axis])[:, None] * per_axis[axis][None, :])
+            jumps.append(amplitude * np.abs(change[:, axis])[:, None] * per_axis)
     t = np.concatenate(times)
     order = np.argsort(t, kind="stable")
     return t[order], np.concatenate(jumps)[order]

@@ -89,6 +89,7 @@ def test_damping_beyond_the_machines_type_is_refused():
         "'D0.35': the damping ratio of x's shaper (2hump_ei) must be > 0 and <= 0.3"]
 
 
-def test_a_delta_refuses_m593():
-    assert errors("M593 F40\n", kinematics="delta", motors=("a", "b", "c")) == [
-        (8, 5, "M593: input shaping needs cartesian or corexy kinematics (delta: not yet)")]
+def test_a_delta_takes_m593():
+    """A delta is shaped in cartesian space (codegen/motion/shaped_delta.py): M593 there as anywhere."""
+    got, _ = shaper_items("G1 X10 F600\nM593 F40\n", kinematics="delta", motors=("a", "b", "c"))
+    assert [g.shapers for g in got] == [(("zv", 40.0, 0.1), ("zv", 40.0, 0.1), None)]

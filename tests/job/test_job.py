@@ -473,7 +473,8 @@ program:
     ]
 
 
-def test_input_shaper_on_a_delta_is_refused_at_its_key(tmp_path):
+def test_input_shaper_on_a_delta_is_loaded(tmp_path):
+    """A delta is shaped in cartesian space, before its carriages' transform (codegen/motion/shaped_delta.py)."""
     path = write(tmp_path, textwrap.dedent("""\
         machine:
           kinematics: delta
@@ -487,8 +488,8 @@ def test_input_shaper_on_a_delta_is_refused_at_its_key(tmp_path):
           shapes:
             - line: {to: [10, 0]}
         """))
-    assert errors(path) == [
-        (8, 3, "machine.input_shaper: input shaping needs cartesian or corexy kinematics (delta: not yet)")]
+    shaper = load_job(path).machine.input_shaper
+    assert (shaper.x.type, shaper.x.freq, shaper.y) == ("zv", 40, None)
 
 
 def test_the_schemas_damping_limits_are_the_shapers():

@@ -5,6 +5,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from codegen.job import load_job
 from codegen.kinematics import make_kinematics
@@ -210,3 +212,19 @@ def test_seed_machine_reaches_its_targets_from_10828_steps():
     assert not np.any(kin.unreachable(targets))
     dx, dy, rise = kin._arms(targets[:, :2])
     assert np.degrees(np.arctan2(rise, np.hypot(dx, dy))).min() > 45.0  # every rod well above horizontal
+
+
+@settings(max_examples=30, deadline=None)
+@given(point=st.tuples(*(st.floats(-60, 60),) * 2, st.floats(0, 100)),
+       velocity=st.tuples(*(st.floats(-200, 200),) * 3), accel=st.tuples(*(st.floats(-5000, 5000),) * 3))
+def test_carriage_motion_is_the_derivative_of_the_carriages(point, velocity, accel):
+    """Along a quadratic effector path, the carriages' velocity and acceleration are those of their positions
+    (central differences of to_motor)."""
+    kin = kossel()
+    p, v, a = (np.array([[*xyz, 0.0]]) for xyz in (point, velocity, accel))
+    h = 1e-4
+    at = [kin.to_motor(p + v * t + 0.5 * a * t * t) for t in (-h, 0.0, h)]
+    c, speed, bend = kin.carriage_motion(p, v, a)
+    assert np.allclose(c, at[1], rtol=0, atol=1e-9)
+    assert np.allclose(speed, (at[2] - at[0]) / (2 * h), rtol=0, atol=1e-4)
+    assert np.allclose(bend, (at[2] - 2 * at[1] + at[0]) / (h * h), rtol=0, atol=0.5)

@@ -168,3 +168,22 @@ def test_random_m593_programs_keep_every_check_and_rest_for_the_spread_before(tm
         before = host.shapings[segments.shaping[rest]]
         assert segments.dwell[rest] == pytest.approx(max(WAIT_REST_S, 0.0 if before is None else before.spread))
         assert rest + 1 == len(segments) or segments.shaping[rest + 1] == segments.shaping[rest] + 1
+
+
+def test_a_delta_plans_m593_era_by_era(tmp_path):
+    """A delta is shaped in cartesian space (codegen/motion/shaped_delta.py); M593 changes its shapers there as on
+    any machine: each era's, its rest, every check (its carriages within their limits and the path)."""
+    path = tmp_path / "delta.yaml"
+    path.write_text(
+        "name: delta\nmachine:\n  kinematics: delta\n  steppers:\n"
+        + "".join(f"    {m}: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}\n" for m in "abc")
+        + "  delta: {radius: 105.2, diagonal_rod: 215, height: 250}\n"
+        f"  input_shaper: {{x: {ZV40}, y: {ZV40}}}\nprogram:\n  start: [0, 0, 250]\n  gcode: |\n"
+        + textwrap.indent("G1 X0 Y0 Z5 F6000\nG1 X30 Y0 F4000\nG1 X30 Y30\nM593 F55\nG1 X-30 Y30\nG1 X-30 Y-30\n"
+                          "M593 F0\nG1 X0 Y0\n", "    "))
+    host = host_module.host_build(load_job(path))
+    assert host.findings.ok, host.findings.problems
+    assert [None if s is None else s.shapers[0].duration for s in host.shapings] == pytest.approx(
+        [make_shaper("zv", f, 0.1).duration for f in (40, 55)] + [None])
+    segments, _ = host.planned
+    assert segments.dwell[segments.dwell > 0] == pytest.approx([make_shaper("zv", f, 0.1).duration for f in (40, 55)])
