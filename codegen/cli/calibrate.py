@@ -111,8 +111,8 @@ def cmd_ringing(args) -> int:
 def cmd_pressure_advance(args) -> int:
     job = load_job(Path(args.job), program_required=False)
     if job.machine.kinematics == "delta":
-        raise _refuse(str(job.path), "calibrate pressure-advance: pressure advance needs cartesian or corexy "
-                                     "kinematics (delta: not yet)")
+        raise _refuse(str(job.path), "calibrate pressure-advance: a delta's pattern is not laid out yet (M900 "
+                                     "advances a delta's extruder in any G-code)")
     _sweep(args, 0.0, 10.0, "s")  # K: Klipper's typical 0 to 1 s, Marlin's K up to 10
     test = PressureAdvanceTest(args.start, args.end, args.step, args.slow, args.fast, args.length,
                                layer=args.layer_height)

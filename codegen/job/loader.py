@@ -120,10 +120,6 @@ def machine_issues(m: dict) -> list[Issue]:
         issues.append((("delta",), "only allowed with kinematics: delta", ("delta",), "key"))
     if isinstance(m.get("jog"), dict) and isinstance(steppers, dict):
         issues += _jog_issues(kin, steppers, m["jog"])
-    if kin == "delta" and m.get("pressure_advance") is not None:  # the advanced extruder is cut as shaped motion is
-        issues.append((("pressure_advance",), "pressure advance needs cartesian or corexy kinematics (delta: not "
-                       "yet: its carriages are not cut from the shaped motion that carries the advanced extruder)",
-                       ("pressure_advance",), "key"))
     if m.get("pressure_advance") is not None and isinstance(steppers, dict) and "e" not in steppers:
         issues.append((("pressure_advance",), "pressure advance needs an extruder (motor 'e')", ("pressure_advance",),
                        "key"))

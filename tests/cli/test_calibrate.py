@@ -156,7 +156,7 @@ def test_the_pressure_advance_job_plans(capsys, tmp_path):
     ("ringing", PRINTER, ("--type", "3hump_ei", "--damping", "0.25"),
      "--damping: error: 0.25: the damping ratio of 3hump_ei must be > 0 and <= 0.2"),
     ("pressure-advance", PLOTTER, (), "error: calibrate pressure-advance: pressure advance needs a printer"),
-    ("pressure-advance", DELTA, (), "error: calibrate pressure-advance: pressure advance needs cartesian or corexy"),
+    ("pressure-advance", DELTA, (), "error: calibrate pressure-advance: a delta's pattern is not laid out yet"),
 ])
 def test_bad_options_are_exit_2(capsys, tmp_path, test, machine, options, message):
     job = tmp_path / "machine.yaml"

@@ -142,17 +142,35 @@ def test_pressure_advance_errors_point_at_their_key(tmp_path, text, message):
     assert (diagnostic.where.line, diagnostic.message) == (8, message)
 
 
-def test_a_delta_is_refused_at_the_key(tmp_path):
-    path = tmp_path / "delta.yaml"
-    path.write_text("machine:\n  kinematics: delta\n  steppers:\n"
-                    + "".join(f"    {m}: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}\n" for m in "abce")
-                    + "  delta: {radius: 100, diagonal_rod: 215, height: 250}\n  pressure_advance: {k: 0.05}\n"
-                    "program:\n  gcode: |\n    G1 X1 E1\n")
-    with pytest.raises(JobError) as caught:
-        load_job(path)
-    (diagnostic,) = caught.value.diagnostics
-    assert diagnostic.where.line == 9 and diagnostic.message.startswith(
-        "machine.pressure_advance: pressure advance needs cartesian or corexy kinematics (delta: not yet")
+DELTA_SQUARE = """G28
+G1 Z0.3 F3000
+G1 X20 Y0 F3000
+M83
+G1 X40 Y0 E1.0 F2400
+G1 X40 Y20 E1.0
+G1 X20 Y20 E1.0
+G1 X20 Y0 E1.0
+G1 E-1 F2400
+G1 X0 Y0 F6000
+"""
+
+
+def test_a_delta_advances_its_extruder_beside_its_carriages(tmp_path):
+    """A delta's carriages are cut from the shaped motion (codegen/motion/shaped_delta.py), and the advanced
+    extruder with them: every check passes, the extruder ends where the program does, and it makes more steps
+    than without the advance (it turns back as the moves slow down)."""
+    text = ("machine:\n  kinematics: delta\n  steppers:\n"
+            + "".join(f"    {m}: {{steps_per_mm: 80, max_velocity: 200, max_accel: 3000}}\n" for m in "abc")
+            + f"    e: {{steps_per_mm: {E_STEPS:g}, max_velocity: 60, max_accel: 5000}}\n"
+            "  delta: {radius: 105.2, diagonal_rod: 215, height: 250}\n  pressure_advance: {k: 0.05}\n"
+            "program:\n  gcode: |\n" + textwrap.indent(DELTA_SQUARE, "    "))
+    host = built(tmp_path, text)
+    plain = built(tmp_path, text.replace("  pressure_advance: {k: 0.05}\n", ""), "plain")
+    f = host.findings
+    assert f.ok, f.problems
+    assert f.final == f.expected_final == plain.findings.final and f.final["e"] == round(3 * E_STEPS)
+    assert f.advance_steps <= 1.0
+    assert f.steps["e"] > plain.findings.steps["e"] + 20
 
 
 def test_the_plan_slows_where_the_advance_breaks_the_extruders_limits_and_says_where(tmp_path):
