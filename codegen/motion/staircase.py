@@ -67,14 +67,16 @@ def split_kinked(segments: Segments, kin: Kinematics) -> Segments:
     motor = kin.limits
     v_motor = np.min(np.divide(motor.max_velocity, factors, out=np.full_like(factors, np.inf), where=factors > 0),
                      axis=1)
-    speed = np.minimum(segments.feed, v_motor)
-    step_change = speed[:, None] * bend / ACCEL_WINDOW_S  # the motor acceleration per mm of part length
+    moving = (length > 0) & (segments.dwell <= 0)  # a dwell moves no motor: it stays one part
+    speed = np.where(moving, np.minimum(segments.feed, v_motor), 0.0)
+    step_change = np.where(moving[:, None], speed[:, None] * np.nan_to_num(bend) / ACCEL_WINDOW_S, 0.0)  # per mm
     longest = np.min(np.divide(KINK_SHARE * motor.max_accel, step_change, out=np.full_like(bend, np.inf),
                                where=step_change > 0), axis=1)
-    shortest = KINK_LEAST_STEPS / np.max(factors * motor.steps_per_mm, axis=1, initial=0.0)
+    reach = np.max(factors * motor.steps_per_mm, axis=1, initial=0.0)  # steps per mm of the fastest motor
+    shortest = np.divide(KINK_LEAST_STEPS, reach, out=np.full(len(reach), np.inf), where=reach > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         parts = np.ceil(length / np.maximum(longest, shortest))
-    parts = np.where(np.isfinite(parts) & (parts > 1) & (segments.dwell <= 0), parts, 1).astype(np.int64)
+    parts = np.where(np.isfinite(parts) & (parts > 1) & moving, parts, 1).astype(np.int64)
     if np.all(parts == 1):
         return segments
     owner = np.repeat(np.arange(len(parts)), parts)

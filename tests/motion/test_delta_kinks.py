@@ -5,6 +5,7 @@ a travel across the bed whose motor b (50 mm/s^2) stepped by 1.57 mm/s at a vert
 acceleration, and failed the host's check by 9.5 % in the whole job."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -76,3 +77,16 @@ def test_the_fuzz_findings_travel_keeps_motor_b_within_its_acceleration(tmp_path
     assert host.findings.accel_ratio["b"] == pytest.approx(0.7126, abs=1e-4)  # the pulses, as the host checks
     assert host.findings.problems == []
     assert plan.total == pytest.approx(13.4481, abs=1e-4)  # 18.7737 s before (slowed by the host's retries)
+
+
+def test_a_dwell_on_a_delta_is_one_part_without_a_warning(tmp_path):
+    """A dwell moves no motor: its speed and reach are 0 or undefined, and split_kinked leaves it whole without
+    numpy's divide or invalid-value warnings (they were printed on every delta job with a G4)."""
+    (tmp_path / "dwell.yaml").write_text(JOB.replace("  shapes:\n", "  gcode: |\n    G1 X10 Y10 Z20 F3000\n"
+                                                     "    G4 P100\n    G1 X0 Y0\n").split("    - travel")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        host = host_build(load_job(tmp_path / "dwell.yaml"), keep=True)
+    dwells = np.flatnonzero(host.segments.dwell > 0)
+    assert len(dwells) == 1 and host.segments.dwell[dwells[0]] == pytest.approx(0.1)
+    assert host.findings.problems == []
