@@ -2,6 +2,7 @@
 three times over, against Klipper's batch mode on the same file, measured in the same run, alternating.
 
     python benchmarks/benchy_plan.py [--repeat 3] [--copies 1 3] [--cpu N] [--no-klipper]
+        [--shaper mzv:50[:0.1]] [--pressure-advance 0.05[:0.04]]
 
 Each of our runs is a fresh process that does what `printer-codegen plan` does (read, plan, step times, rate
 runs, twin and every check; no compiler, no simulator), so its wall time includes Python's start and imports,
@@ -11,12 +12,16 @@ process and of the front end's child (os.wait4 and getrusage: each process's own
 on both targets (AVR and 8051), and Klipper's wall time, peak memory and command bytes per step, with the
 ratio of the best walls. Klipper runs when benchmarks/klipper_ref.py finds it (see its docstring), with the
 command of the issue (`klippy.py printer.cfg -i file.gcode -o out.serial -d out/klipper.dict`); it is
-skipped otherwise. `--cpu N` pins both to one core (ours then runs in one process).
+skipped otherwise. `--cpu N` pins both to one core (ours then runs in one process). `--shaper` and
+`--pressure-advance` give both sides the same input shaper on x and y and the same pressure advance: ours in the
+job's `machine.input_shaper` and `machine.pressure_advance`, Klipper's in its printer.cfg's [input_shaper] and
+[extruder] (with M900 / M572 as macros: benchmarks/klipper_steps.py `klipper_config`).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -26,14 +31,18 @@ import tempfile
 import time
 from pathlib import Path
 
+import yaml
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 sys.path.insert(0, str(HERE))
 
 from klipper_ref import BENCHY, find_klipper, repeated_gcode, run_klipper  # noqa: E402
+from klipper_steps import klipper_config, shaping_of  # noqa: E402
 
 JOB = REPO / "examples" / "printers" / "benchy-mini.yaml"
 SLICER_ESTIMATE_S = 38 * 60 + 43
+ARC_RESOLUTION_MM = 1.0  # Klipper's [gcode_arcs] default, where its printer.cfg is written (the Benchy has no arcs)
 
 
 def measure_one(job_path: str, target: str | None) -> dict:
@@ -73,19 +82,29 @@ def run_ours(job: Path, target: str | None, cpu: int | None) -> dict:
             "front_mib": result["front_end_rss_kib"] / 1024}
 
 
-def job_for(copies: int, work: Path) -> tuple[Path, Path]:
-    """The job file and its G-code for the Benchy `copies` times over."""
-    if copies == 1:
+def job_for(copies: int, work: Path, shapers: dict, advance: tuple | None) -> tuple[Path, Path]:
+    """The job file and its G-code for the Benchy `copies` times over, with the shapers and pressure advance of
+    `shaping_of` (benchmarks/klipper_steps.py) in its machine."""
+    if copies == 1 and not shapers and advance is None:
         return JOB, BENCHY
-    gcode = repeated_gcode(BENCHY, copies, work / f"benchy-x{copies}.gcode")
-    text = JOB.read_text().replace("../../tests/data/gcode/slicer/benchy-prusaslicer.gcode", str(gcode))
-    job = work / f"benchy-x{copies}.yaml"
-    job.write_text(text.replace("name: benchy-mini", f"name: benchy-x{copies}"))
-    return job, gcode
+    gcode = BENCHY if copies == 1 else repeated_gcode(BENCHY, copies, work / f"benchy-x{copies}.gcode")
+    job = yaml.safe_load(JOB.read_text())
+    job["name"] = f"benchy-x{copies}"
+    job["program"]["gcode"] = str(gcode)
+    if shapers:
+        job["machine"]["input_shaper"] = {axis: {"type": kind, "freq": freq, **({} if damping is None else
+                                                                                 {"damping": damping})}
+                                          for axis, (kind, freq, damping) in shapers.items()}
+    if advance is not None:
+        k, smooth = advance
+        job["machine"]["pressure_advance"] = {"k": k, **({} if smooth is None else {"smooth_time": smooth})}
+    path = work / f"benchy-x{copies}.yaml"
+    path.write_text(yaml.safe_dump(job, sort_keys=False))
+    return path, gcode
 
 
-def compare(copies: int, repeat: int, cpu: int | None, klipper, work: Path) -> None:
-    job, gcode = job_for(copies, work)
+def compare(copies: int, repeat: int, cpu: int | None, klipper, work: Path, shaping: tuple[dict, tuple | None]) -> None:
+    job, gcode = job_for(copies, work, *shaping)
     ours, theirs = [], []
     for _ in range(repeat):  # alternating, so that both see the same machine
         ours.append(run_ours(job, None, cpu))
@@ -125,6 +144,8 @@ def main() -> None:
     parser.add_argument("--copies", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--cpu", type=int, default=None, help="pin ours and Klipper to this core")
     parser.add_argument("--no-klipper", action="store_true")
+    parser.add_argument("--shaper", help="both sides' input shaper on x and y: TYPE:FREQ[:DAMPING]")
+    parser.add_argument("--pressure-advance", help="both sides' pressure advance: K[:SMOOTH_TIME]")
     parser.add_argument("--one", help=argparse.SUPPRESS)  # a child's run
     parser.add_argument("--target", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -133,13 +154,18 @@ def main() -> None:
         return
     klipper = None if args.no_klipper else find_klipper()
     where = f"at {klipper.klipper_dir}" if klipper else "not set up (benchmarks/klipper_ref.py): skipped"
+    shapers, advance = shaping_of(None, args.shaper, args.pressure_advance)
     print(f"Klipper: {where}"
-          + (f"; both pinned to core {args.cpu}" if args.cpu is not None else f"; {os.cpu_count()} cores"))
+          + (f"; both pinned to core {args.cpu}" if args.cpu is not None else f"; {os.cpu_count()} cores")
+          + f"; input shaper {shapers or 'none'}, pressure advance {advance or 'none'}")
     with tempfile.TemporaryDirectory(prefix="benchy-plan-") as tmp:
+        if klipper is not None and (shapers or advance is not None):  # Klipper's printer.cfg with them
+            config = klipper_config(Path(tmp), shapers, advance, ARC_RESOLUTION_MM, None)
+            klipper = dataclasses.replace(klipper, config=config)
         if klipper is not None:  # klippy compiles its C helper on its first start: not in the figures
             run_klipper(klipper, BENCHY, Path(tmp) / "klipper", verbose=False)
         for copies in args.copies:
-            compare(copies, args.repeat, args.cpu, klipper, Path(tmp))
+            compare(copies, args.repeat, args.cpu, klipper, Path(tmp), (shapers, advance))
 
 
 if __name__ == "__main__":

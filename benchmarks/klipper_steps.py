@@ -8,7 +8,9 @@ every step, or every difference explained").
 Klipper's batch mode (benchmarks/klipper_ref.py) runs on the job's G-code (default: the Benchy of
 examples/printers/benchy-mini.yaml) with benchmarks/klipper/printer.cfg plus [gcode_arcs], and [input_shaper]
 and the extruder's pressure_advance as the job has them (`machine.input_shaper`, `machine.pressure_advance`,
-where the job schema has them) or as the options say (the options set Klipper's only). Its out.serial is
+where the job schema has them) or as the options say (the options set Klipper's only); with pressure advance
+Klipper also gets M900 K / M572 S as macros calling SET_PRESSURE_ADVANCE (it answers them "Unknown command"
+otherwise), so both sides follow the file's K changes (the Benchy's closing M900 K0). Its out.serial is
 decoded by benchmarks/klipper_decode.py; the steps up to the end of its last homing pass are its G28 homing
 (our firmware homes before the tables) and are left out. Ours are the twin's pulses (host_build). Both
 sides' times count from the first step of any motor; positions from where homing leaves each side (Klipper
@@ -87,11 +89,36 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   y 4,325,724 against 4,322,430 (the shaped paths smooth corners; theirs and ours differ by up to a step,
   so more step pairs differ: +1,125 on x, +1,647 on y), z and e as unshaped; local p99 x 369 us, y 514,
   z 2027, e 763; positions within 1 step but at 679 x and 1,076 y steps, at most 9; 96 s in all (ours 31 s).
+- Shaped and advanced (issue 29 item 4): MZV 50 Hz on x and y and K 0.05 (smooth_time 0.04) in the job, both
+  sides. small (--arc-resolution 0.1): x, y, z equal; e 3,232 against 3,234: at the square corner of lines 5/6
+  Klipper's extruder goes back 8 steps, ours 7: our corner is 9.17 mm/s, Klipper's 7.77 (our limits are each
+  motor's), so less lead is given back; Klipper's formula on each plan (a brute-force quadrature, not our
+  code) bottoms at 855.67 steps on ours, 854.66 on Klipper's, as each side steps. Local p99 x 182 us, y 206,
+  z 89, e 519 (459 plain); positions within 1 step but at 2 e steps. Our e against the formula on our plan:
+  within 0.79 step, as times p50 99 us, p99 587 us: chords (0.5 step) and Bresenham coupling, not the formula.
+  M900 K0.02 / M572 D0 S0.08 inserted: both turn at the same positions. x-only and y-only lines: e 6,090
+  against 6,096 at the reversals, where our junction is 0.95 mm/s (its direction includes e, as Marlin's),
+  Klipper's 0 (x, y, z only), and we plan at 98 % of 2500 mm/s^2. Benchy, the file's limits: ours 2389.1 s,
+  Klipper 2296.6 s (drift +92.5 s); x 5,204,134 against 5,201,920, y 4,325,660 against 4,322,430, z equal, e
+  2,924,541 against 2,948,597 (final positions equal); unpaired x 3,126 / 912, y 4,004 / 774, e 53,677 /
+  77,733. Local p99 x 393 us, y 575, z 2027, e 5,352; over 50 us 6.8 % of x, 11.7 % y, 12.7 % z, 35 % e;
+  largest x 0.38 s (line 57315), y 0.19 s (27271), e 0.54 s (23537). Positions local within 1 step but at
+  741 x (at most 9), 1,051 y (3), 4,919 z (3), 130,302 e steps (4.4 %, p99 7, at most 57 where the drift
+  jumps). --same-limits: 2053.2 s against 2092.6 s (drift -39.4 s: per-motor limits); e 2,959,725 against
+  2,966,051; local p99 x 338, y 475, z 206, e 1,598; over 1 step 711 x, 965 y, 134 z, 49,119 e (1.7 %).
+  The extruder goes back wherever the lead K e' given back at a slowdown outruns the flow over the smoothing
+  window, so the out-and-backs follow the corner speeds and accelerations: the file's M204/M205 (ours;
+  Klipper prints at 1250 with its square_corner_velocity) make three quarters of the e difference, per-motor
+  limits, e in the junction's direction and the margin the rest; where one side goes back and the other
+  not, the pairing shifts (e's local milliseconds). Both advance only moves with x or y motion and e forward
+  (Klipper's extruder.py; ours `can_advance`). A rule apart, unseen here: at K 0 Klipper stops smoothing,
+  we keep smoothing (codegen/job/schema/advance.py); the Benchy's M900 K0 follows its last move.
 - Klipper's batch mode may exit before writing its last messages (seen 1 run in 5-10 on a loaded machine:
   the last 19 % of a move, or whole moves, missing). Its copy of the program ends with M84; an output
   without the motors-off after its last step is made again ("klipper_runs" in --json).
 Wall (2 cores shared with a fuzz run, Benchy): ours (host_build) 13-16 s, Klipper 7 s, decoding 1.4-1.8 s,
-pairing and figures 35-37 s; 60 s and 4.6 GB peak in all. small: about 5 s in all.
+pairing and figures 35-37 s; 60 s and 4.6 GB peak in all. small: about 5 s in all. Shaped and advanced:
+ours 21-33 s, Klipper 6-10 s, pairing 32-47 s; 63-95 s and 4.9 GB peak.
 """
 
 from __future__ import annotations
@@ -111,8 +138,8 @@ import yaml
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from klipper_compare import (BINS_S, Drift, Spread, Train, drift_of, nearest_pairs,  # noqa: E402
-                             occurrence_pairs, position_at, trend)
+from klipper_compare import (BINS_S, Drift, Spread, Train, drift_of, nearest_pairs, occurrence_pairs,  # noqa: E402
+                             position_at, trend)
 from klipper_decode import decode, homing_end  # noqa: E402
 from klipper_ref import CONFIG, find_klipper, run_klipper  # noqa: E402
 
@@ -120,6 +147,17 @@ JOB = HERE.parent / "examples" / "printers" / "benchy-mini.yaml"
 LIMIT_US = 50.0
 SECTIONS = {"x": "stepper_x", "y": "stepper_y", "z": "stepper_z", "e": "extruder"}  # cartesian motors
 SAME_LIMITS_DROPPED = ("M204", "M205")
+# Klipper answers M900 and M572 "Unknown command": with pressure advance it gets them as macros, so that both sides
+# follow the file's K changes (ours: codegen/gcode/mcodes.py; without K or S nothing changes on either side).
+ADVANCE_MACROS = """
+[gcode_macro M900]
+gcode:
+  {% if 'K' in params %}SET_PRESSURE_ADVANCE ADVANCE={params.K}{% endif %}
+
+[gcode_macro M572]
+gcode:
+  {% if 'S' in params %}SET_PRESSURE_ADVANCE ADVANCE={params.S}{% endif %}
+"""
 
 
 def shaping_of(machine, shaper: str | None, advance: str | None) -> tuple[dict, tuple | None]:
@@ -154,6 +192,7 @@ def klipper_config(work: Path, shapers: dict, advance: tuple | None, arc_resolut
         k, smooth = advance
         extra.append(f"\n[extruder]\npressure_advance: {k:g}\n"
                      + (f"pressure_advance_smooth_time: {smooth:g}\n" if smooth is not None else ""))
+        extra.append(ADVANCE_MACROS)
     path = work / "printer.cfg"
     path.write_text(CONFIG.read_text() + "".join(extra))
     return path

@@ -17,6 +17,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from klipper_compare import Train, drift_of, nearest_pairs, occurrence_pairs  # noqa: E402
 from klipper_decode import decode, homing_end, varints  # noqa: E402
 from klipper_ref import find_klipper  # noqa: E402
+from klipper_steps import klipper_config  # noqa: E402
 
 IDS = {"identify_response offset=%u data=%.*s": 0, "config_stepper oid=%c step_pin=%c dir_pin=%c invert_step=%c "
        "step_pulse_ticks=%u": 23, "queue_step oid=%c interval=%u count=%hu add=%hi": 22,
@@ -132,6 +133,17 @@ def test_pairs_survive_drift_and_an_extra_step_pair():
     assert len(mine) == len(theirs.time) and len(ours.time) - len(mine) == 2
     assert (ours.position[mine] == theirs.position[other]).all() and (ours.dir[mine] == theirs.dir[other]).all()
     assert np.abs(ours.time[mine] - theirs.time[other] - drift(ours.time[mine])).max() < 0.01
+
+
+def test_klippers_config_follows_the_files_advance_changes_only_with_advance(tmp_path):
+    """With pressure advance Klipper gets M900 K / M572 S as macros (it answers them "Unknown command"); without
+    it, neither the advance nor the macros."""
+    plain = klipper_config(tmp_path, {}, None, 1.0, None).read_text()
+    assert "gcode_macro" not in plain and "pressure_advance:" not in plain
+    text = klipper_config(tmp_path, {"x": ("mzv", 50.0, None)}, (0.05, None), 1.0, None).read_text()
+    assert "shaper_type_x: mzv\nshaper_freq_x: 50\n" in text and "pressure_advance: 0.05\n" in text
+    assert "[gcode_macro M900]" in text and "SET_PRESSURE_ADVANCE ADVANCE={params.K}" in text
+    assert "[gcode_macro M572]" in text and "SET_PRESSURE_ADVANCE ADVANCE={params.S}" in text
 
 
 @pytest.mark.skipif(find_klipper() is None, reason="Klipper is not set up beside the repository (CI has none)")
