@@ -48,13 +48,15 @@ class Move:
     arc: tuple | None = None  # (centre (u, v), radius, plane (u, v) axes, clockwise, sweep rad, end radius)
     offsets: tuple[float, float, float] = (0.0, 0.0, 0.0)  # mm where coordinate 0 is (G92, G54-G59, G43.1)
 
-    def length(self) -> float:
-        """mm along the path (nan with an unknown axis)."""
+    def length(self, tolerance: float = 0.0) -> float:
+        """mm along the path (nan with an unknown axis); with a `tolerance`, the least an arc's chords may add up to
+        when each strays from its circle by no more than that (Grbl's $12: the firmware runs each chord at F)."""
         if self.arc is None:
             return math.dist(self.start, self.end)
-        _, radius, plane, _, sweep, _ = self.arc
+        _, radius, plane, _, sweep, end_radius = self.arc
         along = [self.end[i] - self.start[i] for i in range(3) if i not in plane]
-        return math.hypot(radius * abs(sweep), math.hypot(*along))
+        flat = (radius + end_radius) / 2 * abs(sweep)  # a spiral (its radius even in the angle) is no shorter
+        return math.hypot(flat * _chord_share(min(radius, end_radius), sweep, tolerance), math.hypot(*along))
 
 
 @dataclass(frozen=True)
@@ -241,6 +243,13 @@ def _number(text: str) -> str:
         return ""
     value = float(text)
     return str(int(value)) if value == int(value) else f"{value:g}"
+
+
+def _chord_share(radius: float, sweep: float, tolerance: float) -> float:
+    """The least share of an arc's length its chords may have: a chord turning 2a on the circle, its middle
+    within `tolerance` of it (cos a >= 1 - tolerance / radius), is sin(a) / a of its arc, less the more it turns."""
+    half = min(math.acos(max(1.0 - tolerance / radius, 0.0)) if radius > 0 else math.pi / 2, abs(sweep) / 2)
+    return math.sin(half) / half if half > 0 else 1.0
 
 
 def _arc(motion: str, plane: tuple[int, int], start, end, params: dict[str, float], unit: float) -> tuple | None:

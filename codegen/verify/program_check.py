@@ -11,7 +11,8 @@ G4's rest is shorter by the shapers' spread (the motion before and after it over
 
 Each played event belongs to a segment and so to a G-code line (Segments.line). A line's last event is where its
 move ends (to a step: the stepper rounds each motor once); from the line's last event before it, the move takes at
-least its length over its speed, give or take a step at either end.
+least its length over its speed, give or take a step at either end; an arc's length there is the shortest its
+chords may add up to within the machine's `tolerance` (Grbl's $12: the firmware runs each chord at F).
 """
 
 from __future__ import annotations
@@ -159,16 +160,17 @@ class ProgramCheck:
                 f"program's end, {_mm(move.end)} in machine mm, gives {_steps(self.geometry, want)}" + _offsets(move))
 
     def _feed(self, move: Move, time: float) -> None:
-        length = move.length()
+        length, chords = move.length(), move.length(self.tolerance)
         if move.speed is None or math.isnan(length) or not math.isfinite(self.run_began):
             return
-        least = (length - 2 * self.geometry.step_mm() - 2 * self.smoothing) / move.speed * (1 - TIME_SLACK)
+        least = (chords - 2 * self.geometry.step_mm() - 2 * self.smoothing) / move.speed * (1 - TIME_SLACK)
         took = time - self.run_began
         self.checked["feeds"] += least > 0
         if least > 0 and took < least:
+            drawn = f" along chords of {chords:.3f} mm" if chords < length else ""
             self.problems.append(
                 f"{_at(move)}: the move of {length:.3f} mm takes {took:.4f} s in the plan, faster than its feed "
-                f"of {move.speed * 60:.1f} mm/min allows ({least:.4f} s or more)")
+                f"of {move.speed * 60:.1f} mm/min allows{drawn} ({least:.4f} s or more)")
 
     def _arc(self, move: Move, steps: np.ndarray) -> None:
         tool = self.geometry.tool(steps)
