@@ -70,6 +70,7 @@ class HostBuild:
     laser: LaserPwm | None = None  # a PWM laser's (codegen/tables/laser.py)
     planned: tuple[Segments, Plan] | None = None  # a shaped job's segments and plan before shaping, when kept
     shapings: tuple = ()  # each era's input shapers (ShapingSettings or None: unshaped), M593s between them
+    shaper_specs: tuple = ()  # each era's shapers of x, y, z as (type, freq, damping) or None: what set them
 
     @property
     def shaped(self) -> bool:
@@ -211,7 +212,8 @@ def _host_build(job, strict: bool, watch: Stopwatch, keep: bool, tables: BinaryI
     host = HostBuild(job, settings, target, kin, program.start, program.end, stages.totals,
                      stages.checker.findings(expected_final), start_steps, expected_final,
                      program.warnings + heater_notes + _advance_notes(stages.totals, program), homing,
-                     program.heater_program, laser=laser, shapings=tuple(eras.all()))
+                     program.heater_program, laser=laser, shapings=tuple(eras.all()),
+                     shaper_specs=tuple(eras.specs()))
     if link is not None:
         host.link_plan = link_plan(link, stages.carried.ring, stages.totals)
     if runtime is not None:

@@ -61,10 +61,13 @@ def shaping_settings(job) -> ShapingSettings | None:
     """The input shaper of each axis x, y, z (None where it has none) and the extruder's pressure advance; None
     when the machine shapes no axis and advances no extruder."""
     shaper = job.machine.input_shaper
-    axes = {} if shaper is None else shaper.axes
-    return shaping_of(tuple((axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None
-                            for a in ("x", "y", "z")), None if shaper is None else shaper.max_smoothing,
-                      advance_settings(job))
+    return shaping_of(shaper_specs(job), None if shaper is None else shaper.max_smoothing, advance_settings(job))
+
+
+def shaper_specs(job) -> tuple:
+    """The machine's input shaper of x, y, z as (type, freq, damping); None where it shapes none."""
+    axes = {} if job.machine.input_shaper is None else job.machine.input_shaper.axes
+    return tuple((axes[a].type, axes[a].freq, axes[a].damping) if a in axes else None for a in ("x", "y", "z"))
 
 
 def advance_settings(job) -> AdvanceSettings | None:
@@ -86,6 +89,7 @@ class ShapingEras:
         self.max_smoothing = None if job.machine.input_shaper is None else job.machine.input_shaper.max_smoothing
         self.advance = advance_settings(job)
         self.known = {0: shaping_settings(job)}
+        self.machine_specs = shaper_specs(job)
 
     def __call__(self, era: int) -> ShapingSettings | None:
         if era not in self.known:
@@ -95,6 +99,10 @@ class ShapingEras:
     def all(self) -> list[ShapingSettings | None]:
         """Every era's, in order."""
         return [self(era) for era in range(len(self.program.shapings) + 1)]
+
+    def specs(self) -> list[tuple]:
+        """Every era's shapers of x, y, z as (type, freq, damping) or None (unshaped), in order."""
+        return [self.machine_specs] + [change.shapers for change in self.program.shapings]
 
 
 def homing_settings(job) -> HomingSettings:

@@ -19,6 +19,8 @@ from codegen.report import plots
 from codegen.report.plan_samples import PlanSamples
 from codegen.verify.compare import MAX_TIMING_ERROR_US
 from codegen.verify.report_samples import PathSamples, RunSamples
+from codegen.verify.results import era_shaper
+from codegen.verify.vibration_eras import least_ringing
 
 STYLE = """
 body { font-family: sans-serif; margin: 1.5em auto; max-width: 1100px; color: #222; }
@@ -189,6 +191,10 @@ def _verify_header(host, result: dict) -> str:
     pairs += [(f"vibration {axis} (µm)", f"{v['residual_peak_um']:.2f} peak, {v['residual_rms_um']:.2f} RMS; "
                f"unshaped {v['unshaped_peak_um']:.2f}, {v['unshaped_rms_um']:.2f}")
               for axis, v in result.get("vibration", {}).items()]
+    least = {axis: least_ringing(v.get("eras", [])) for axis, v in result.get("vibration", {}).items()}
+    pairs += [(f"vibration {axis}: least ringing M593 era", f"era {e['era']} ({era_shaper(e)}): "
+               f"{100 * e['ratio']:.1f} % of unshaped (theory {100 * e['theory_ratio']:.1f} %)")
+              for axis, e in least.items() if e is not None]
     pairs += [("not compared", reason) for reason in result.get("not_compared", [])]
     return _table(pairs) + _motor_table(result["motors"], (
         ("steps", "steps"), ("final", "net steps"), ("expected_final", "job's net steps"),

@@ -278,8 +278,8 @@ def vibration_figure(vibration: dict) -> bytes:
         pole = complex(-v["damping"] * omega, omega * math.sqrt(1 - v["damping"] ** 2))
         span = max(worst["length_s"], worst["residual_delay_s"])
         runs = [("unshaped", worst["unshaped_um"], worst["unshaped_phase_rad"], 0.0, "tab:red")]
-        if v["shaper"] is not None:
-            runs.append((f"shaped ({v['shaper']})", worst["residual_um"], worst["residual_phase_rad"],
+        if worst["shaper"] is not None:  # the shaper of the worst place's era
+            runs.append((f"shaped ({worst['shaper']})", worst["residual_um"], worst["residual_phase_rad"],
                          worst["residual_delay_s"], "tab:blue"))
         for label, amplitude, phase, delay, colour in runs:
             t = np.linspace(delay, span, 400)

@@ -132,7 +132,7 @@ class Chapters:
         segments = join_segments(windows)
         compressed = join_compressed(windows, False, pulses)
         planned = None
-        if windows[0].planned is not None:
+        if any(w.planned is not None for w in windows):  # an unshaped era's windows are their own plan
             planned = join_segments(windows, planned=True), join_plan(windows, planned=True)
         chapter = Chapter(segments, join_plan(windows), join_events(windows), pulses, compressed, self.before, after,
                           self.events, self.laser, last, planned,

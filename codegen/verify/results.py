@@ -4,6 +4,7 @@ timing, the image's sizes and every problem found; the figures of heaters, the l
 from __future__ import annotations
 
 from codegen.pipeline.host import HostBuild
+from codegen.verify.vibration_eras import least_ringing
 
 
 def rounded(value: float, digits: int = 6) -> float:
@@ -62,12 +63,15 @@ def vibration_json(vibration: dict) -> dict:
     def tidy(value):
         if isinstance(value, dict):
             return {k: tidy(v) for k, v in value.items()}
+        if isinstance(value, list):
+            return [tidy(v) for v in value]
         return rounded(value, 4) if isinstance(value, float) else value
     return {axis: tidy(figures) for axis, figures in vibration.items()}
 
 
 def vibration_lines(vibration: dict) -> list[str]:
-    """verify's text lines of the toolhead's residual vibration, an axis a line."""
+    """verify's text lines of the toolhead's residual vibration, an axis a line; with M593s, a line an era after
+    it and the era that rings least."""
     lines = []
     for axis, v in vibration.items():
         worst = v["worst"] or {}
@@ -78,10 +82,34 @@ def vibration_lines(vibration: dict) -> list[str]:
                          f"{v['residual_peak_um']:.2f} um peak, {v['residual_rms_um']:.2f} um RMS after "
                          f"{v['places']} acceleration changes{place}")
             continue
+        eras = v.get("eras", [])
+        shapers = f"{len(eras)} eras of M593: {v['shaper']}" if eras else v["shaper"]
         ratio = "" if v["ratio"] is None else f": {100 * v['ratio']:.1f} % of unshaped"
-        lines.append(f"  vibration {axis} ({v['freq_hz']:g} Hz, damping {v['damping']:g}, {v['shaper']}): residual "
+        theory = "" if v["theory_ratio"] is None else f" (the shaper's theory: {100 * v['theory_ratio']:.1f} %)"
+        lines.append(f"  vibration {axis} ({v['freq_hz']:g} Hz, damping {v['damping']:g}, {shapers}): residual "
                      f"{v['residual_peak_um']:.2f} um peak, {v['residual_rms_um']:.2f} um RMS after {v['places']} "
                      f"acceleration changes{place}; unshaped {v['unshaped_peak_um']:.2f} um peak, "
-                     f"{v['unshaped_rms_um']:.2f} um RMS{ratio} (the shaper's theory: "
-                     f"{100 * v['theory_ratio']:.1f} %)")
+                     f"{v['unshaped_rms_um']:.2f} um RMS{ratio}{theory}")
+        lines += [f"    era {e['era']}{_from_line(e)} ({era_shaper(e)}): residual {e['residual_peak_um']:.2f} um peak, "
+                  f"{e['residual_rms_um']:.2f} um RMS after {e['places']} changes; unshaped "
+                  f"{e['unshaped_peak_um']:.2f} um peak, {e['unshaped_rms_um']:.2f} um RMS: "
+                  f"{100 * e['ratio']:.1f} % of unshaped (theory {100 * e['theory_ratio']:.1f} %)"
+                  for e in eras if e["ratio"] is not None]
+        least = least_ringing(eras)
+        if least is not None:
+            lines.append(f"  vibration {axis} rings least in era {least['era']}{_from_line(least)} "
+                         f"({era_shaper(least)}): {100 * least['ratio']:.1f} % of unshaped")
     return lines
+
+
+def _from_line(era: dict) -> str:
+    return f" from line {era['line']}" if era["line"] else ""
+
+
+def era_shaper(era: dict) -> str:
+    """An era's shaper as the text names it: type, frequency and damping, or unshaped."""
+    if era["shaper"] is None:
+        return "unshaped"
+    if era["shaper_freq_hz"] is None:
+        return era["shaper"]
+    return f"{era['shaper']} {era['shaper_freq_hz']:g} Hz, damping {era['shaper_damping']:g}"

@@ -11,10 +11,12 @@ the commanded acceleration is constant, so the ringing is free and decays as exp
 place's start (the residual the change left, turned back from the samples of its first damped period) and its RMS
 over the first RMS_PERIODS periods. By linearity a shaped place's residual is the unshaped one's times the
 shaper's remaining vibration at the resonance (codegen/motion/shapers.py remaining_vibration), up to the steps'
-own ringing.
+own ringing. Where the program changes its shapers (M593), each place is measured with its change's era's, and
+the figures come per era too (codegen/verify/vibration_eras.py).
 
 Samples are taken SAMPLES_PER_PERIOD a period; those later than the pulses a chapter has wait for the next one,
-so memory holds a chapter and a few periods.
+so memory holds a chapter and a few periods. The place a chapter ends in stays open until the next chapter's
+first change (its samples after that are dropped then), so a place is the same however the chapters cut the run.
 """
 
 from __future__ import annotations
@@ -28,16 +30,15 @@ from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import bresenham
 from codegen.motion.planner import Plan
 from codegen.motion.shaped_motion import Motion, ShapingSettings, planned_motion
-from codegen.motion.shapers import remaining_vibration
 from codegen.motion.stepgen import generate, segment_steps
 from codegen.toolpath.segments import Segments
 from codegen.verify.resonance import AxisResonance, Oscillator, job_resonances
+from codegen.verify.vibration_eras import UM, Carry, EraShaping, Tally, era_figures, shaper_names
 
 SAMPLES_PER_PERIOD = 8
 RMS_PERIODS = 8  # a place's RMS: over this many damped periods from its start (or the place, if shorter)
 SAME = 1e-9  # relative: a piece continues its neighbour's acceleration and velocity this closely
 LATE_PULSE_S = 1e-3  # a simulated pulse comes at most this long after the twin's time (the next chapter's too)
-UM = 1000.0
 
 
 @dataclass
@@ -66,171 +67,242 @@ class Samples:
 
 
 class _Run:
-    """One run's toolhead on one axis and its samples still to measure; per place, the sums of what was measured."""
+    """One run's toolhead on one axis and its samples still to measure; per place (from `base` on), the sums of
+    what was measured: z turned back to the place's start over its first period (`amplitude`, `amplitude_n`
+    samples), Re(z)^2 (`squares`, `squares_n`), and with e = exp(p since) the sums Re(z) e, e^2 and |e|^2 that
+    take a ringing carried in out of the squares (codegen/verify/vibration_eras.py Carry)."""
+
+    SUMS = {"amplitude": complex, "amplitude_n": float, "squares": float, "squares_n": float, "cross": complex,
+            "double": complex, "decay": float}
 
     def __init__(self, resonance: AxisResonance, level: float):
         self.oscillator = Oscillator(resonance, level)
         self.waiting = Samples.empty()
-        self.amplitude = np.zeros(0, complex)  # per place from `base` on: the sum of z turned back to its start
-        self.amplitude_n = np.zeros(0)
-        self.squares = np.zeros(0)
-        self.squares_n = np.zeros(0)
+        self.sums = {name: np.zeros(0, kind) for name, kind in _Run.SUMS.items()}
+        self.carry = Carry(self.oscillator.pole)
 
     def measure(self, times: np.ndarray, steps: np.ndarray, samples: Samples, known: float, base: int,
                 places: int) -> None:
         """Play the chapter's changes of the command, then measure the samples up to `known` (s)."""
         self.oscillator.play(times, steps)
-        grow = places - len(self.amplitude)
-        self.amplitude, self.amplitude_n, self.squares, self.squares_n = (
-            np.concatenate([a, np.zeros(grow, a.dtype)])
-            for a in (self.amplitude, self.amplitude_n, self.squares, self.squares_n))
         every = Samples.join([self.waiting, samples])
         # a moment before the chapter's last change has every change before it
         now = every.t <= max(known, float(times[-1]) if len(times) else -math.inf)
         self.waiting, s = every.take(~now), every.take(now)
         z = self.oscillator.ringing(s.t, s.u, s.du, s.ddu)
+        turn = np.exp(self.oscillator.pole * s.since)
         index = (s.place - base).astype(np.int64)
-        start = z * np.exp(-self.oscillator.pole * s.since)
-        self.amplitude += np.bincount(index, start.real * s.first, places) \
-            + 1j * np.bincount(index, start.imag * s.first, places)
-        self.amplitude_n += np.bincount(index, s.first.astype(float), places)
-        self.squares += np.bincount(index, z.real**2, places)
-        self.squares_n += np.bincount(index, None, places)
+        values = {"amplitude": z / turn * s.first, "amplitude_n": s.first.astype(float), "squares": z.real**2,
+                  "squares_n": np.ones(len(z)), "cross": z.real * turn, "double": turn**2, "decay": np.abs(turn)**2}
+        for name, total in self.sums.items():
+            grown = np.concatenate([total, np.zeros(places - len(total), total.dtype)])
+            value = values[name]
+            grown += np.bincount(index, value.real, places)
+            if total.dtype == complex:
+                grown += 1j * np.bincount(index, value.imag, places)
+            self.sums[name] = grown
 
-    def drop(self, count: int) -> None:
-        self.amplitude, self.amplitude_n, self.squares, self.squares_n = (
-            a[count:] for a in (self.amplitude, self.amplitude_n, self.squares, self.squares_n))
+    def trim(self, place: int, last: float, step: float) -> None:
+        """Drop the place's samples still to measure after its sample `last` (`step` s apart): it ended there."""
+        self.waiting = self.waiting.take((self.waiting.place != place) | (np.round(self.waiting.since / step) <= last))
+
+    def take(self, count: int) -> dict[str, np.ndarray]:
+        """The first `count` places' sums, dropped from here."""
+        done = {name: total[:count] for name, total in self.sums.items()}
+        self.sums = {name: total[count:] for name, total in self.sums.items()}
+        return done
 
 
 class AxisVibration:
-    """One axis's residual vibration, shaped (as played) and unshaped, place by place."""
+    """One axis's residual vibration, shaped (as played) and unshaped, place by place; per era of the program's
+    shapers (codegen/verify/vibration_eras.py) and over the whole run."""
 
-    def __init__(self, resonance: AxisResonance, shaping: ShapingSettings | None, level: float):
-        self.resonance = resonance
-        axis = resonance.axis
-        self.shaper = None if shaping is None or axis >= len(shaping.shapers) else shaping.shapers[axis]
-        amplitudes, delays = (np.ones(1), np.zeros(1)) if shaping is None else shaping.offsets(axis)
-        self.shift = 0.0 if shaping is None else shaping.shift
-        self.first_delay, self.last_delay = float(delays.min()), float(delays.max())
-        self.smoothing = 0.5 * float(amplitudes @ delays**2)  # how far the shaped command lies off at constant a
+    def __init__(self, resonance: AxisResonance, eras: tuple[EraShaping, ...], unshaped: bool, level: float):
+        """`eras`: the axis's shaping in each era; `unshaped`: whether some era is shaped (then the host's
+        unshaped run is measured beside the played one)."""
+        self.resonance, self.eras = resonance, eras
+        self.shift, self.first_delay, self.last_delay, self.smoothing = (
+            np.array([getattr(e, k) for e in eras]) for k in ("shift", "first_delay", "last_delay", "smoothing"))
         self.played = _Run(resonance, level)
-        self.unshaped = _Run(resonance, level) if shaping is not None else None
+        self.unshaped = _Run(resonance, level) if unshaped else None
         self.base = self.places = 0  # places measured and dropped; places made
-        self.meta: dict[str, list] = {"time": [], "line": [], "length": []}
-        self.peak = self.unshaped_peak = 0.0
-        self.squares = np.zeros(2)
-        self.squares_n = np.zeros(2)
+        self.meta: dict[str, list] = {key: [] for key in ("time", "line", "length", "era", "begin", "straddle",
+                                                          "kept")}
+        self.open: int | None = None  # the place the last chapter ended in, until the next change
+        self.tail: tuple[float, float] | None = None  # the axis's planned acceleration and velocity there
+        self.whole = Tally()
+        self.tallies = [Tally() for _ in eras]
         self.worst: dict | None = None
 
     @property
     def period(self) -> float:
         return self.played.oscillator.period
 
-    def add(self, pieces: Motion, line: np.ndarray, played: tuple[np.ndarray, np.ndarray],
+    def add(self, pieces: Motion, line: np.ndarray, era: np.ndarray, played: tuple[np.ndarray, np.ndarray],
             unshaped: tuple[np.ndarray, np.ndarray] | None, last: bool) -> None:
-        """A chapter: its planned motion in `pieces` (each piece's G-code line in `line`), the changes of this
-        axis's commanded position as played and (a shaped job's) unshaped: times and steps (mm)."""
+        """A chapter: its planned motion in `pieces` (each piece's G-code line in `line`, its shapers' era in
+        `era`), the changes of this axis's commanded position as played and (a shaped job's) unshaped: times and
+        steps (mm). Its last place stays open (it ends with the next chapter's first change), unless `last`."""
         axis = self.resonance.axis
-        begin, end = self._places(pieces)
+        first = self._changes(pieces)
+        begin, eras = pieces.breaks[first], era[first]
+        end = np.append(begin[1:], pieces.breaks[-1] if last else math.inf)[:len(begin)]
+        ends = np.append(eras[1:], era[-1])[:len(begin)]
+        stop = np.full(len(begin), math.inf)  # the plan's time from which the command rests at its end
         if last:  # the program's end: the tool rests, and rings on
-            begin, end = np.append(begin, pieces.breaks[-1]), np.append(end, math.inf)
-        shaped_begin, shaped_end = begin + self.shift + self.last_delay, end + self.shift + self.first_delay
+            begin, end, stop = (np.append(a, b) for a, b in ((begin, pieces.breaks[-1]), (end, math.inf),
+                                                              (stop, pieces.breaks[-1])))
+            first, eras, ends = np.append(first, len(pieces) - 1), np.append(eras, era[-1]), np.append(ends, era[-1])
+        if len(begin):
+            self._close(float(begin[0]), int(eras[0]))
+        # A place's shaped stretch begins after its own change's last impulse, ends at the next change's first.
+        shaped_begin = begin + self.shift[eras] + self.last_delay[eras]
+        shaped_end = end + self.shift[ends] + self.first_delay[ends]
         keep = shaped_end >= shaped_begin
-        begin, end, shaped_begin, shaped_end = begin[keep], end[keep], shaped_begin[keep], shaped_end[keep]
+        begin, end, stop, first, eras, ends, shaped_begin, shaped_end = (
+            a[keep] for a in (begin, end, stop, first, eras, ends, shaped_begin, shaped_end))
         ids = self.places + np.arange(len(begin))
         self.places += len(begin)
+        if not last and len(begin) and end[-1] == math.inf:
+            self.open = int(ids[-1])
         self.meta["time"] += shaped_begin.tolist()
-        self.meta["line"] += line[pieces.piece_of(begin)].tolist()
+        self.meta["line"] += line[first].tolist()
         self.meta["length"] += np.minimum(end - begin, RMS_PERIODS * self.period).tolist()
+        self.meta["era"] += eras.tolist()
+        self.meta["begin"] += begin.tolist()
+        self.meta["straddle"] += (eras != ends).tolist()  # its era's last: the rest at an M593
+        self.meta["kept"] += [True] * len(begin)
+        a, length = pieces.accel[-1, axis], pieces.breaks[-1] - pieces.breaks[-2]
+        self.tail = (float(a), float(pieces.velocity[-1, axis] + a * length))
         known = pieces.breaks[-1] - LATE_PULSE_S if not last else math.inf
-        offset = self.smoothing if self.shaper is not None else 0.0
-        self.played.measure(*played, self._samples(pieces, axis, ids, shaped_begin, shaped_end, self.shift, offset),
-                            known, self.base, self.places - self.base)
+        places = (ids, begin, end, first, stop)
+        self.played.measure(*played, self._samples(pieces, axis, places, shaped_begin, shaped_end, self.shift[eras],
+                                                   self.smoothing[eras]), known, self.base, self.places - self.base)
         if self.unshaped is not None:
-            self.unshaped.measure(*unshaped, self._samples(pieces, axis, ids, begin, end, 0.0, 0.0), known,
+            zero = np.zeros(len(begin))
+            self.unshaped.measure(*unshaped, self._samples(pieces, axis, places, begin, end, zero, zero), known,
                                   self.base, self.places - self.base)
         self._settle()
 
-    def _places(self, pieces: Motion) -> tuple[np.ndarray, np.ndarray]:
-        """Where the axis's planned acceleration or velocity changes (a chapter's first piece too), to the next."""
+    def _changes(self, pieces: Motion) -> np.ndarray:
+        """The pieces where the axis's planned acceleration or velocity changes (the first against the chapter
+        before's end; the program's first piece always)."""
         axis = self.resonance.axis
         a, v, length = pieces.accel[:, axis], pieces.velocity[:, axis], np.diff(pieces.breaks)
-        scale = SAME * (1.0 + np.abs(a[1:]) + np.abs(v[1:]))
-        changes = (np.abs(a[1:] - a[:-1]) > scale) | (np.abs(v[:-1] + a[:-1] * length[:-1] - v[1:]) > scale)
-        first = np.flatnonzero(np.concatenate([[True], changes]))
-        breaks = pieces.breaks[np.append(first, len(pieces))]
-        return breaks[:-1], breaks[1:]
+        before_a = np.concatenate([[self.tail[0] if self.tail else 0.0], a[:-1]])
+        before_v = np.concatenate([[self.tail[1] if self.tail else 0.0], v[:-1] + a[:-1] * length[:-1]])
+        scale = SAME * (1.0 + np.abs(a) + np.abs(v))
+        changes = (np.abs(a - before_a) > scale) | (np.abs(before_v - v) > scale)
+        changes[0] |= self.tail is None
+        return np.flatnonzero(changes)
 
-    def _samples(self, pieces: Motion, axis: int, ids: np.ndarray, begin: np.ndarray, end: np.ndarray,
-                 shift: float, offset: float) -> Samples:
+    def _close(self, end: float, era: int) -> None:
+        """The open place ends at `end` (the plan's s), where a change of `era` begins: its samples after are
+        dropped, and the place itself where it is too short for the shapers."""
+        if self.open is None:
+            return
+        k = self.open - self.base
+        shaped_end = end + self.shift[era] + self.first_delay[era]
+        self.meta["kept"][k] = shaped_end >= self.meta["time"][k]
+        self.meta["straddle"][k] = self.meta["era"][k] != era
+        self.meta["length"][k] = min(end - self.meta["begin"][k], RMS_PERIODS * self.period)
+        step = self.period / SAMPLES_PER_PERIOD  # as _samples counts them
+        self.played.trim(self.open, np.floor((shaped_end - self.meta["time"][k]) / step), step)
+        if self.unshaped is not None:
+            self.unshaped.trim(self.open, np.floor((end - self.meta["begin"][k]) / step), step)
+        self.open = None
+
+    def _samples(self, pieces: Motion, axis: int, places: tuple, begin: np.ndarray, end: np.ndarray,
+                 shift: np.ndarray, offset: np.ndarray) -> Samples:
         """Each place's samples from `begin` to `end` (the run's clock, `shift` after the plan's): the command
-        there (the shaped one `offset` off the plan's)."""
+        there (the shaped one `offset` per mm/s^2 off the plan's). `places`: their ids, their plan's stretches,
+        first pieces (whose quadratic holds over the place, an open one's beyond the chapter too) and where the
+        command comes to rest at the plan's end."""
+        ids, plan_begin, plan_end, first, stop = places
         step = self.period / SAMPLES_PER_PERIOD
         count = np.minimum(np.floor((end - begin) / step), RMS_PERIODS * SAMPLES_PER_PERIOD).astype(np.int64) + 1
-        place = np.repeat(ids, count)
+        k = np.repeat(np.arange(len(ids)), count)
         since = (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)) * step
-        t = np.repeat(begin, count) + since
-        plan_t = t - shift
-        piece = pieces.piece_of(plan_t)
-        moving = plan_t < pieces.breaks[-1]  # after the plan's end the tool rests at its end
+        t = begin[k] + since
+        # a place across an M593 (the next era's clock runs less behind) rests until the next era's motion
+        plan_t = np.clip(t - shift[k], plan_begin[k], plan_end[k])
+        piece = first[k]
+        moving = plan_t < stop[k]
         dt = plan_t - pieces.breaks[piece]
         a = np.where(moving, pieces.accel[piece, axis], 0.0)
         du = np.where(moving, pieces.velocity[piece, axis] + a * dt, 0.0)
         u = np.where(moving, pieces.position[piece, axis] + pieces.velocity[piece, axis] * dt + 0.5 * a * dt * dt,
-                     pieces.end[axis]) + offset * a
-        return Samples(t, u, du, a, place, since, since < self.period)
+                     pieces.end[axis]) + offset[k] * a
+        return Samples(t, u, du, a, ids[k], since, since < self.period)
 
     def _settle(self) -> None:
-        """Fold the places no sample waits for any more into the figures, and drop them."""
+        """Fold the places no sample waits for any more into the figures, and drop them: the whole run's as the
+        toolhead rings, each era's less what the era before left ringing (Carry)."""
         waiting = [r.waiting.place for r in (self.played, self.unshaped) if r is not None and len(r.waiting.t)]
-        done = int(min((w.min() for w in waiting), default=self.places)) - self.base
+        done = int(min([w.min() for w in waiting] + [self.places if self.open is None else self.open])) - self.base
         if done <= 0:
             return
         runs = [self.played] if self.unshaped is None else [self.played, self.unshaped]
-        amplitude = [r.amplitude[:done] / np.maximum(r.amplitude_n[:done], 1) for r in runs]
-        for k, r in enumerate(runs):
-            self.squares[k] += r.squares[:done].sum()
-            self.squares_n[k] += r.squares_n[:done].sum()
-            r.drop(done)
-        worst = int(np.argmax(np.abs(amplitude[0])))
-        unshaped = amplitude[-1]
-        self.unshaped_peak = max(self.unshaped_peak, float(np.abs(unshaped).max()))
-        if abs(amplitude[0][worst]) > self.peak or self.worst is None:
-            self.peak = max(self.peak, float(abs(amplitude[0][worst])))
-            self.worst = {"time_s": self.meta["time"][worst], "line": int(self.meta["line"][worst]),
-                          "residual_um": abs(amplitude[0][worst]) * UM, "unshaped_um": abs(unshaped[worst]) * UM,
+        kept = np.array(self.meta["kept"][:done])
+        sums = [{name: total[kept] for name, total in r.take(done).items()} for r in runs]
+        amplitude = [s["amplitude"] / np.maximum(s["amplitude_n"], 1) for s in sums]
+        meta = {key: np.array(values[:done])[kept] for key, values in self.meta.items()}
+        starts = [meta["time"], meta["begin"]]
+        own = [r.carry.own(a, starts[k], meta["straddle"], s) for k, (r, a, s) in enumerate(zip(runs, amplitude, sums))]
+        squares = np.array([sums[0]["squares"], sums[-1]["squares"]])
+        squares_n = np.array([sums[0]["squares_n"], sums[-1]["squares_n"]])
+        shaped, unshaped = np.abs(amplitude[0]), np.abs(amplitude[-1])
+        era, lines = meta["era"], meta["line"]
+        self.whole.add(shaped, unshaped, squares, squares_n, lines)
+        own_squares = np.array([own[0][1], own[-1][1]])
+        for e in np.unique(era):
+            mine = era == e
+            self.tallies[e].add(np.abs(own[0][0][mine]), np.abs(own[-1][0][mine]), own_squares[:, mine],
+                                squares_n[:, mine], lines[mine])
+        worst = int(np.argmax(shaped)) if len(shaped) else -1
+        if worst >= 0 and (self.worst is None or shaped[worst] >= self.whole.peak):
+            e = self.eras[era[worst]]
+            self.worst = {"time_s": float(meta["time"][worst]), "line": int(lines[worst]),
+                          "residual_um": float(shaped[worst]) * UM, "unshaped_um": float(unshaped[worst]) * UM,
                           "residual_phase_rad": float(np.angle(amplitude[0][worst])),
-                          "unshaped_phase_rad": float(np.angle(unshaped[worst])),
-                          "residual_delay_s": self.last_delay - self.first_delay if self.shaper else 0.0,
-                          "length_s": self.meta["length"][worst]}
+                          "unshaped_phase_rad": float(np.angle(amplitude[-1][worst])),
+                          "residual_delay_s": e.last_delay - e.first_delay,
+                          "length_s": float(meta["length"][worst]), "era": int(era[worst]),
+                          "shaper": None if e.shaper is None else e.shaper.name}
         for values in self.meta.values():
             del values[:done]
         self.base += done
 
     def figures(self) -> dict:
-        """verify --json's `vibration.<axis>`."""
-        rms = np.sqrt(self.squares / np.maximum(self.squares_n, 1)) * UM
+        """verify --json's `vibration.<axis>`: the whole run's figures, and with M593s each era's (`eras`)."""
         r = self.resonance
-        theory = None if self.shaper is None else float(remaining_vibration(self.shaper, r.freq, r.damping)[0])
-        unshaped_rms = rms[-1] if self.unshaped is not None else rms[0]
-        return {"freq_hz": r.freq, "damping": r.damping, "shaper": None if self.shaper is None else self.shaper.name,
-                "places": self.base, "residual_peak_um": self.peak * UM, "residual_rms_um": float(rms[0]),
-                "unshaped_peak_um": self.unshaped_peak * UM, "unshaped_rms_um": float(unshaped_rms),
-                "ratio": self.peak / self.unshaped_peak if self.unshaped_peak > 0 else None,
-                "theory_ratio": theory, "worst": self.worst}
+        eras = [era_figures(k, e, t, r) for k, (e, t) in enumerate(zip(self.eras, self.tallies))]
+        theory = eras[0]["theory_ratio"] if len(eras) == 1 and self.eras[0].shaper is not None else None
+        return {"freq_hz": r.freq, "damping": r.damping, "shaper": shaper_names(self.eras),
+                **self.whole.figures(), "theory_ratio": theory, "worst": self.worst,
+                **({"eras": eras} if len(eras) > 1 else {})}
 
 
 class VibrationCheck:
     """Every resonating axis's residual vibration over a run, a chapter at a time: `add` each chapter with its
     simulated pulses (or the twin's), then `figures`."""
 
-    def __init__(self, kin: Kinematics, resonances: tuple[AxisResonance, ...], shaping: ShapingSettings | None,
-                 start_steps: np.ndarray, max_gap: float):
+    def __init__(self, kin: Kinematics, resonances: tuple[AxisResonance, ...],
+                 shapings: tuple[ShapingSettings | None, ...], specs: tuple, start_steps: np.ndarray, max_gap: float):
+        """`shapings`: each era's shapers (codegen/pipeline/host.py HostBuild.shapings), `specs` what set them."""
         self.kin, self.max_gap = kin, max_gap
         self.played_steps = np.asarray(start_steps, dtype=np.int64).copy()  # the motors after the last pulse
         level = self._axes(self.played_steps[None, :])[0]
         self.played_axes, self.unshaped_axes = level.copy(), level.copy()
-        self.axes = [AxisVibration(r, shaping, level[r.axis]) for r in resonances]
+        self.unshaped = any(s is not None for s in shapings)
+        self.axes = [AxisVibration(r, tuple(EraShaping.of(s, p, r.axis) for s, p in zip(shapings, specs)),
+                                   self.unshaped, level[r.axis]) for r in resonances]
+
+    @staticmethod
+    def of(host, resonances: tuple[AxisResonance, ...]) -> VibrationCheck:
+        """The check of a host build's run (codegen/pipeline/host.py HostBuild)."""
+        return VibrationCheck(host.kin, resonances, host.shapings, host.shaper_specs, host.start_steps,
+                              host.target.max_gap_s)
 
     def _axes(self, steps: np.ndarray) -> np.ndarray:
         return self.kin.to_axes(steps / self.kin.limits.steps_per_mm, np.zeros((len(steps), 4)))
@@ -241,16 +313,16 @@ class VibrationCheck:
         if not len(plan.duration):
             return
         pieces = planned_motion(segments, plan)
-        line = segments.line[pieces.origin]
+        line, era = segments.line[pieces.origin], segments.shaping[pieces.origin]
         moved = np.zeros((len(times), len(self.kin.motors)), dtype=np.int64)
         moved[np.arange(len(times)), motor] = direction
         played = self._changes(times, np.cumsum(moved, axis=0) + self.played_steps, "played_axes")
         if len(times):
             self.played_steps = self.played_steps + moved.sum(axis=0)
-        unshaped = None if chapter.planned is None else self._unshaped(segments, plan)
+        unshaped = self._unshaped(segments, plan) if self.unshaped else None
         for vibration in self.axes:
             a = vibration.resonance.axis
-            vibration.add(pieces, line, (played[0][a], played[1][a]),
+            vibration.add(pieces, line, era, (played[0][a], played[1][a]),
                           None if unshaped is None else (unshaped[0][a], unshaped[1][a]), chapter.last)
 
     def _unshaped(self, segments: Segments, plan: Plan):
@@ -278,13 +350,13 @@ class VibrationCheck:
 def vibration_check(host, resonance: tuple[AxisResonance, ...], held: bool) -> tuple[VibrationCheck | None, list[str]]:
     """The check of a host build's run (codegen/pipeline/host.py HostBuild) for the job's shaped axes and
     `resonance` (verify --resonance: beside or instead of them), or None where none resonates; and why not, for a
-    `held` run (its clock dilated by holds and overrides) or one with M593s (its shapers change by era)."""
+    `held` run (its clock dilated by holds and overrides) or a shaped one without a resonance to model."""
     resonances = job_resonances(host.job, resonance)
-    if not resonances or held:
+    if not resonances:
+        shaped = any(s is not None and s.shaped for s in host.shapings)
+        return None, ["toolhead vibration: no resonance known (the machine has no input_shaper, and no --resonance "
+                      "AXIS=HZ[,ZETA] was given): not modelled"] if shaped else []
+    if held:
         return None, ["toolhead vibration: a held or overridden run plays on a dilated clock (verify without "
-                      "--hold, --override and M0/M1 models it)"] if resonances else []
-    if len(host.shapings) > 1:
-        return None, ["toolhead vibration: the program changes its input shapers (M593), and the model takes one "
-                      "shaper an axis for the whole run (not yet)"]
-    return VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
-                          host.target.max_gap_s), []
+                      "--hold, --override and M0/M1 models it)"]
+    return VibrationCheck.of(host, resonances), []

@@ -131,8 +131,7 @@ def test_a_delta_rings_far_less_shaped(tmp_path):
     host = host_build(load_job(path))
     assert host.findings.ok, host.findings.problems
     resonances = tuple(AxisResonance(axis, 40.0, 0.1) for axis in (0, 1))
-    check = VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
-                           host.target.max_gap_s)
+    check = VibrationCheck.of(host, resonances)
     check.add(whole_chapter(host), host.pulses.tick / host.target.tick_hz, host.pulses.motor, host.pulses.dir)
     for axis, figures in check.figures().items():
         assert figures["unshaped_peak_um"] > 100, axis

@@ -57,8 +57,7 @@ def ringing_job(folder: Path, shaper: str | None, points=SIDES, motors=("x", "y"
 def twin_vibration(host, freq: float) -> dict:
     """verify's vibration figures of the twin's pulses, with both axes resonating at `freq`."""
     resonances = tuple(AxisResonance(axis, freq, DAMPING) for axis in (0, 1))
-    check = VibrationCheck(host.kin, resonances, host.settings.stages.shaping, host.start_steps,
-                           host.target.max_gap_s)
+    check = VibrationCheck.of(host, resonances)
     check.add(whole_chapter(host), host.pulses.tick / host.target.tick_hz, host.pulses.motor, host.pulses.dir)
     return check.figures()
 
@@ -124,8 +123,7 @@ def test_chapter_by_chapter_the_figures_are_the_whole_runs(tmp_path, monkeypatch
     monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)  # the front end hands on a few segments at a time: windows
     whole = twin_vibration(host_build(load_job(path)), FREQ * 0.8)
     host = host_build(load_job(path), keep=False)
-    check = VibrationCheck(host.kin, tuple(AxisResonance(axis, FREQ * 0.8, DAMPING) for axis in (0, 1)),
-                           host.settings.stages.shaping, host.start_steps, host.target.max_gap_s)
+    check = VibrationCheck.of(host, tuple(AxisResonance(axis, FREQ * 0.8, DAMPING) for axis in (0, 1)))
     chapters = []
 
     def measure(chapter):
