@@ -1,10 +1,11 @@
 """Where a calibration pattern goes on the machine, how fast it is drawn, and its G-code.
 
-A printer (a machine with z and an extruder) prints the pattern: lines of LINE_WIDTH_MM at the layer height, the
-extruder moving as much filament as fills them (relative E, M83). Any other machine draws it with its tool (M3
-down or on, M5 up or off; G0 travels with the tool off). The pattern is centred on the middle of the x and y
-motors' ranges where the machine gives them (cartesian), on a delta at the bed's middle, else beside where the
-program starts.
+A printer (a machine with z and an extruder; a delta's carriages give it z) prints the pattern: lines of
+LINE_WIDTH_MM at the layer height, the extruder moving as much filament as fills them (relative E, M83). Any other
+machine draws it with its tool (M3 down or on, M5 up or off; G0 travels with the tool off), a delta on the bed (z
+0: it starts at its top, where only the bed's middle is reachable). The pattern is centred on the middle of the x
+and y motors' ranges where the machine gives them (cartesian), on a delta at the bed's middle, else beside where
+the program starts.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 FILAMENT_MM = 1.75  # diameter
 LINE_WIDTH_MM = 0.45  # a 0.4 mm nozzle's line
 EDGE_MM = 5.0  # from where the program starts to the pattern, when the machine gives no ranges to centre it in
+DELTA_DRAW_Z = 0.0  # mm: where a delta without an extruder draws (the bed)
 
 
 @dataclass(frozen=True)
@@ -64,13 +66,14 @@ class Placement:
     center: tuple[float, float]  # mm, the pattern's middle
     start: tuple[float, ...]  # where the program starts
     printer: bool  # the machine has z and an extruder: it prints, else it draws
-    top_speed: float  # mm/s: the slowest x or y motor's (a corexy's belts: a and b)
+    top_speed: float  # mm/s: the slowest x or y motor's (a corexy's belts: a and b; a delta's carriages)
+    draw_z: float | None = None  # mm: the height a machine that draws goes down to first (a delta's); None: stays
 
 
 def placement(machine, start, size: tuple[float, float]) -> Placement:
     """Where a pattern of `size` (mm, x by y) goes on `machine` (the job's) whose program starts at `start`."""
     steppers = machine.steppers
-    xy = [name for name in ("x", "y", "a", "b") if name in steppers]
+    xy = [name for name in ("x", "y", "a", "b", "c") if name in steppers]
     top_speed = min(float(steppers[name].max_velocity) for name in xy)
     ranges = [steppers[name].range for name in ("x", "y")] if machine.kinematics == "cartesian" else [None]
     if machine.kinematics == "delta":
@@ -79,8 +82,10 @@ def placement(machine, start, size: tuple[float, float]) -> Placement:
         center = tuple((lo + hi) / 2.0 for lo, hi in ranges)
     else:
         center = (start[0] + EDGE_MM + size[0] / 2.0, start[1] + EDGE_MM + size[1] / 2.0)
-    printer = "e" in steppers and "z" in steppers
-    return Placement((float(center[0]), float(center[1])), tuple(float(v) for v in start), printer, top_speed)
+    delta = machine.kinematics == "delta"
+    printer = "e" in steppers and ("z" in steppers or delta)
+    return Placement((float(center[0]), float(center[1])), tuple(float(v) for v in start), printer, top_speed,
+                     DELTA_DRAW_Z if delta else None)
 
 
 class Writer:

@@ -30,7 +30,7 @@ class PressureAdvanceTest:
 def pressure_advance_pattern(test: PressureAdvanceTest, place: Placement) -> Calibration:
     """The pattern on a printer (`place.printer`; ValueError otherwise: there is no extruder to advance)."""
     if not place.printer:
-        raise ValueError("pressure advance needs a printer: the machine has no extruder (machine.steppers.e) and z")
+        raise ValueError("pressure advance needs a printer: the machine has no extruder (machine.steppers.e) or no z")
     ks = values(test.start, test.end, test.step)
     fast, slow = min(test.fast, place.top_speed), min(test.slow, place.top_speed)
     x0 = place.center[0] - test.length / 2.0

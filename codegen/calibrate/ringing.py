@@ -5,6 +5,7 @@ tower with TUNING_TOWER, Marlin's M593 calibration).
 A printer prints a thin-walled square tower (one line per side), its frequency changing every few millimetres
 of height; another machine draws a rectangle per band, the bands stacked along y. Each M593 brings the machine to
 rest (codegen/gcode/shaper_codes.py), at a layer change or between two rectangles, where the print does not mind.
+On a delta M593 shapes x and y as anywhere: in cartesian space, before the carriages' transform, as Klipper does.
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ def _plotted(test: RingingTest, place: Placement, freqs: list[float], speed: flo
     for k, freq in enumerate(freqs):
         corners = _corners(place.center, test.size, pitch * RECTANGLE_SHARE, bottom + k * pitch)
         bands.append(Band(freq, corners[0][1], corners[2][1]))
-        w.travel(*corners[0])
+        w.travel(*corners[0], z=place.draw_z if k == 0 else None)
         w.comment(f"band {k + 1}: {number(freq)} Hz")
         w.code(test.m593(freq, k == 0))
         for (xa, ya), (xb, yb) in zip(corners[:-1], corners[1:]):

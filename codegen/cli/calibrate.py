@@ -2,21 +2,25 @@
 job's machine (codegen/calibrate/), written as FILE.gcode and the job file that runs it (FILE.yaml beside it: the
 machine of JOB.yaml, the G-code as its program), and the table of which band has which value on stdout (`--json`:
 one JSON object). Both jobs plan and verify like any other: the pressure advance job's machine has
-`pressure_advance` (the machine's, else K --start with Klipper's smoothing time), which M900 needs."""
+`pressure_advance` (the machine's, else K --start with Klipper's smoothing time), which M900 needs. On a delta the
+pattern must lie within the disc around the bed's middle its rods reach at the pattern's heights (Delta.reach):
+else --size, --height, --end or --length is refused with the value that fits."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from codegen import __version__
 from codegen.calibrate import Calibration, PressureAdvanceTest, RingingTest, pressure_advance_pattern, ringing_test
-from codegen.calibrate.layout import placement
+from codegen.calibrate.layout import number, placement
 from codegen.cli.config import job_yaml
 from codegen.errors import Diagnostic, JobError, SourceRef
 from codegen.job import load_job
 from codegen.job.schema import DEFAULT_SMOOTH_TIME, SHAPER_MAX_DAMPING
 from codegen.job.schema.shaping import DEFAULT_SHAPER_DAMPING, SHAPER_HZ
+from codegen.kinematics import make_kinematics
 from codegen.pipeline.normalized import Section, normalized_job
 
 DEFAULT_FOLDER = Path("build") / "calibrate"
@@ -85,9 +89,6 @@ def _sweep(args, low: float, high: float, unit: str) -> None:
 
 def cmd_ringing(args) -> int:
     job = load_job(Path(args.job), program_required=False)
-    if job.machine.kinematics == "delta":
-        raise _refuse(str(job.path), "calibrate ringing: a delta's tower is not laid out yet (M593 shapes a delta "
-                                     "in any G-code)")
     _sweep(args, *SHAPER_HZ, "Hz")
     machine = normalized_job(job)["machine"]
     shaper = dict(machine.get("input_shaper") or {"x": None, "y": None, "z": None, "max_smoothing": None})
@@ -104,15 +105,15 @@ def cmd_ringing(args) -> int:
     machine["input_shaper"] = shaper if any(shaper.get(a) for a in ("x", "y", "z")) else None
     test = RingingTest(args.start, args.end, args.step, args.damping, args.axis, args.height, args.size,
                        args.layer_height, args.speed)
-    calibration = ringing_test(test, _placement(job, (args.size, args.size)))
+    place = _placement(job, (args.size, args.size))
+    calibration = ringing_test(test, place)
+    if job.machine.kinematics == "delta":
+        _fit_ringing(args, make_kinematics(job.machine), place, calibration)
     return _write(args, job, machine, "ringing", calibration)
 
 
 def cmd_pressure_advance(args) -> int:
     job = load_job(Path(args.job), program_required=False)
-    if job.machine.kinematics == "delta":
-        raise _refuse(str(job.path), "calibrate pressure-advance: a delta's pattern is not laid out yet (M900 "
-                                     "advances a delta's extruder in any G-code)")
     _sweep(args, 0.0, 10.0, "s")  # K: Klipper's typical 0 to 1 s, Marlin's K up to 10
     test = PressureAdvanceTest(args.start, args.end, args.step, args.slow, args.fast, args.length,
                                layer=args.layer_height)
@@ -120,6 +121,8 @@ def cmd_pressure_advance(args) -> int:
         calibration = pressure_advance_pattern(test, _placement(job, (args.length, args.length)))
     except ValueError as error:
         raise _refuse(str(job.path), f"calibrate pressure-advance: {error}") from None
+    if job.machine.kinematics == "delta":
+        _fit_lines(args, make_kinematics(job.machine), test, calibration)
     machine = normalized_job(job)["machine"]
     if machine.get("pressure_advance") is None:  # M900 K needs it (its smoothing time: Klipper's default)
         machine["pressure_advance"] = {"k": args.start, "smooth_time": DEFAULT_SMOOTH_TIME}
@@ -129,6 +132,52 @@ def cmd_pressure_advance(args) -> int:
 def _placement(job, size: tuple[float, float]):
     start = job.program.start if job.program is not None else (0.0, 0.0)
     return placement(job.machine, start, size)
+
+
+def _down(value: float) -> float:
+    """`value` rounded down to 0.1 mm: a size that fits."""
+    return math.floor(value * 10.0) / 10.0
+
+
+def _widest(kin, z: float) -> float:
+    """How far from the bed's middle the delta reaches at height `z` (refused where not even the middle)."""
+    widest = kin.reach(z, z)
+    if widest < 0.0:
+        raise _refuse("--layer-height", f"{z:g} mm: this delta reaches z {kin.highest(0.0):.1f} mm at most")
+    return widest
+
+
+def _fit_ringing(args, kin, place, calibration: Calibration) -> None:
+    """The tower's corners (the plotted card's at most) within the delta's reach at every height the tower has."""
+    half = args.size / math.sqrt(2.0)  # from the bed's middle to a corner
+    low, high = (args.layer_height, calibration.bands[-1].end) if place.printer else (place.draw_z,) * 2
+    widest = _widest(kin, low)
+    if half > widest:
+        raise _refuse("--size", f"{args.size:g} mm: this delta reaches {widest:.1f} mm from the bed's middle at z "
+                                f"{low:g} mm, a square's corners {half:.1f} mm: --size "
+                                f"{_down(widest * math.sqrt(2.0)):g} at most")
+    if half > kin.reach(low, high):  # its carriages would climb above their tops: a lower tower (whole bands)
+        band = args.layer_height * len(calibration.bands)  # a layer more in every band
+        tallest = kin.highest(half)
+        fit = math.floor(tallest / band) * band
+        raise _refuse("--height", f"{args.height:g} mm: a {args.size:g} mm tower reaches z {tallest:.1f} mm at most "
+                                  f"on this delta: " + (f"--height {fit:g} at most" if fit > 0 else
+                                                        "fewer bands (a larger --step)"))
+
+
+def _fit_lines(args, kin, test, calibration: Calibration) -> None:
+    """The pressure advance lines' ends within the delta's reach at the layer's height."""
+    widest = _widest(kin, args.layer_height)
+    across = max(abs(band.begin) for band in calibration.bands)  # the outer lines' y (the pattern is centred)
+    if across > widest:
+        lines = math.floor(2.0 * widest / test.spacing + 1e-9) + 1
+        raise _refuse("--end", f"{args.end:g} s: {len(calibration.bands)} lines {test.spacing:g} mm apart span "
+                               f"{2 * across:g} mm, this delta reaches {widest:.1f} mm from the bed's middle: "
+                               f"--end {number(args.start + (lines - 1) * args.step)} at most ({lines} lines)")
+    if math.hypot(args.length / 2.0, across) > widest:
+        raise _refuse("--length", f"{args.length:g} mm: this delta reaches {widest:.1f} mm from the bed's middle, "
+                                  f"the outer lines' ends would be {math.hypot(args.length / 2.0, across):.1f} mm: "
+                                  f"--length {_down(2.0 * math.sqrt(widest ** 2 - across ** 2)):g} at most")
 
 
 def _write(args, job, machine: dict, test: str, calibration: Calibration) -> int:

@@ -38,6 +38,7 @@ class Delta(Kinematics):
         if limits.names[:3] != ("a", "b", "c"):
             raise ValueError(f"delta motors are a, b, c (and e), not {', '.join(limits.names)}")
         angles = np.radians(np.asarray(tower_angles, dtype=float))
+        self.radius = float(radius)
         self.towers = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (3, 2)
         spans = 2.0 * (self.towers[1:] - self.towers[0])
         if abs(np.linalg.det(spans)) < 1e-9 * radius * radius:
@@ -226,6 +227,26 @@ class Delta(Kinematics):
         with np.errstate(invalid="ignore"):
             good = ((rise >= self.min_rise) & (carriages <= self.high + SLACK) & (carriages >= self.low - SLACK))
         return ~np.all(good, axis=1)
+
+    def reach(self, low_z: float, high_z: float) -> float:
+        """The radius (mm) of the largest disc around the bed centre that is reachable (`unreachable`) at every
+        height from `low_z` to `high_z`; negative where not even the centre is. Every tower stands `radius` from the
+        centre, so over a disc of radius r a rod's horizontal span d is from radius - r to radius + r: a rod steep
+        enough and a carriage above its minimum bound d from above, a carriage below its top from below."""
+        rod = math.sqrt(self.rod2)
+        lowest = np.maximum(self.low - low_z, self.min_rise)  # the least rise each rod may have at low_z
+        far = np.sqrt(np.maximum(self.rod2 - lowest ** 2, 0.0)) - self.radius
+        far[lowest > rod] = -np.inf
+        rise = self.high - high_z  # the most each rod may rise at high_z
+        near = np.where(rise >= rod, np.inf, self.radius - np.sqrt(np.maximum(self.rod2 - rise ** 2, 0.0)))
+        near[rise < 0.0] = -np.inf
+        return float(min(far.min(), near.min()))
+
+    def highest(self, r: float) -> float:
+        """The highest z (mm) at which every carriage stays below its top over the disc of radius `r` around the
+        bed centre (`reach`'s other way round: its nearest point to a tower is radius - r from it)."""
+        near = max(self.radius - r, 0.0)
+        return float((self.high - math.sqrt(max(self.rod2 - near * near, 0.0))).min())
 
     # ---- straight moves ----
 

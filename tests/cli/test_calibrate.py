@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from codegen.job import load_job
+from codegen.kinematics import make_kinematics
 from codegen.motion.shapers import make_shaper
 from codegen.pipeline.host import host_build
 from tests.helpers import run_cli as run
@@ -156,7 +157,16 @@ def test_the_pressure_advance_job_plans(capsys, tmp_path):
     ("ringing", PRINTER, ("--type", "3hump_ei", "--damping", "0.25"),
      "--damping: error: 0.25: the damping ratio of 3hump_ei must be > 0 and <= 0.2"),
     ("pressure-advance", PLOTTER, (), "error: calibrate pressure-advance: pressure advance needs a printer"),
-    ("pressure-advance", DELTA, (), "error: calibrate pressure-advance: a delta's pattern is not laid out yet"),
+    ("ringing", DELTA, ("--height", "240"), "--height: error: 240 mm: a 40 mm tower reaches z 236.7 mm at most on "
+                                            "this delta: --height 234 at most"),
+    ("ringing", DELTA, ("--layer-height", "300"), "--layer-height: error: 300 mm: this delta reaches z 250.0 mm at "
+                                                  "most"),
+    ("pressure-advance", DELTA, ("--length", "200"), "--length: error: 200 mm: this delta reaches 109.1 mm from the "
+                                                     "bed's middle, the outer lines' ends would be 111.8 mm: --length "
+                                                     "193.8 at most"),
+    ("pressure-advance", DELTA, ("--end", "0.3"), "--end: error: 0.3 s: 61 lines 5 mm apart span 300 mm, this delta "
+                                                  "reaches 109.1 mm from the bed's middle: --end 0.215 at most (44 "
+                                                  "lines)"),
 ])
 def test_bad_options_are_exit_2(capsys, tmp_path, test, machine, options, message):
     job = tmp_path / "machine.yaml"
@@ -211,3 +221,97 @@ def test_a_small_ringing_tower_verifies_in_simavr(capsys, tmp_path):
     result = json.loads(out)
     assert code == 0 and result["pass"] is True, result["problems"]
     assert {m: v["final"] for m, v in result["motors"].items()} == {"x": 7600, "y": 7600, "z": 600, "e": 1122}
+
+
+def delta_moves(gcode: str) -> np.ndarray:
+    """Where each G0 and G1 of the written G-code goes (x, y, z) on a delta that starts at its top (z 250)."""
+    at, found = {"X": 0.0, "Y": 0.0, "Z": 250.0}, []
+    for line in gcode.splitlines():
+        if line.startswith(("G0 ", "G1 ")):
+            at.update((m.group(1), float(m.group(2))) for m in re.finditer(r"([XYZ])([-\d.]+)", line))
+            found.append([at["X"], at["Y"], at["Z"]])
+    return np.array(found)
+
+
+def within_reach(job, moves: np.ndarray, low: float, high: float) -> bool:
+    """Every move within the disc the delta of `job` reaches from z `low` to `high`, and reachable."""
+    kin = make_kinematics(load_job(job).machine)
+    points = np.column_stack([moves, np.zeros(len(moves))])
+    return bool(np.all(np.hypot(moves[:, 0], moves[:, 1]) <= kin.reach(low, high)) and
+                not np.any(kin.unreachable(points)))
+
+
+def test_a_delta_prints_the_ringing_tower_at_the_beds_middle_within_its_reach(capsys, tmp_path):
+    result, gcode = calibrate(capsys, tmp_path, "ringing", DELTA, "--height", "3", "--size", "20", "--layer-height",
+                              "0.5", "--start", "40", "--end", "60", "--step", "10")
+    assert [b["value"] for b in result["bands"]] == [40, 50, 60] and result["place"] == "height z"
+    assert [(b["begin_mm"], b["end_mm"]) for b in result["bands"]] == [(0, 1), (1, 2), (2, 3)]
+    assert m593_places(gcode) == [("M593 F40", 0.5), ("M593 F50", 1.5), ("M593 F60", 2.5)]
+    moves = delta_moves(gcode)
+    drawn = delta_moves("\n".join(line for line in gcode.splitlines() if line.startswith("G1")))
+    assert {(x, y) for x, y, _ in drawn} == {(-10, -10), (10, -10), (10, 10), (-10, 10)}  # centred on (0, 0)
+    assert within_reach(tmp_path / "ringing.yaml", moves, 0.5, 3.0) and moves[0].tolist() == [-10, -10, 0.5]
+    host = host_build(load_job(tmp_path / "ringing.yaml"))
+    assert host.findings.ok, host.findings.problems
+    # Shaped in cartesian space as Klipper shapes a delta: x and y at each band's frequency, z never.
+    assert [(s.shapers[0].name, s.shapers[1].name, s.shapers[2]) for s in host.shapings[1:]] == [("zv", "zv", None)] * 3
+    assert [s.shapers[0].duration for s in host.shapings[1:]] == pytest.approx(
+        [make_shaper("zv", f, 0.1).duration for f in (40, 50, 60)])
+
+
+def test_a_delta_without_an_extruder_draws_the_card_on_the_bed(capsys, tmp_path):
+    result, gcode = calibrate(capsys, tmp_path, "ringing", DELTA.replace("    e: {steps_per_mm: 100, max_velocity: "
+                                                                         "80, max_accel: 5000}\n", ""),
+                              "--start", "40", "--end", "70", "--step", "15", "--size", "30")
+    assert result["place"] == "y" and [b["value"] for b in result["bands"]] == [40, 55, 70]
+    assert [(b["begin_mm"], b["end_mm"]) for b in result["bands"]] == [(-15, -9), (-5, 1), (5, 11)]
+    moves = delta_moves(gcode)
+    assert moves[0].tolist() == [-15, -15, 0] and set(moves[:, 2]) == {0.0}  # down to the bed, then across
+    assert within_reach(tmp_path / "ringing.yaml", moves, 0.0, 0.0)
+    host = host_build(load_job(tmp_path / "ringing.yaml"))
+    assert host.findings.ok, host.findings.problems
+    assert [s.shapers[1].duration for s in host.shapings[1:]] == pytest.approx(
+        [make_shaper("zv", f, 0.1).duration for f in (40, 55, 70)])
+
+
+def test_a_delta_prints_the_pressure_advance_lines_within_its_reach(capsys, tmp_path):
+    result, gcode = calibrate(capsys, tmp_path, "pressure-advance", DELTA, "--start", "0.002", "--end", "0.012",
+                              "--length", "40")
+    assert [b["value"] for b in result["bands"]] == [0.002, 0.007, 0.012]
+    assert [b["begin_mm"] for b in result["bands"]] == [-5, 0, 5]
+    moves = delta_moves(gcode)
+    assert {(x, z) for x, _, z in moves} == {(-20, 0.2), (-10, 0.2), (10, 0.2), (20, 0.2)}
+    assert within_reach(tmp_path / "pressure-advance.yaml", moves, 0.2, 0.2)
+    host = host_build(load_job(tmp_path / "pressure-advance.yaml"))
+    assert host.findings.ok, host.findings.problems
+    segments, _ = host.planned
+    drawn = segments.end[:, 3] > segments.start[:, 3]
+    assert sorted(set(np.round(segments.advance[drawn], 6))) == [0.002, 0.007, 0.012]  # each line's M900 K
+
+
+def test_a_delta_prints_the_band_tables(capsys, tmp_path):
+    job = tmp_path / "machine.yaml"
+    job.write_text(DELTA)
+    code, out, _ = run(capsys, "calibrate", "ringing", job, "--out", tmp_path / "r.gcode", *SMALL_TOWER)
+    assert code == 0 and out.splitlines()[:5] == [
+        "band  height z from (mm)   to (mm)  M593 F (Hz)",
+        "   1              0.00      1.50  30",
+        "   2              1.50      3.00  40",
+        "   3              3.00      4.50  50",
+        "   4              4.50      6.00  60"]
+    code, out, _ = run(capsys, "calibrate", "pressure-advance", job, "--out", tmp_path / "p.gcode", "--end", "0.01")
+    assert code == 0 and out.splitlines()[:4] == [
+        "band            y (mm)  M900 K (s)",
+        "   1             -5.00  0",
+        "   2              0.00  0.005",
+        "   3              5.00  0.01"]
+
+
+def test_a_tower_too_wide_for_the_delta_is_refused_with_the_size_that_fits(capsys, tmp_path):
+    job = tmp_path / "machine.yaml"
+    job.write_text(DELTA)
+    code, out, err = run(capsys, "calibrate", "ringing", job, "--out", tmp_path / "x.gcode", "--size", "200")
+    assert code == 2 and out == ""
+    assert "--size: error: 200 mm: this delta reaches 109.1 mm from the bed's middle at z 0.3 mm, a square's " \
+           "corners 141.4 mm: --size 154.2 at most" in err
+    assert list(tmp_path.iterdir()) == [job]

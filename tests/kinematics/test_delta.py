@@ -149,6 +149,27 @@ def test_unreachable_points():
     assert not np.any(kin.unreachable(inside))
 
 
+
+@pytest.mark.parametrize("ranges, low, high", [(None, 0.3, 0.3), (None, 0.3, 240.0), ({"b": (180.0, 400.0)}, 0.0, 60.0),
+                                               ({"c": (0.0, 420.0)}, 0.0, 200.0)])
+def test_reach_is_the_largest_disc_reachable_at_every_height_between(ranges, low, high):
+    kin = kossel(ranges=ranges)
+    r = kin.reach(low, high)
+    t = np.linspace(0.0, 2.0 * math.pi, 7201)
+
+    def unreachable(radius, z):
+        return np.any(kin.unreachable(np.column_stack([radius * np.cos(t), radius * np.sin(t), z + 0 * t, 0 * t])))
+
+    assert r > 0.0 and not unreachable(0.9999 * r, low) and not unreachable(0.9999 * r, high)
+    assert unreachable(1.0002 * r, low) or unreachable(1.0002 * r, high)
+    assert kin.highest(r) >= high - 1e-9
+
+
+def test_highest_is_where_the_carriages_reach_their_tops():
+    kin = kossel()
+    assert kin.highest(kin.reach(0.3, 240.0)) == pytest.approx(240.0) and kin.highest(0.0) == pytest.approx(HEIGHT)
+    assert kin.reach(0.0, HEIGHT + 1.0) < 0.0  # above the home height not even the centre
+
 MOVES = {
     "through the centre": ((-80.0, 0.0, 5.0), (80.0, 0.0, 5.0)),
     "diagonal, climbing": ((-60.0, -60.0, 1.0), (60.0, 60.0, 100.0)),
