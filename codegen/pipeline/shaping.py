@@ -48,7 +48,7 @@ class ShapedWindow:
     corners_t: np.ndarray  # (J,) s: where the plan's corners' velocity jumps land once shaped
     jumps: np.ndarray  # (J, M) steps/s: each motor's share of them there
     smoothing_mm: float  # the largest distance of the shaped tool from the planned one at the same moment
-    smoothing_at: np.ndarray  # (3,) mm: the planned point there
+    smoothing_at: np.ndarray | None  # (3,) mm: the planned point there (None: nothing is shaped)
     smoothing_line: int  # its G-code line (0: none)
     tail: ShapingTail  # for the next window
     advance: AdvanceReference | None = None  # what the advanced extruder's pulses are held against; None: none
@@ -65,14 +65,17 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
         segments, plan, before = concat(tail.segments, segments), Plan.join([tail.plan, plan]), len(tail.segments)
     planned = planned_motion(segments, plan)
     shaped = shape(planned, settings)
+    begin = window.plan.t_start[0]
+    span = (begin, shaped.breaks[-1] if last else window.plan.total)
+    # The smoothing is of x, y and z: measured before the advanced extruder's finer pieces join theirs.
+    worst, at, seg = smoothing(between(shaped, *span), planned, settings) if settings.shaped else (0.0, None, 0)
     if settings.advance is not None:
         shaped = advanced(shaped, planned, segments, settings)
-    begin = window.plan.t_start[0]
-    stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
+        span = (begin, shaped.breaks[-1] if last else window.plan.total)
+    stretch = between(shaped, *span)
     start = segments.start[0] if tail is None else tail.point
     blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last or settles else None)
     corners_t, jumps = shaped_corners(window.plan, window.segments, kin, settings)
-    worst, at, seg = smoothing(stretch, planned, settings)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
     reference = None if settings.advance is None else advance_reference(

@@ -1,4 +1,4 @@
-"""The chord cuts and event times of a linear machine's shaped blocks: in C as in numpy, to the last bit, and
+"""The chord cuts, event times and smoothing of a linear machine's shaped blocks: in C as in numpy, to the last bit, and
 every block within its limits afterwards."""
 
 import numpy as np
@@ -8,10 +8,11 @@ from hypothesis import strategies as st
 
 import codegen.motion.chord_cuts
 import codegen.motion.shaped_crossings
+import codegen.motion.shaped_motion
 from codegen.motion.blocks import MAX_MODULUS
 from codegen.motion.chord_cuts import _position, _strays, chord_bounds, chord_bounds_numpy
 from codegen.motion.shaped_blocks import shaped_blocks
-from codegen.motion.shaped_motion import ShapingSettings, planned_motion, shape
+from codegen.motion.shaped_motion import ShapingSettings, planned_motion, shape, smoothing
 from codegen.motion.shapers import make_shaper
 from codegen.native import library
 from tests.helpers import machine, planned, polyline
@@ -80,17 +81,22 @@ def test_a_straight_cruise_is_one_block_and_a_curve_is_cut():
 
 @pytest.mark.parametrize("kinematics", ["cartesian", "corexy"])
 def test_shaped_blocks_are_the_same_in_c_and_numpy(kinematics, monkeypatch):
-    if library("chordcuts") is None or library("shapedtimes") is None:
+    if any(library(name) is None for name in ("chordcuts", "shapedtimes", "smoothing")):
         pytest.skip("no C compiler")
     motors = ("x", "y") if kinematics == "cartesian" else ("a", "b")
     points = [(10, 10), (60, 10), (60, 60), (10, 60), (10, 30), (40, 31), (41, 35)]
     kin, segments, _, plan = planned(polyline(points, 150.0), machine(kinematics, motors), jd=0.05)
     shaping = ShapingSettings((make_shaper("mzv", 40.0), make_shaper("ei", 55.0), None))
     shaped = shape(planned_motion(segments, plan), shaping)
+    planned_now = planned_motion(segments, plan)
     native = shaped_blocks(shaped, segments, kin, 0.01, segments.start[0], segments.end[-1])
-    for module in (codegen.motion.chord_cuts, codegen.motion.shaped_crossings):
+    native_smoothing = smoothing(shaped, planned_now, shaping)
+    for module in (codegen.motion.chord_cuts, codegen.motion.shaped_crossings, codegen.motion.shaped_motion):
         monkeypatch.setattr(module, "library", lambda name: None)
     numpy = shaped_blocks(shaped, segments, kin, 0.01, segments.start[0], segments.end[-1])
+    numpy_smoothing = smoothing(shaped, planned_now, shaping)
+    assert native_smoothing[0] == numpy_smoothing[0] > 0.01
+    assert np.array_equal(native_smoothing[1], numpy_smoothing[1]) and native_smoothing[2] == numpy_smoothing[2]
     assert len(native.bounds) > 20
     assert np.array_equal(native.bounds, numpy.bounds)
     assert np.array_equal(native.steps, numpy.steps)
