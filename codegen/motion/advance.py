@@ -13,7 +13,8 @@ piecewise quartic, with breaks at f's breaks and h either side, and its third de
 The blocks are cut from quadratic pieces (shaped_blocks.py), so each quartic piece is split into pieces short
 enough that the quadratic through g at their ends and middle stays within the tolerance: that interpolation
 strays at most max|g'''| L^3 / (72 sqrt 3) on a piece of length L. g is evaluated exactly (`smoothed`, the
-integral over the f pieces under the triangle, numpy over all pairs of a time and a piece).
+integral over the f pieces under the triangle: in C, codegen/native/advance.c, or numpy over all pairs of a time
+and a piece without it).
 
 g reads f up to h ahead, so the motion carrying it runs at least h behind the plan (ShapingSettings.shift): no
 step comes before the program starts, and a window's shaped motion up to its end reads only its own plan.
@@ -21,11 +22,13 @@ step comes before the program starts, and a window's shaped motion up to its end
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
 
 INTERPOLATION_BOUND = 1.0 / (72.0 * math.sqrt(3.0))  # a 3-point quadratic's error per max|g'''| L^3
@@ -91,7 +94,20 @@ def advanced_source(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarr
 
 
 def smoothed(f: Quadratics, t: np.ndarray, half: float) -> np.ndarray:
-    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly."""
+    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly. In one pass in C
+    (codegen/native/advance.c) where the helper could be built, else in numpy (`smoothed_numpy`)."""
+    lib = library("advance")
+    if lib is None:
+        return smoothed_numpy(f, t, half)
+    t, breaks, position, velocity, accel = contiguous(np.float64, t, f.breaks, f.position, f.velocity, f.accel)
+    g = np.empty(len(t))
+    lib.smoothed(ctypes.c_int64(len(t)), pointer(t), ctypes.c_int64(len(position)),
+                 *map(pointer, (breaks, position, velocity, accel)), ctypes.c_double(half), pointer(g))
+    return g
+
+
+def smoothed_numpy(f: Quadratics, t: np.ndarray, half: float) -> np.ndarray:
+    """`smoothed` in numpy, over all pairs of a time and a piece under its triangle."""
     t = np.asarray(t, dtype=float)
     lo, hi = f.piece_of(t - half), f.piece_of(t + half)
     count = hi - lo + 1

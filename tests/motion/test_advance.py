@@ -6,10 +6,13 @@ from __future__ import annotations
 from types import SimpleNamespace as NS
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codegen.motion.advance import AdvanceSettings, Quadratics, advanced_extruder, advanced_source, smoothed
+from codegen.motion.advance import (AdvanceSettings, Quadratics, advanced_extruder, advanced_source, smoothed,
+                                    smoothed_numpy)
+from codegen.native import library
 
 STEPS_PER_MM = 415.0
 FIT_STEPS = 0.05  # the pipeline's (codegen/pipeline/settings.py ADVANCE_FIT_STEPS)
@@ -45,6 +48,23 @@ def test_smoothing_leaves_lines_and_parabolas_as_klipper_has_them():
     t = np.array([1.0, 4.5, 9.0])
     assert np.allclose(smoothed(line, t, 0.02), line.at(t), atol=1e-12, rtol=0)
     assert np.allclose(smoothed(parabola, t, 0.02), parabola.at(t) + 500.0 * 0.02**2 / 12, atol=1e-9, rtol=0)
+
+
+@pytest.mark.skipif(library("advance") is None, reason="the C helper could not be built (no gcc)")
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), pieces=st.integers(1, 40), half=st.floats(0.001, 0.1))
+def test_smoothed_in_c_is_the_numpy_version(seed, pieces, half):
+    """Random piecewise quadratics, not continuous, with pieces far shorter and far longer than the triangle's half
+    width (and some of zero length), at unsorted times, some before the first break and after the last."""
+    rng = np.random.default_rng(seed)
+    lengths = half * rng.choice([0.0, 0.01, 0.3, 1.0, 3.0, 40.0], pieces) * rng.uniform(0.5, 1.5, pieces)
+    breaks = 50.0 + np.concatenate([[0.0], np.cumsum(lengths)])
+    f = Quadratics(breaks, rng.uniform(-300.0, 300.0, pieces), rng.uniform(-50.0, 50.0, pieces),
+                   rng.uniform(-5000.0, 5000.0, pieces))
+    t = rng.uniform(breaks[0] - 3.0 * half, breaks[-1] + 3.0 * half, 300)
+    t = np.concatenate([t, breaks, breaks + half, breaks - half])
+    rng.shuffle(t)
+    assert np.max(np.abs(smoothed(f, t, half) - smoothed_numpy(f, t, half))) <= 1e-9
 
 
 def segments_of(moves: np.ndarray, k: np.ndarray) -> NS:
