@@ -18,6 +18,17 @@ and a piece without it).
 
 g reads f up to h ahead, so the motion carrying it runs at least h behind the plan (ShapingSettings.shift): no
 step comes before the program starts, and a window's shaped motion up to its end reads only its own plan.
+
+With K 0 Klipper sets the smoothing time to 0 too (klippy/kinematics/extruder.py), and its extruder is the
+nominal one. Here a stretch of the plan (a window with its tail, or an era's whole plan) none of whose segments
+has a K other than 0 plays the nominal extruder (`smooths`: K alone decides, as in Klipper, where retractions and
+moves of e alone are smoothed too), on the same delayed clock; and once an era of the input shapers smooths, its
+windows smooth on to its end (codegen/pipeline/shaping.py: a window's tail says so). A known difference from
+Klipper: where K changes between 0 and another value mid-program (M900, M572), Klipper's smoothing stops and
+starts there, the extruder jumping by the difference; ours stays on throughout, from the first window with a K
+other than 0 to the era's end. Open: an era that begins at K 0 and sets another K only in a later window plays
+its first windows nominal, while the formula of the era's whole plan (a kept build's verify,
+codegen/verify/advance.py) smooths them, and finds them off it.
 """
 
 from __future__ import annotations
@@ -93,9 +104,18 @@ def advanced_source(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarr
                       np.concatenate([[0.0], a, [0.0]]))
 
 
+def smooths(origin: np.ndarray, segments: Segments) -> bool:
+    """The extruder of the plan pieces whose segments are `origin` is smoothed: some segment has a K other than 0
+    (Klipper keys its smoothing on K alone, retractions and moves of e alone included)."""
+    return bool(np.any(segments.advance[origin] != 0))
+
+
 def smoothed(f: Quadratics, t: np.ndarray, half: float) -> np.ndarray:
-    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly. In one pass in C
-    (codegen/native/advance.c) where the helper could be built, else in numpy (`smoothed_numpy`)."""
+    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly (half 0: f itself,
+    Klipper's extruder with K 0). In one pass in C (codegen/native/advance.c) where the helper could be built,
+    else in numpy (`smoothed_numpy`)."""
+    if half == 0:
+        return f.at(t)
     lib = library("advance")
     if lib is None:
         return smoothed_numpy(f, t, half)
@@ -138,10 +158,14 @@ def _weighted(c0, c1, c2, half: float, side: float, u0, u1) -> np.ndarray:
 
 
 def advanced_extruder(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
-                      origin: np.ndarray, segments: Segments, settings: AdvanceSettings) -> Quadratics:
+                      origin: np.ndarray, segments: Segments, settings: AdvanceSettings,
+                      smooth: bool | None = None) -> Quadratics:
     """The advanced extruder on the plan's clock, in quadratic pieces within settings.tolerance_mm of g, from a
     triangle's half width before the plan's first break to as far after its last. The plan's extruder pieces:
-    `breaks` (K + 1,), `position`, `velocity`, `accel` (K,), `origin` their segments."""
+    `breaks` (K + 1,), `position`, `velocity`, `accel` (K,), `origin` their segments. `smooth`: whether it is
+    smoothed (None: `smooths`); if not, it is the nominal extruder, the plan's pieces."""
+    if not (smooths(origin, segments) if smooth is None else smooth):
+        return Quadratics(breaks, position, velocity, accel)
     half = settings.half
     f = advanced_source(breaks, position, velocity, accel, origin, segments, half)
     quartic = np.unique((breaks[:, None] + np.array([-half, 0.0, half])[None, :]).ravel())
@@ -176,7 +200,7 @@ class AdvanceReference:
     clock's delay, and the G-code line of every plan piece (from its break)."""
 
     source: Quadratics
-    half: float
+    half: float  # s, the triangle's (0: the nominal extruder, unsmoothed)
     shift: float  # s the shaped clock (the pulses') runs behind the plan's
     piece_breaks: np.ndarray  # (K + 1,) the plan's pieces
     piece_line: np.ndarray  # (K,)
@@ -203,8 +227,11 @@ class AdvanceReference:
 
 def advance_reference(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
                       origin: np.ndarray, segments: Segments, half: float, shift: float,
-                      span: tuple[float, float] = (-np.inf, np.inf)) -> AdvanceReference:
-    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them), for the pulses in `span`
-    (s, shaped clock)."""
-    return AdvanceReference(advanced_source(breaks, position, velocity, accel, origin, segments, half), half, shift,
-                            breaks, segments.line[origin], *span)
+                      span: tuple[float, float] = (-np.inf, np.inf), smooth: bool | None = None) -> AdvanceReference:
+    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them, `smooth` too), for the
+    pulses in `span` (s, shaped clock); unsmoothed, the nominal extruder (half 0)."""
+    if smooths(origin, segments) if smooth is None else smooth:
+        source = advanced_source(breaks, position, velocity, accel, origin, segments, half)
+    else:
+        source, half = Quadratics(breaks, position, velocity, accel), 0.0
+    return AdvanceReference(source, half, shift, breaks, segments.line[origin], *span)

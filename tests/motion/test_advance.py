@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codegen.motion.advance import (AdvanceSettings, Quadratics, advanced_extruder, advanced_source, smoothed,
-                                    smoothed_numpy)
+from codegen.motion.advance import (AdvanceSettings, Quadratics, advance_reference, advanced_extruder, advanced_source,
+                                    smoothed, smoothed_numpy)
 from codegen.native import library
 
 STEPS_PER_MM = 415.0
@@ -68,8 +68,8 @@ def test_smoothed_in_c_is_the_numpy_version(seed, pieces, half):
 
 
 def segments_of(moves: np.ndarray, k: np.ndarray) -> NS:
-    """Segments as advanced_source reads them: their moves (x, y, z, e) and K."""
-    return NS(start=np.zeros_like(moves), end=moves, advance=k)
+    """Segments as advanced_source and advance_reference read them: their moves (x, y, z, e), K and lines."""
+    return NS(start=np.zeros_like(moves), end=moves, advance=k, line=np.arange(len(moves)))
 
 
 def test_the_advance_leads_by_k_times_the_extruder_velocity_where_it_applies():
@@ -96,7 +96,8 @@ def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k
     moves = np.column_stack([rng.choice([0.0, 1.0], n), np.zeros(n), np.zeros(n), rng.choice([-1.0, 1.0], n)])
     segments = segments_of(moves, k * rng.choice([0.0, 1.0, 2.0], n))
     advance = AdvanceSettings(smooth_time, FIT_STEPS / STEPS_PER_MM)
-    fit = advanced_extruder(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments, advance)
+    fit = advanced_extruder(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments, advance,
+                            smooth=True)  # K 0 everywhere too
     source = advanced_source(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments,
                              advance.half)
     share = np.linspace(0.0, 1.0, 16)
@@ -106,3 +107,20 @@ def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k
     assert error_steps.max() <= FIT_STEPS * (1 + 1e-6) + 1e-7
     assert fit.breaks[0] == plan.breaks[0] - advance.half and fit.breaks[-1] == plan.breaks[-1] + advance.half
     assert abs(fit.end - plan.end) < 1e-9  # at rest a triangle's half width after the plan: where the plan ends
+
+
+def test_k_0_everywhere_leaves_the_nominal_extruder():
+    """As Klipper's smoothing time is 0 with K 0: the plan's own pieces, and a reference of half width 0 (g = e);
+    told to smooth (a window after one with K), the same pieces are smoothed."""
+    plan = continuous([0.1, 0.2, 0.1], [0.0, 5.0, 5.0], [50.0, 0.0, -50.0])
+    moves = np.array([[10.0, 0, 0, 1.0]] * 3)
+    segments = segments_of(moves, np.zeros(3))
+    advance = AdvanceSettings(0.04, FIT_STEPS / STEPS_PER_MM)
+    args = (plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(3), segments)
+    nominal = advanced_extruder(*args, advance)
+    assert np.array_equal(nominal.breaks, plan.breaks) and np.array_equal(nominal.accel, plan.accel)
+    reference = advance_reference(*args, advance.half, 0.02)
+    t = np.linspace(-0.1, 0.5, 61)
+    assert reference.half == 0.0 and np.array_equal(smoothed(reference.source, t, reference.half), plan.at(t))
+    smooth = advanced_extruder(*args, advance, smooth=True)
+    assert smooth.breaks[0] == -0.02 and abs(smooth.at(0.1) - plan.at(0.1)) > 1e-4
