@@ -184,11 +184,12 @@ def shape(motion: Motion, settings: ShapingSettings) -> Motion:
     return _merged(Motion(breaks, position, velocity, accel, origin))
 
 
-def advanced(shaped: Motion, planned: Motion, segments: Segments, settings: ShapingSettings) -> Motion:
+def advanced(shaped: Motion, planned: Motion, segments: Segments, settings: ShapingSettings, smooth: bool) -> Motion:
     """The shaped motion with its extruder axis advanced (codegen/motion/advance.py) from the plan's (`planned`,
-    whose pieces' origins index `segments`), on the shaped clock; both go on resting beyond their ends."""
+    whose pieces' origins index `segments`; `smooth`: smoothed, else nominal), on the shaped clock; both go on
+    resting beyond their ends."""
     extruder = advanced_extruder(planned.breaks, planned.position[:, 3], planned.velocity[:, 3],
-                                 planned.accel[:, 3], planned.origin, segments, settings.advance)
+                                 planned.accel[:, 3], planned.origin, segments, settings.advance, smooth)
     e_breaks = extruder.breaks + settings.shift
     first, last = min(shaped.breaks[0], e_breaks[0]), max(shaped.breaks[-1], e_breaks[-1])
     whole = cut(_rest_beyond(shaped, first, last), e_breaks)

@@ -301,7 +301,7 @@ class Stages:
                 checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
-            if shaped is not None and shaped.advance is not None:
+            if shaped is not None and shaped.tail.smooth:  # a nominal extruder's limits are the plan's
                 self._note_extruder_limits(hits, pulses, planned, shaping.shift)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position
