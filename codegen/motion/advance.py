@@ -26,9 +26,8 @@ moves of e alone are smoothed too), on the same delayed clock; and once an era o
 windows smooth on to its end (codegen/pipeline/shaping.py: a window's tail says so). A known difference from
 Klipper: where K changes between 0 and another value mid-program (M900, M572), Klipper's smoothing stops and
 starts there, the extruder jumping by the difference; ours stays on throughout, from the first window with a K
-other than 0 to the era's end. Open: an era that begins at K 0 and sets another K only in a later window plays
-its first windows nominal, while the formula of the era's whole plan (a kept build's verify,
-codegen/verify/advance.py) smooths them, and finds them off it.
+other than 0 to the era's end. A kept build's formula (codegen/verify/advance.py) is nominal up to that window
+too (codegen/pipeline/windows.py Totals.smoothed_from).
 """
 
 from __future__ import annotations

@@ -159,6 +159,24 @@ def test_after_m900_k0_the_smoothing_goes_on_in_every_window(tmp_path, monkeypat
     assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
 
 
+def test_k_0_first_then_m900_later_is_held_to_the_formula_the_host_played(tmp_path, monkeypatch):
+    """K 0 for the first windows, M900 K0.05 windows later: the host plays the nominal extruder until the first
+    window with a K other than 0 and smooths from there on (Totals.smoothed_from), and the kept build's formula
+    (codegen/verify/advance.py) is nominal up to there too, so the pulses are within a step of it throughout."""
+    zigzag = "".join(f"G1 X{10 + 3 * k} Y{10 + 40 * (k % 2)} E1 F6000\nG1 E-0.8 F2100\nG1 E0.8\n" for k in range(12))
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)
+    host = built(tmp_path, job_text(f"G90\nM83\n{zigzag}M900 K0.05\n{zigzag}", "{k: 0}"))
+    assert host.findings.ok, host.findings.problems
+    assert host.totals.windows >= 6 and 0 < host.totals.smoothed_from[0] < np.inf
+    e = host.kin.motors.index("e")
+    tick, direction = host.pulses.of_motor(e)
+    check = advance_check(host)
+    assert [r.half for r in check.references] == [0.0, 0.02]
+    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
+    assert check.worst[0] <= 1.0
+
+
 @pytest.mark.parametrize("text, message", [
     ("{k: -0.1}", "machine.pressure_advance.k: must be >= 0"),
     ("{k: 0.05, smooth_time: 0.3}", "machine.pressure_advance.smooth_time: must be > 0 and <= 0.2 (s, Klipper's "
