@@ -13,19 +13,32 @@ piecewise quartic, with breaks at f's breaks and h either side, and its third de
 The blocks are cut from quadratic pieces (shaped_blocks.py), so each quartic piece is split into pieces short
 enough that the quadratic through g at their ends and middle stays within the tolerance: that interpolation
 strays at most max|g'''| L^3 / (72 sqrt 3) on a piece of length L. g is evaluated exactly (`smoothed`, the
-integral over the f pieces under the triangle, numpy over all pairs of a time and a piece).
+integral over the f pieces under the triangle: in C, codegen/native/advance.c, or numpy over all pairs of a time
+and a piece without it).
 
 g reads f up to h ahead, so the motion carrying it runs at least h behind the plan (ShapingSettings.shift): no
 step comes before the program starts, and a window's shaped motion up to its end reads only its own plan.
+
+With K 0 Klipper sets the smoothing time to 0 too (klippy/kinematics/extruder.py), and its extruder is the
+nominal one. Here a stretch of the plan (a window with its tail, or an era's whole plan) none of whose segments
+has a K other than 0 plays the nominal extruder (`smooths`: K alone decides, as in Klipper, where retractions and
+moves of e alone are smoothed too), on the same delayed clock; and once an era of the input shapers smooths, its
+windows smooth on to its end (codegen/pipeline/shaping.py: a window's tail says so). A known difference from
+Klipper: where K changes between 0 and another value mid-program (M900, M572), Klipper's smoothing stops and
+starts there, the extruder jumping by the difference; ours stays on throughout, from the first window with a K
+other than 0 to the era's end. A kept build's formula (codegen/verify/advance.py) is nominal up to that window
+too (codegen/pipeline/windows.py Totals.smoothed_from).
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
 
 INTERPOLATION_BOUND = 1.0 / (72.0 * math.sqrt(3.0))  # a 3-point quadratic's error per max|g'''| L^3
@@ -90,8 +103,30 @@ def advanced_source(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarr
                       np.concatenate([[0.0], a, [0.0]]))
 
 
+def smooths(origin: np.ndarray, segments: Segments) -> bool:
+    """The extruder of the plan pieces whose segments are `origin` is smoothed: some segment has a K other than 0
+    (Klipper keys its smoothing on K alone, retractions and moves of e alone included)."""
+    return bool(np.any(segments.advance[origin] != 0))
+
+
 def smoothed(f: Quadratics, t: np.ndarray, half: float) -> np.ndarray:
-    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly."""
+    """g at times t (N,): f under the triangle of half width `half` centred on each, exactly (half 0: f itself,
+    Klipper's extruder with K 0). In one pass in C (codegen/native/advance.c) where the helper could be built,
+    else in numpy (`smoothed_numpy`)."""
+    if half == 0:
+        return f.at(t)
+    lib = library("advance")
+    if lib is None:
+        return smoothed_numpy(f, t, half)
+    t, breaks, position, velocity, accel = contiguous(np.float64, t, f.breaks, f.position, f.velocity, f.accel)
+    g = np.empty(len(t))
+    lib.smoothed(ctypes.c_int64(len(t)), pointer(t), ctypes.c_int64(len(position)),
+                 *map(pointer, (breaks, position, velocity, accel)), ctypes.c_double(half), pointer(g))
+    return g
+
+
+def smoothed_numpy(f: Quadratics, t: np.ndarray, half: float) -> np.ndarray:
+    """`smoothed` in numpy, over all pairs of a time and a piece under its triangle."""
     t = np.asarray(t, dtype=float)
     lo, hi = f.piece_of(t - half), f.piece_of(t + half)
     count = hi - lo + 1
@@ -122,10 +157,14 @@ def _weighted(c0, c1, c2, half: float, side: float, u0, u1) -> np.ndarray:
 
 
 def advanced_extruder(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
-                      origin: np.ndarray, segments: Segments, settings: AdvanceSettings) -> Quadratics:
+                      origin: np.ndarray, segments: Segments, settings: AdvanceSettings,
+                      smooth: bool | None = None) -> Quadratics:
     """The advanced extruder on the plan's clock, in quadratic pieces within settings.tolerance_mm of g, from a
     triangle's half width before the plan's first break to as far after its last. The plan's extruder pieces:
-    `breaks` (K + 1,), `position`, `velocity`, `accel` (K,), `origin` their segments."""
+    `breaks` (K + 1,), `position`, `velocity`, `accel` (K,), `origin` their segments. `smooth`: whether it is
+    smoothed (None: `smooths`); if not, it is the nominal extruder, the plan's pieces."""
+    if not (smooths(origin, segments) if smooth is None else smooth):
+        return Quadratics(breaks, position, velocity, accel)
     half = settings.half
     f = advanced_source(breaks, position, velocity, accel, origin, segments, half)
     quartic = np.unique((breaks[:, None] + np.array([-half, 0.0, half])[None, :]).ravel())
@@ -160,7 +199,7 @@ class AdvanceReference:
     clock's delay, and the G-code line of every plan piece (from its break)."""
 
     source: Quadratics
-    half: float
+    half: float  # s, the triangle's (0: the nominal extruder, unsmoothed)
     shift: float  # s the shaped clock (the pulses') runs behind the plan's
     piece_breaks: np.ndarray  # (K + 1,) the plan's pieces
     piece_line: np.ndarray  # (K,)
@@ -187,8 +226,11 @@ class AdvanceReference:
 
 def advance_reference(breaks: np.ndarray, position: np.ndarray, velocity: np.ndarray, accel: np.ndarray,
                       origin: np.ndarray, segments: Segments, half: float, shift: float,
-                      span: tuple[float, float] = (-np.inf, np.inf)) -> AdvanceReference:
-    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them), for the pulses in `span`
-    (s, shaped clock)."""
-    return AdvanceReference(advanced_source(breaks, position, velocity, accel, origin, segments, half), half, shift,
-                            breaks, segments.line[origin], *span)
+                      span: tuple[float, float] = (-np.inf, np.inf), smooth: bool | None = None) -> AdvanceReference:
+    """The reference of the plan's extruder pieces (as `advanced_extruder` takes them, `smooth` too), for the
+    pulses in `span` (s, shaped clock); unsmoothed, the nominal extruder (half 0)."""
+    if smooths(origin, segments) if smooth is None else smooth:
+        source = advanced_source(breaks, position, velocity, accel, origin, segments, half)
+    else:
+        source, half = Quadratics(breaks, position, velocity, accel), 0.0
+    return AdvanceReference(source, half, shift, breaks, segments.line[origin], *span)

@@ -11,8 +11,9 @@ way, into chords:
   master makes more steps than a block holds, or where the chord's Bresenham staircase strays
   (codegen/motion/staircase.py's measures).
 A block may span many pieces of the shaped motion: a straight cruise is one block whatever its pieces, a curve
-as few as its bend needs. Every master event is timed where the master's exact shaped motion crosses its half
-step (the quadratic of its piece solved, numpy over all events at once), as Klipper times its steps.
+as few as its bend needs (the cuts: codegen/motion/chord_cuts.py). Every master event is timed where the master's
+exact shaped motion crosses its half step (the quadratic of its piece solved: codegen/motion/shaped_crossings.py),
+as Klipper times its steps.
 
 A delta's carriages are not quadratic in time: codegen/motion/shaped_delta.py finds their turns, strays and
 crossings numerically; the cuts and blocks are the same.
@@ -26,6 +27,8 @@ import numpy as np
 
 from codegen.kinematics.base import Kinematics
 from codegen.motion.blocks import MAX_MODULUS, Events, bresenham_init
+from codegen.motion.chord_cuts import chord_bounds
+from codegen.motion.shaped_crossings import shaped_crossings
 from codegen.motion.shaped_delta import carriage_crossings, carriage_strays, carriage_turns, carriage_ways
 from codegen.motion.shaped_motion import Motion, cut
 from codegen.motion.staircase import STAIRCASE_LIMIT, staircase_bound, staircase_error
@@ -53,15 +56,11 @@ def shaped_blocks(shaped: Motion, segments: Segments, kin: Kinematics, max_gap: 
     alike and the program ends where it says (the shaper's amplitudes sum to 1 only to rounding)."""
     pieces = cut(shaped, _turns(shaped, kin) if kin.linear else carriage_turns(shaped, kin))
     bounds = pieces.breaks[_forced(pieces, segments, kin)]
-    fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
-    for _ in range(CUT_ROUNDS):
-        extra = _cuts(pieces, bounds, fresh, segments, kin, (start, end))
-        if not len(extra):
-            break
-        pieces = cut(pieces, extra)
-        grown = np.unique(np.concatenate([bounds, extra]))
-        new = ~np.isin(grown, bounds)
-        bounds, fresh = grown, new[:-1] | new[1:]  # a block that was not cut stays as close as it was
+    if kin.linear:
+        bounds = _linear_bounds(pieces, bounds, segments, kin, (start, end))
+        pieces = cut(pieces, bounds)
+    else:
+        pieces, bounds = _carriage_bounds(pieces, bounds, segments, kin, (start, end))
     chords = _chords(pieces, bounds, segments, (start, end))
     steps = kin.to_steps(chords.end) - kin.to_steps(chords.start)
     events = _events(pieces, bounds, chords, steps, kin, max_gap)
@@ -104,13 +103,50 @@ def _forced(motion: Motion, segments: Segments, kin: Kinematics) -> np.ndarray:
     return np.flatnonzero(np.concatenate([[True], inner, [True]]))
 
 
+def _linear_bounds(motion: Motion, bounds: np.ndarray, segments: Segments, kin: Kinematics,
+                   points: tuple) -> np.ndarray:
+    """The blocks of a linear machine: close to their chords (codegen/motion/chord_cuts.py), then each whose
+    staircase strays too far cut at its middle, until none does."""
+    p, v, a = motor_motion(motion, kin)
+    limit = STAIRCASE_LIMIT * kin.path_quantum()
+    checked = np.empty(0)  # the bounds whose blocks were found within the staircase limit
+    for _ in range(CUT_ROUNDS):
+        bounds = chord_bounds(motion.breaks, p, v, a, bounds, CHORD_LIMIT)
+        new = ~np.isin(bounds, checked)
+        which = np.flatnonzero(new[:-1] | new[1:])
+        chords = _chords(motion, bounds, segments, points, which)
+        look = np.flatnonzero(staircase_bound(chords, kin) > limit)
+        far = which[look[staircase_error(chords, kin, look) > limit]]
+        if not len(far):
+            break
+        checked = bounds
+        bounds = np.unique(np.concatenate([bounds, 0.5 * (bounds[far] + bounds[far + 1])]))
+    return bounds
+
+
+def _carriage_bounds(motion: Motion, bounds: np.ndarray, segments: Segments, kin: Kinematics,
+                     points: tuple) -> tuple[Motion, np.ndarray]:
+    """The blocks of a delta, cut round by round at their worst strays (numerically: codegen/motion/shaped_delta.py),
+    and the motion cut at their ends."""
+    fresh = np.ones(len(bounds) - 1, dtype=bool)  # the blocks not yet found close to their chords
+    for _ in range(CUT_ROUNDS):
+        extra = _cuts(motion, bounds, fresh, segments, kin, points)
+        if not len(extra):
+            break
+        motion = cut(motion, extra)
+        grown = np.unique(np.concatenate([bounds, extra]))
+        new = ~np.isin(grown, bounds)
+        bounds, fresh = grown, new[:-1] | new[1:]  # a block that was not cut stays as close as it was
+    return motion, bounds
+
+
 def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segments, kin: Kinematics,
           points: tuple) -> np.ndarray:
     """The times to cut the `fresh` blocks at this round: each whose slave strays too far from its chord at its
     worst point, each with more master steps than a block holds, or (once none of them does) whose staircase
     strays too far, at its middle."""
     which = np.flatnonzero(fresh)
-    x0, x1, worst, worst_time = (_linear_strays if kin.linear else carriage_strays)(motion, bounds, which, kin)
+    x0, x1, worst, worst_time = carriage_strays(motion, bounds, which, kin)
     master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
     bad = (worst > CHORD_LIMIT) & ((x1 - x0)[np.arange(len(which)), master] != 0)
     out = [worst_time[bad]]
@@ -118,7 +154,7 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     long = np.abs(np.round(x1) - np.round(x0)).max(axis=1) > MAX_MODULUS - 1
     out.append(middle[long & ~bad])
     if not np.any(bad | long):
-        chords = _chords(motion, bounds, segments, points).take(which)
+        chords = _chords(motion, bounds, segments, points, which)
         limit = STAIRCASE_LIMIT * kin.path_quantum()
         look = np.flatnonzero(staircase_bound(chords, kin) > limit)
         out.append(middle[look[staircase_error(chords, kin, look) > limit]])
@@ -126,56 +162,21 @@ def _cuts(motion: Motion, bounds: np.ndarray, fresh: np.ndarray, segments: Segme
     return times[(times > bounds[0]) & (times < bounds[-1]) & ~np.isin(times, bounds)]
 
 
-def _linear_strays(motion: Motion, bounds: np.ndarray, which: np.ndarray, kin: Kinematics):
-    """For blocks `which`: every motor at their ends (steps), and the largest distance of a slave from its block's
-    chord (slave against master) with its time, exact: each piece's offset from the chord is a quadratic."""
-    first = np.searchsorted(motion.breaks, bounds[which])
-    last = np.searchsorted(motion.breaks, bounds[which + 1])
-    count = last - first
-    block = np.repeat(np.arange(len(first)), count)
-    piece = first[block] + np.arange(len(block)) - np.repeat(np.cumsum(count) - count, count)
-    p, v, a = motor_motion(motion, kin)
-    h = np.diff(motion.breaks)
-    ends = np.vstack([p, p[-1:] + v[-1:] * h[-1] + 0.5 * a[-1:] * h[-1] ** 2])  # (K + 1, M) at every break
-    x0, x1 = ends[first], ends[last]
-    p, v, a, h = p[piece], v[piece], a[piece], h[piece]
-    rows = np.arange(len(first))
-    master = np.argmax(np.abs(np.round(x1) - np.round(x0)), axis=1)
-    span = (x1 - x0)[rows, master][:, None]
-    ratio = np.divide(x1 - x0, span, out=np.zeros_like(x0), where=span != 0)[block]  # (K, M) slave per master
-    u = master[block][:, None]
-    off = p - x0[block] - ratio * (np.take_along_axis(p, u, axis=1) - x0[block, master[block]][:, None])
-    c1 = v - ratio * np.take_along_axis(v, u, axis=1)
-    c2 = a - ratio * np.take_along_axis(a, u, axis=1)
-    tau = np.divide(-c1, c2, out=np.zeros_like(c1), where=c2 != 0)
-    tau = np.where((tau > 0) & (tau < h[:, None]), tau, 0.0)
-    inside = np.abs(off + c1 * tau + 0.5 * c2 * tau * tau)
-    at_start = np.where((piece == first[block])[:, None], 0.0, np.abs(off))
-    stray = np.maximum(inside, at_start)
-    worst_motor = np.argmax(stray, axis=1)
-    worst = stray[np.arange(len(block)), worst_motor]
-    worst_time = motion.breaks[piece] + np.where(inside[np.arange(len(block)), worst_motor] >= at_start[
-        np.arange(len(block)), worst_motor], tau[np.arange(len(block)), worst_motor], 0.0)
-    order = np.lexsort((worst, block))  # per block, its worst piece last
-    pick = order[np.cumsum(count) - 1]
-    return x0, x1, worst[pick], worst_time[pick]
-
-
-def _chords(motion: Motion, bounds: np.ndarray, segments: Segments, points: tuple) -> Segments:
-    """Each block as a straight segment between the shaped positions at its ends, carrying its first piece's plan
-    segment (tool, item, line); a block where nothing moves is a dwell. `points`: the motion's first and last
-    point, exactly (the last None: the motion's own)."""
-    first = np.searchsorted(motion.breaks, bounds[:-1])
-    at = motion.at(bounds)
-    at[0] = points[0]
+def _chords(motion: Motion, bounds: np.ndarray, segments: Segments, points: tuple,
+            which: np.ndarray | None = None) -> Segments:
+    """Each block (of `which`; None: all) as a straight segment between the shaped positions at its ends, carrying
+    its first piece's plan segment (tool, item, line); a block where nothing moves is a dwell. `points`: the
+    motion's first and last point, exactly (the last None: the motion's own)."""
+    which = np.arange(len(bounds) - 1) if which is None else which
+    start, end = motion.at(bounds[which]), motion.at(bounds[which + 1])
+    start[which == 0] = points[0]
     if points[1] is not None:
-        at[-1] = points[1]
-    start, end = at[:-1], at[1:]
+        end[which == len(bounds) - 2] = points[1]
     still = np.all(start == end, axis=1)
-    n = len(first)
-    return segments.take(motion.origin[first], start=start, end=end,
-                         dwell=np.where(still, np.diff(bounds), 0.0), ref_kind=np.full(n, REF_LINE),
-                         ref_fine=np.full(n, -1, dtype=np.int64))
+    n = len(which)
+    return segments.take(motion.origin[motion.piece_of(bounds[which])], start=start, end=end,
+                         dwell=np.where(still, bounds[which + 1] - bounds[which], 0.0),
+                         ref_kind=np.full(n, REF_LINE), ref_fine=np.full(n, -1, dtype=np.int64))
 
 
 def _events(motion: Motion, bounds: np.ndarray, chords: Segments, steps: np.ndarray, kin: Kinematics,
@@ -199,36 +200,11 @@ def _events(motion: Motion, bounds: np.ndarray, chords: Segments, steps: np.ndar
     time = bounds[block] + np.diff(bounds)[block] * k / np.repeat(count, count)  # a rest's
     phase = np.full(len(block), 3, dtype=np.int8)
     moving = ~rest[block]
-    crossings = _crossings if kin.linear else carriage_crossings
-    time[moving], phase[moving] = crossings(motion, bounds, x0, steps, master, block[moving], k[moving], kin)
+    if kin.linear:
+        still = rest[blocks]
+        time[moving], phase[moving] = shaped_crossings(motion.breaks, *motor_motion(motion, kin), bounds, x0, steps,
+                                                       master, blocks[~still], count[~still])
+    else:
+        time[moving], phase[moving] = carriage_crossings(motion, bounds, x0, steps, master, block[moving], k[moving],
+                                                         kin)
     return Events(blocks, block_steps, modulus, init, chords.tool[blocks], first_event, time, phase)
-
-
-def _crossings(motion: Motion, bounds: np.ndarray, x0: np.ndarray, steps: np.ndarray, master: np.ndarray,
-               block: np.ndarray, k: np.ndarray, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
-    """Time and phase (0 speeding up, 1 steady, 2 slowing down) of event k (1-based) of each block: where the
-    master has gone k - 1/2 steps past its rounded start. Progress along each block's master is monotone, so all
-    pieces of all blocks sort on one key, the block's offset plus the master's progress."""
-    p, v, a = motor_motion(motion, kin)
-    piece_block = np.searchsorted(bounds, motion.breaks[:-1], side="right") - 1
-    rows = np.arange(len(x0))
-    sign = np.sign(steps[rows, master]).astype(float)
-    origin = x0[rows, master]
-    offset = np.concatenate([[0.0], np.cumsum(np.abs(steps[rows, master]) + 2.0)])  # room for each block's span
-    u = master[piece_block]
-    s = sign[piece_block]
-    pieces = np.arange(len(piece_block))
-    progress = s * (p[pieces, u] - origin[piece_block])
-    key = offset[piece_block] + np.maximum(progress, 0.0)
-    target = sign[block] * (np.round(origin[block]) - origin[block]) + k - 0.5
-    piece = np.searchsorted(key, offset[block] + target, side="right") - 1
-    first = np.searchsorted(motion.breaks, bounds[:-1])  # each block's pieces
-    last = np.searchsorted(motion.breaks, bounds[1:]) - 1
-    piece = np.clip(piece, first[block], last[block])
-    speed, accel = s[piece] * v[piece, u[piece]], s[piece] * a[piece, u[piece]]
-    ahead = np.maximum(target - progress[piece], 0.0)
-    root = np.sqrt(np.maximum(speed * speed + 2.0 * accel * ahead, 0.0))
-    tau = np.divide(2.0 * ahead, speed + root, out=np.zeros_like(ahead), where=speed + root > 0)
-    h = motion.breaks[piece + 1] - motion.breaks[piece]
-    time = motion.breaks[piece] + np.clip(tau, 0.0, h)
-    return time, np.where(accel > 0, 0, np.where(accel < 0, 2, 1)).astype(np.int8)

@@ -16,6 +16,7 @@ as shaped (unshaped where an axis has no shaper).
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from codegen.motion.advance import AdvanceSettings, advanced_extruder
 from codegen.motion.planner import Plan
 from codegen.motion.shapers import Shaper, make_shaper
+from codegen.native import contiguous, library, pointer
 from codegen.toolpath.segments import Segments
 
 AXES = 4  # x, y, z, e: the extruder is never shaped (Klipper's neither), only advanced
@@ -182,11 +184,12 @@ def shape(motion: Motion, settings: ShapingSettings) -> Motion:
     return _merged(Motion(breaks, position, velocity, accel, origin))
 
 
-def advanced(shaped: Motion, planned: Motion, segments: Segments, settings: ShapingSettings) -> Motion:
+def advanced(shaped: Motion, planned: Motion, segments: Segments, settings: ShapingSettings, smooth: bool) -> Motion:
     """The shaped motion with its extruder axis advanced (codegen/motion/advance.py) from the plan's (`planned`,
-    whose pieces' origins index `segments`), on the shaped clock; both go on resting beyond their ends."""
+    whose pieces' origins index `segments`; `smooth`: smoothed, else nominal), on the shaped clock; both go on
+    resting beyond their ends."""
     extruder = advanced_extruder(planned.breaks, planned.position[:, 3], planned.velocity[:, 3],
-                                 planned.accel[:, 3], planned.origin, segments, settings.advance)
+                                 planned.accel[:, 3], planned.origin, segments, settings.advance, smooth)
     e_breaks = extruder.breaks + settings.shift
     first, last = min(shaped.breaks[0], e_breaks[0]), max(shaped.breaks[-1], e_breaks[-1])
     whole = cut(_rest_beyond(shaped, first, last), e_breaks)
@@ -241,13 +244,27 @@ def smoothing(shaped: Motion, planned: Motion, settings: ShapingSettings,
     """How far (mm, xyz) the shaped tool gets from where the plan puts it at the same moment, at its largest: the
     distance, the plan's point there, and the plan's segment. It bounds how far the shaped path strays from the
     programmed one and how much of a corner it cuts; on a reversal at constant acceleration it is Klipper's
-    smoothing (codegen/motion/shapers.py `smoothing`). Sampled `samples` + 1 times along every shaped piece."""
+    smoothing (codegen/motion/shapers.py `smoothing`). Sampled `samples` + 1 times along every shaped piece; in C
+    where it could be built (codegen/native/smoothing.c, the same bits)."""
     share = np.linspace(0.0, 1.0, samples + 1)
-    t = (shaped.breaks[:-1, None] + np.diff(shaped.breaks)[:, None] * share[None, :]).ravel()
-    piece = np.repeat(np.arange(len(shaped)), len(share))
-    here = shaped.at_piece(piece, t - shaped.breaks[piece])
-    there = planned.at(t - settings.shift)
-    distance = np.linalg.norm(here[:, :3] - there[:, :3], axis=1)
-    worst = int(np.argmax(distance))
-    return float(distance[worst]), there[worst, :3], int(planned.origin[planned.piece_of(t[worst:worst + 1]
-                                                                                          - settings.shift)][0])
+    lib = library("smoothing")
+    if lib is None:
+        t = (shaped.breaks[:-1, None] + np.diff(shaped.breaks)[:, None] * share[None, :]).ravel()
+        piece = np.repeat(np.arange(len(shaped)), len(share))
+        here = shaped.at_piece(piece, t - shaped.breaks[piece])
+        distance = np.linalg.norm(here[:, :3] - planned.at(t - settings.shift)[:, :3], axis=1)
+        worst = int(np.argmax(distance))
+        distance, t = float(distance[worst]), t[worst:worst + 1]
+    else:
+        arrays = contiguous(np.float64, shaped.breaks, shaped.position, shaped.velocity, shaped.accel, planned.breaks,
+                            planned.position, planned.velocity, planned.accel, share)
+        far = np.zeros(1)
+        worst = lib.shaped_smoothing(ctypes.c_int64(len(shaped)), *map(pointer, arrays[:4]),
+                                     ctypes.c_int64(len(planned)), *map(pointer, arrays[4:8]),
+                                     ctypes.c_int64(len(share)), pointer(arrays[8]),
+                                     ctypes.c_double(settings.shift), pointer(far))
+        piece, sample = divmod(worst, len(share))
+        t = shaped.breaks[piece:piece + 1] + np.diff(shaped.breaks[piece:piece + 2]) * share[sample]
+        distance = float(far[0])
+    there = planned.at(t - settings.shift)[0]
+    return distance, there[:3], int(planned.origin[planned.piece_of(t - settings.shift)][0])

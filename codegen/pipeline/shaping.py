@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.kinematics.base import Kinematics
-from codegen.motion.advance import AdvanceReference, advance_reference
+from codegen.motion.advance import AdvanceReference, advance_reference, smooths
 from codegen.motion.blocks import Events
 from codegen.motion.lookahead import Window
 from codegen.motion.planner import Plan, segment_lengths
@@ -38,6 +38,7 @@ class ShapingTail:
     segments: Segments
     plan: Plan
     point: np.ndarray  # (4,) mm
+    smooth: bool  # the advanced extruder was smoothed: it stays so to the era's end (codegen/motion/advance.py)
 
 
 @dataclass
@@ -48,7 +49,7 @@ class ShapedWindow:
     corners_t: np.ndarray  # (J,) s: where the plan's corners' velocity jumps land once shaped
     jumps: np.ndarray  # (J, M) steps/s: each motor's share of them there
     smoothing_mm: float  # the largest distance of the shaped tool from the planned one at the same moment
-    smoothing_at: np.ndarray  # (3,) mm: the planned point there
+    smoothing_at: np.ndarray | None  # (3,) mm: the planned point there (None: nothing is shaped)
     smoothing_line: int  # its G-code line (0: none)
     tail: ShapingTail  # for the next window
     advance: AdvanceReference | None = None  # what the advanced extruder's pulses are held against; None: none
@@ -65,30 +66,36 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
         segments, plan, before = concat(tail.segments, segments), Plan.join([tail.plan, plan]), len(tail.segments)
     planned = planned_motion(segments, plan)
     shaped = shape(planned, settings)
-    if settings.advance is not None:
-        shaped = advanced(shaped, planned, segments, settings)
+    # Smoothed where some K is not 0, and from there on to the era's end (codegen/motion/advance.py).
+    smooth = settings.advance is not None and ((tail is not None and tail.smooth) or smooths(planned.origin, segments))
     begin = window.plan.t_start[0]
-    stretch = between(shaped, begin, shaped.breaks[-1] if last else window.plan.total)
+    span = (begin, shaped.breaks[-1] if last else window.plan.total)
+    # The smoothing is of x, y and z: measured before the advanced extruder's finer pieces join theirs.
+    worst, at, seg = smoothing(between(shaped, *span), planned, settings) if settings.shaped else (0.0, None, 0)
+    if settings.advance is not None:
+        shaped = advanced(shaped, planned, segments, settings, smooth)
+        span = (begin, shaped.breaks[-1] if last else window.plan.total)
+    stretch = between(shaped, *span)
     start = segments.start[0] if tail is None else tail.point
     blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last or settles else None)
-    corners_t, jumps = shaped_corners(window.plan, window.segments, kin, settings)
-    worst, at, seg = smoothing(stretch, planned, settings)
+    corners_t, jumps = shaped_corners(window.plan, window.segments, kin, settings, smooth)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
     reference = None if settings.advance is None else advance_reference(
         planned.breaks, planned.position[:, 3], planned.velocity[:, 3], planned.accel[:, 3], planned.origin, segments,
-        settings.advance.half, settings.shift, (begin, stretch.breaks[-1]))
+        settings.advance.half, settings.shift, (begin, stretch.breaks[-1]), smooth)
+    handed = _tail(segments, plan, settings, blocks.chords.end[-1], smooth)
     return ShapedWindow(Window(window.first, blocks.chords, blocks.steps, shaped_plan, window.curve_cut),
                         blocks.events, np.maximum(origin - before, 0), corners_t, jumps, worst, at,
-                        int(segments.line[seg]), _tail(segments, plan, settings, blocks.chords.end[-1]), reference)
+                        int(segments.line[seg]), handed, reference)
 
 
-def _tail(segments: Segments, plan: Plan, settings: ShapingSettings, point: np.ndarray) -> ShapingTail:
-    """The segments that end within the shapers' spread before the plan's end, and `point`."""
+def _tail(segments: Segments, plan: Plan, settings: ShapingSettings, point: np.ndarray, smooth: bool) -> ShapingTail:
+    """The segments that end within the shapers' spread before the plan's end, `point` and `smooth`."""
     first = int(np.searchsorted(plan.t_start + plan.duration, plan.total - settings.spread - 1e-9))
     first = min(first, len(plan.duration) - 1)
     part = Plan(**{name: getattr(plan, name)[first:] for name in Plan.__dataclass_fields__})
-    return ShapingTail(segments.take(np.arange(first, len(segments))), part, point.copy())
+    return ShapingTail(segments.take(np.arange(first, len(segments))), part, point.copy(), smooth)
 
 
 def block_plan(chords: Segments, bounds: np.ndarray) -> Plan:
@@ -104,17 +111,17 @@ def block_plan(chords: Segments, bounds: np.ndarray) -> Plan:
                 np.ones(len(length) + 1, dtype=bool))
 
 
-def shaped_corners(plan: Plan, segments: Segments, kin: Kinematics,
-                   settings: ShapingSettings) -> tuple[np.ndarray, np.ndarray]:
+def shaped_corners(plan: Plan, segments: Segments, kin: Kinematics, settings: ShapingSettings,
+                   smooth: bool) -> tuple[np.ndarray, np.ndarray]:
     """The plan's corners (codegen/tables/checks.py `corner_jumps`) shaped: each axis's velocity jump splits into
     its shaper's impulses, a share A_i of it at tau_i after the corner (on the shaped clock); each motor takes
     its axes' shares (a corexy belt both of x and y, at their own times; a delta's carriage by its Jacobian at the
-    corner). An advanced extruder's velocity has no jump: its smoothing spreads every change over the smoothing
-    time."""
+    corner). A smoothed extruder's velocity (`smooth`) has no jump: its smoothing spreads every change over the
+    smoothing time."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
     change = plan.v_entry[j][:, None] * (plan.direction[j] - plan.direction[j - 1])  # (J, 4) mm/s per axis
     times, jumps = [], []
-    for axis in range(AXES if settings.advance is None else AXES - 1):
+    for axis in range(AXES - 1 if smooth else AXES):
         per_mm = kin.motor_factors(np.tile(np.eye(AXES)[axis], (len(j), 1)), segments.start[j])
         per_axis = per_mm * kin.limits.steps_per_mm[None, :]  # (J, M) steps per mm of this axis at each corner
         for amplitude, tau in zip(*settings.offsets(axis)):

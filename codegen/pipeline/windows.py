@@ -23,7 +23,7 @@ next window starts no faster than it now ends.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import BinaryIO, Callable
 
 import numpy as np
@@ -94,6 +94,8 @@ class Totals:
     ceiling_bytes: int = 0  # theirs and their runs' splits
     advance_slowed: int = 0  # plans of windows slowed where the advanced extruder broke its limits
     advance_slowed_line: int = 0  # the G-code line of the first such place (0: none, or not G-code)
+    # era -> s (shaped clock): its advanced extruder smoothed from there on (-inf: from its start; inf: nowhere)
+    smoothed_from: dict = field(default_factory=dict)
 
     def add(self, played: Played) -> None:
         sched = played.compressed.schedule
@@ -110,6 +112,12 @@ class Totals:
         self.power_records += sched.n_power
         self.ceiling_records += sched.n_ceiling
         self.ceiling_bytes += played.ceiling_bytes
+        if played.advance is not None and len(played.window.segments):
+            era, smooth = int(played.window.segments.shaping[0]), played.advance.half > 0
+            if era not in self.smoothed_from:  # its first window
+                self.smoothed_from[era] = -np.inf if smooth else np.inf
+            elif smooth and self.smoothed_from[era] == np.inf:
+                self.smoothed_from[era] = played.advance.begin
 
 
 @dataclass(frozen=True)
@@ -301,7 +309,7 @@ class Stages:
                 checker.add_advance(*self._advance_worst(shaped, pulses, before.position))
             checker.add_tool(compressed.schedule.block_tool, window.segments.tool[events.block_segment])
             hits = checker.add(trains, pulses.event_position, event_segment, around, corners_t, jumps, last)
-            if shaped is not None and shaped.advance is not None:
+            if shaped is not None and shaped.tail.smooth:  # a nominal extruder's limits are the plan's
                 self._note_extruder_limits(hits, pulses, planned, shaping.shift)
         n = len(window.segments)
         position = pulses.event_position[-1] if len(pulses.event_position) else before.position

@@ -6,7 +6,8 @@ every simulated extruder pulse (on the plan's clock: the shaped clock less its d
 lies from the extruder's position there (the nearer of the positions before and after the pulse,
 `AdvanceReference.worst`). It holds within a step: a step made where the formula crosses the half step is 0 off;
 the blocks' chords (half a step from the motion at most) and the Bresenham coupling of a slave (about half a step
-more) move a pulse by less than a step and a half. A kept build's whole plan gives the formula (`host.planned`);
+more) move a pulse by less than a step and a half. A kept build's whole plan gives the formula (`host.planned`), nominal (K 0 throughout so far) up to where the host
+first smoothed each era's extruder (`Totals.smoothed_from`, codegen/motion/advance.py);
 verify in bounded memory has each window's, its chapter's windows' (`Chapter.advance`), each for the pulses of its
 own stretch. A held run's clock is dilated, so it is not checked there.
 """
@@ -74,9 +75,14 @@ def advance_check(host: HostBuild, segments: Segments | None = None) -> AdvanceC
             first, last = int(pieces[0]), int(pieces[-1]) + 1  # an era's pieces follow one another
             span = (-np.inf if first == 0 else motion.breaks[first], np.inf if last == len(motion) else
                     motion.breaks[last])
-            references.append(advance_reference(motion.breaks[first:last + 1], motion.position[first:last, 3],
-                                                motion.velocity[first:last, 3], motion.accel[first:last, 3],
-                                                motion.origin[first:last], segments, shaping.advance.half,
-                                                shaping.shift, span))
+            # Nominal until the window whose extruder the host smoothed first, smoothed from there on.
+            smoothed_from = min(max(host.totals.smoothed_from.get(era, np.inf), span[0]), span[1])
+            parts = ((span[0], np.nextafter(smoothed_from, -np.inf), False), (smoothed_from, span[1], True))
+            for begin, end, smooth in parts:
+                if begin < end:
+                    references.append(advance_reference(
+                        motion.breaks[first:last + 1], motion.position[first:last, 3], motion.velocity[first:last, 3],
+                        motion.accel[first:last, 3], motion.origin[first:last], segments, shaping.advance.half,
+                        shaping.shift, (begin, end), smooth))
     e = host.kin.motors.index("e")
     return AdvanceCheck(references, e, float(host.kin.limits.steps_per_mm[e]), int(host.start_steps[e]))

@@ -6,10 +6,13 @@ from __future__ import annotations
 from types import SimpleNamespace as NS
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codegen.motion.advance import AdvanceSettings, Quadratics, advanced_extruder, advanced_source, smoothed
+from codegen.motion.advance import (AdvanceSettings, Quadratics, advance_reference, advanced_extruder, advanced_source,
+                                    smoothed, smoothed_numpy)
+from codegen.native import library
 
 STEPS_PER_MM = 415.0
 FIT_STEPS = 0.05  # the pipeline's (codegen/pipeline/settings.py ADVANCE_FIT_STEPS)
@@ -47,9 +50,26 @@ def test_smoothing_leaves_lines_and_parabolas_as_klipper_has_them():
     assert np.allclose(smoothed(parabola, t, 0.02), parabola.at(t) + 500.0 * 0.02**2 / 12, atol=1e-9, rtol=0)
 
 
+@pytest.mark.skipif(library("advance") is None, reason="the C helper could not be built (no gcc)")
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), pieces=st.integers(1, 40), half=st.floats(0.001, 0.1))
+def test_smoothed_in_c_is_the_numpy_version(seed, pieces, half):
+    """Random piecewise quadratics, not continuous, with pieces far shorter and far longer than the triangle's half
+    width (and some of zero length), at unsorted times, some before the first break and after the last."""
+    rng = np.random.default_rng(seed)
+    lengths = half * rng.choice([0.0, 0.01, 0.3, 1.0, 3.0, 40.0], pieces) * rng.uniform(0.5, 1.5, pieces)
+    breaks = 50.0 + np.concatenate([[0.0], np.cumsum(lengths)])
+    f = Quadratics(breaks, rng.uniform(-300.0, 300.0, pieces), rng.uniform(-50.0, 50.0, pieces),
+                   rng.uniform(-5000.0, 5000.0, pieces))
+    t = rng.uniform(breaks[0] - 3.0 * half, breaks[-1] + 3.0 * half, 300)
+    t = np.concatenate([t, breaks, breaks + half, breaks - half])
+    rng.shuffle(t)
+    assert np.max(np.abs(smoothed(f, t, half) - smoothed_numpy(f, t, half))) <= 1e-9
+
+
 def segments_of(moves: np.ndarray, k: np.ndarray) -> NS:
-    """Segments as advanced_source reads them: their moves (x, y, z, e) and K."""
-    return NS(start=np.zeros_like(moves), end=moves, advance=k)
+    """Segments as advanced_source and advance_reference read them: their moves (x, y, z, e), K and lines."""
+    return NS(start=np.zeros_like(moves), end=moves, advance=k, line=np.arange(len(moves)))
 
 
 def test_the_advance_leads_by_k_times_the_extruder_velocity_where_it_applies():
@@ -76,7 +96,8 @@ def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k
     moves = np.column_stack([rng.choice([0.0, 1.0], n), np.zeros(n), np.zeros(n), rng.choice([-1.0, 1.0], n)])
     segments = segments_of(moves, k * rng.choice([0.0, 1.0, 2.0], n))
     advance = AdvanceSettings(smooth_time, FIT_STEPS / STEPS_PER_MM)
-    fit = advanced_extruder(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments, advance)
+    fit = advanced_extruder(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments, advance,
+                            smooth=True)  # K 0 everywhere too
     source = advanced_source(plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(n), segments,
                              advance.half)
     share = np.linspace(0.0, 1.0, 16)
@@ -86,3 +107,20 @@ def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k
     assert error_steps.max() <= FIT_STEPS * (1 + 1e-6) + 1e-7
     assert fit.breaks[0] == plan.breaks[0] - advance.half and fit.breaks[-1] == plan.breaks[-1] + advance.half
     assert abs(fit.end - plan.end) < 1e-9  # at rest a triangle's half width after the plan: where the plan ends
+
+
+def test_k_0_everywhere_leaves_the_nominal_extruder():
+    """As Klipper's smoothing time is 0 with K 0: the plan's own pieces, and a reference of half width 0 (g = e);
+    told to smooth (a window after one with K), the same pieces are smoothed."""
+    plan = continuous([0.1, 0.2, 0.1], [0.0, 5.0, 5.0], [50.0, 0.0, -50.0])
+    moves = np.array([[10.0, 0, 0, 1.0]] * 3)
+    segments = segments_of(moves, np.zeros(3))
+    advance = AdvanceSettings(0.04, FIT_STEPS / STEPS_PER_MM)
+    args = (plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(3), segments)
+    nominal = advanced_extruder(*args, advance)
+    assert np.array_equal(nominal.breaks, plan.breaks) and np.array_equal(nominal.accel, plan.accel)
+    reference = advance_reference(*args, advance.half, 0.02)
+    t = np.linspace(-0.1, 0.5, 61)
+    assert reference.half == 0.0 and np.array_equal(smoothed(reference.source, t, reference.half), plan.at(t))
+    smooth = advanced_extruder(*args, advance, smooth=True)
+    assert smooth.breaks[0] == -0.02 and abs(smooth.at(0.1) - plan.at(0.1)) > 1e-4

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import codegen.motion.pieces as pieces
 from codegen.errors import JobError
 from codegen.job import load_job
 from codegen.motion.shapers import make_shaper
@@ -122,6 +123,58 @@ def test_random_moves_and_k_end_where_the_program_does_within_a_step_of_the_form
     assert f.final == f.expected_final
     assert (f.advance_steps or 0.0) <= 1.0  # None where nothing moves
     assert f.rate_ratio["e"] <= 1.0 and f.accel_ratio["e"] <= 1.0
+
+
+def test_k_0_plays_the_nominal_extruder_as_a_job_without_pressure_advance(tmp_path):
+    """Klipper turns the smoothing off with K 0: the same extruder steps at the same times as without pressure
+    advance (both shaped MZV 50 Hz, whose delay is longer than half the smoothing time: one clock), and the
+    formula the pulses are held against is the nominal extruder."""
+    gcode = "G90\nM83\nG1 X60 Y10 E2 F3000\nG1 X60 Y50 E2\nG1 E-1 F2100\nG1 X20 Y20 F9000\nG1 E1 F2100\n" \
+            "G2 X40 Y40 I10 J10 E1.5 F2400\n"
+    mzv = "  input_shaper: {x: {type: mzv, freq: 50}, y: {type: mzv, freq: 50}}\n"
+    host = built(tmp_path, job_text(gcode, "{k: 0, smooth_time: 0.01}", extra=mzv))
+    plain = built(tmp_path, job_text(gcode, None, extra=mzv), "plain")
+    assert host.findings.ok and plain.findings.ok, host.findings.problems
+    assert host.settings.stages.shaping.shift == plain.settings.stages.shaping.shift > 0.005
+    e = host.kin.motors.index("e")
+    (tick, direction), (plain_tick, plain_direction) = host.pulses.of_motor(e), plain.pulses.of_motor(e)
+    assert np.array_equal(tick, plain_tick) and np.array_equal(direction, plain_direction)
+    assert host.findings.steps["e"] == round(7.5 * E_STEPS)  # no turning back: 5.5 mm, and 1 mm back and forth
+    assert host.findings.advance_steps <= 0.5 and not [w for w in host.warnings if "pressure advance" in w.message]
+
+
+def test_after_m900_k0_the_smoothing_goes_on_in_every_window(tmp_path, monkeypatch):
+    """K 0.05, then M900 K0 before a zigzag with retractions, cut into many windows: the windows after it keep
+    smoothing (the tail says so), as the formula of the whole plan does (one per era: codegen/verify/advance.py),
+    so the pulses stay within a step of it."""
+    zigzag = "".join(f"G1 X{10 + 3 * k} Y{10 + 40 * (k % 2)} E1 F6000\nG1 E-0.8 F2100\nG1 E0.8\n" for k in range(12))
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)
+    host = built(tmp_path, job_text(f"G90\nM83\nG1 X60 Y10 E2 F3000\nM900 K0\n{zigzag}"))
+    assert host.findings.ok, host.findings.problems
+    assert host.totals.windows >= 6
+    e = host.kin.motors.index("e")
+    tick, direction = host.pulses.of_motor(e)
+    check = advance_check(host)
+    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
+
+
+def test_k_0_first_then_m900_later_is_held_to_the_formula_the_host_played(tmp_path, monkeypatch):
+    """K 0 for the first windows, M900 K0.05 windows later: the host plays the nominal extruder until the first
+    window with a K other than 0 and smooths from there on (Totals.smoothed_from), and the kept build's formula
+    (codegen/verify/advance.py) is nominal up to there too, so the pulses are within a step of it throughout."""
+    zigzag = "".join(f"G1 X{10 + 3 * k} Y{10 + 40 * (k % 2)} E1 F6000\nG1 E-0.8 F2100\nG1 E0.8\n" for k in range(12))
+    monkeypatch.setattr(pieces, "CHUNK_EVENTS", 1500)
+    host = built(tmp_path, job_text(f"G90\nM83\n{zigzag}M900 K0.05\n{zigzag}", "{k: 0}"))
+    assert host.findings.ok, host.findings.problems
+    assert host.totals.windows >= 6 and 0 < host.totals.smoothed_from[0] < np.inf
+    e = host.kin.motors.index("e")
+    tick, direction = host.pulses.of_motor(e)
+    check = advance_check(host)
+    assert [r.half for r in check.references] == [0.0, 0.02]
+    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
+    assert check.worst[0] <= 1.0
 
 
 @pytest.mark.parametrize("text, message", [
