@@ -19,6 +19,9 @@ times, raises its own allowance and passes them. These two rules are stated here
   ticks (a window's runs start from the tick the one before played). A block's first event may come later: where
   the plan leaves less time before it than the player needs to load the block (and the runtime records before
   it), the compressor puts it back that far, and that time is the player's (the simulator's against the twin).
+  The events after it in its block catch up (at no more than the motors' rates: a block at their limit takes a
+  while): none comes later than the block's first did, over both their windows, and the block's last comes within
+  its window (the planner leaves every block the time to make up its load: codegen/motion/planner.py catch_up_time).
 
 Both run a chapter at a time (codegen/verify/chapters.py), in numpy, carrying a few numbers from chapter to chapter.
 """
@@ -142,10 +145,14 @@ class PlanChecks:
                             np.concatenate([[self.last_played_tick], played[:-1]]))
         self.last_planned_tick, self.last_played_tick = float(planned[-1]), int(played[-1])
         window = np.maximum(TIMING_SHARE * (planned - before), TIMING_MIN_TICKS) + TIMING_ROUNDING_TICKS
-        late_load = np.zeros(len(planned), dtype=bool)
-        late_load[chapter.events.block_first[:-1]] = True
-        late_load &= played > planned
-        ratio = np.where(late_load, 0.0, np.abs(played - planned) / window)
+        ratio = np.abs(played - planned) / window
+        first, last = chapter.events.block_first[:-1], chapter.events.block_first[1:] - 1
+        late = played[first] - planned[first]  # a block's load, and its block's events catching up after it
+        load = np.repeat(np.where(late > window[first], late + window[first], 0.0), last - first + 1)
+        load[last] = 0.0
+        catching_up = (load > 0) & (played > planned)
+        ratio[catching_up] = np.maximum(played - planned - load, 0.0)[catching_up] / window[catching_up]
+        ratio[first[late > 0]] = 0.0
         k = int(np.argmax(ratio))
         self.worst_timing = max(self.worst_timing, float(ratio[k]))
         if ratio[k] <= 1.0 or "timing" in self.reported:

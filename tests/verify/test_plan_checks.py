@@ -118,6 +118,51 @@ def test_an_event_outside_the_rate_runs_window_is_named_and_a_late_block_start_i
     assert problem.startswith(f"timing: the twin plays event {start} ")
 
 
+FAST_DIAGONAL = """name: diagonal
+target: avr
+board: ramps-1.4
+machine:
+  kinematics: cartesian
+  steppers:
+    x: {steps_per_mm: 400, max_velocity: 200, max_accel: 10000, range: [0, 200]}
+    y: {steps_per_mm: 400, max_velocity: 200, max_accel: 10000, range: [0, 200]}
+program:
+  gcode: |
+    G21 G90
+    G1 X95 Y95 F20000
+"""
+
+
+def test_a_block_loaded_at_its_motors_rate_catches_up_after_its_first_event(tmp_path):
+    """38000 steps a motor: two blocks (MAX_MODULUS), the second loaded at 96.7 % of x's and y's rate, 26 ticks
+    after the event before where the player needs 38: the compressor puts its first event back 17 ticks, and the
+    events after catch up at the motors' rate, about 100 of them: the load's, not the rate runs' (verify named event
+    19001, 18 ticks late, where the rule took only the first event as the player's)."""
+    path = tmp_path / "diagonal.yaml"
+    path.write_text(FAST_DIAGONAL)
+    host = host_build(load_job(path))
+    chapter = whole_chapter(host)
+    start = host.events.block_first[1]
+    planned_tick, ticks = host.events.time * host.target.tick_hz, host.pulses.event_tick
+    assert start == 19000 and planned_tick[start] - planned_tick[start - 1] < 27
+    late = ticks - planned_tick
+    assert min(late[start], late[start + 1]) > 15 and np.count_nonzero(late[start:] > 3) > 50
+    checks = PlanChecks(host)
+    assert checks.add(chapter) == [] and checks.worst_timing <= 1.0
+    later = ticks.copy()  # an event after the load later than the load
+    later[start + 1] = round(planned_tick[start + 1] + late[start] + 8)  # the windows: 3 ticks each
+    [problem] = PlanChecks(host).add(with_ticks(chapter, later))
+    assert problem.startswith(f"timing: the twin plays event {start + 1} ")
+    end = start + 500  # the block ending in the cruise, not caught up by its end: only its last event is named
+    events = replace(chapter.events, block_first=np.insert(host.events.block_first, 2, end))
+    later = ticks.copy()
+    later[start + 100:end] = np.round(planned_tick[start + 100:end] + 10)
+    assert PlanChecks(host).add(replace(chapter, events=events)) == []
+    [problem] = PlanChecks(host).add(replace(with_ticks(chapter, later), events=events))
+    assert problem.startswith(f"timing: the twin plays event {end - 1} 10 ticks ")
+    assert problem.endswith("; 1 events outside)")
+
+
 def chapters_of(job: Path, size: int = 1):
     """The job's chapters as verify makes them, a window each (size 1)."""
     out = []

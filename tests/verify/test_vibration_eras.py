@@ -165,8 +165,8 @@ TOWER_MACHINE = """name: printer
 machine:
   kinematics: cartesian
   steppers:
-    x: {steps_per_mm: 320, max_velocity: 200, max_accel: 10000, range: [0, 200]}
-    y: {steps_per_mm: 320, max_velocity: 200, max_accel: 10000, range: [0, 200]}
+    x: {steps_per_mm: 400, max_velocity: 200, max_accel: 10000, range: [0, 200]}
+    y: {steps_per_mm: 400, max_velocity: 200, max_accel: 10000, range: [0, 200]}
     z: {steps_per_mm: 400, max_velocity: 12, max_accel: 400, range: [0, 180]}
     e: {steps_per_mm: 100, max_velocity: 80, max_accel: 5000}
 program:
