@@ -3,66 +3,15 @@
 from __future__ import annotations
 
 import math
-import time
-from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
 
-from codegen.errors import JobError, SourceRef
-from codegen.job.expr import parse
 from codegen.shapes import build_toolpath
 from codegen.shapes.context import split_chords
 from codegen.toolpath.items import Arc, Curve, Line
-from tests.helpers import machine
-
-TOL = 0.002
-SRC = SourceRef("shape.yaml", 7, 5)
-
-
-def make_job(*shapes, start=(0, 0), motors=("x", "y"), kinematics="cartesian", tol=TOL, feed=1200,
-             travel_feed=None):
-    fake = machine(kinematics, motors)
-    fake.tolerance = tol
-    if kinematics == "delta":
-        fake.delta = NS(diagonal_rod=215.0)
-    return NS(machine=fake,
-              program=NS(start=start, feed=feed, travel_feed=travel_feed, shapes=list(shapes)))
-
-
-def shape(kind, line=7, **fields):
-    defaults = {"feed": None, "z": None}
-    if kind == "points":
-        defaults.pop("feed")
-    return NS(kind=kind, source=SourceRef("shape.yaml", line, 5), **{**defaults, **fields})
-
-
-def line(to, from_=None, **kw):
-    return shape("line", to=to, from_=from_, **kw)
-
-
-def ellipse(**kw):
-    fields = {"center": (50, 40), "a": 30, "b": 15, "rotation": 0, "start": 0, "sweep": 360, **kw}
-    return shape("ellipse", **fields)
-
-
-def sine(**kw):
-    return shape("sine", **{"origin": (0, 0), "amplitude": 10, "omega": 0.5, "phase": 0, "length": 60, **kw})
-
-
-def v4(*xyz):
-    return np.array([*xyz, *[0.0] * (4 - len(xyz))], dtype=float)
-
-
-def build(*shapes, **kw):
-    return build_toolpath(make_job(*shapes, **kw)).items
-
-
-def errors_of(*shapes, **kw):
-    with pytest.raises(JobError) as caught:
-        build(*shapes, **kw)
-    return caught.value.diagnostics
-
+from tests.shapes.shape_jobs import (SRC, TOL, build, check_chords, ellipse, errors_of, line, make_job, shape, sine,
+                                     uniform_count, v4)
 
 # ---------------------------------------------------------------- lines, travel, tools and feeds
 
@@ -168,17 +117,6 @@ def test_circle_start_angle():
 
 # ---------------------------------------------------------------- chords
 
-def chord_deviation(curve: Curve, params: np.ndarray, at) -> float:
-    """The largest distance from the true curve, sampled densely, to the chord between its parameters."""
-    u = np.linspace(0.0, 1.0, 65)
-    t = params[:-1, None] + (params[1:] - params[:-1])[:, None] * u[None, :]
-    true = at(t)  # (n, 65, 2)
-    a, b = curve.points[:-1, None, :2], curve.points[1:, None, :2]
-    d = b - a
-    s = np.clip(((true - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-300), 0.0, 1.0)
-    return float(np.linalg.norm(true - (a + s[..., None] * d), axis=-1).max())
-
-
 def ellipse_params(curve: Curve, e) -> np.ndarray:
     r = math.radians(e.rotation)
     p = curve.points[:, :2] - np.array(e.center)
@@ -196,19 +134,6 @@ def ellipse_at(e):
         return np.stack([e.center[0] + math.cos(r) * u - math.sin(r) * v,
                          e.center[1] + math.sin(r) * u + math.cos(r) * v], axis=-1)
     return at
-
-
-def uniform_count(length, curvature, tol=TOL):
-    return math.ceil(abs(length) / math.sqrt(8 * tol / curvature))
-
-
-def check_chords(curve, params, at, uniform, tol=TOL):
-    deviation = chord_deviation(curve, params, at)
-    assert deviation <= tol
-    assert 0 < curve.deviation <= tol and deviation <= curve.deviation + 1e-12
-    n = len(curve.points) - 1
-    assert uniform / 2 <= n <= uniform
-    return deviation
 
 
 def test_full_ellipse_chords_are_within_tolerance_and_few():
@@ -304,103 +229,3 @@ def test_a_curve_needing_too_many_chords_is_refused():
 def test_flat_sine_is_one_chord():
     (curve,) = build(sine(amplitude=0, length=25))
     assert len(curve.points) == 2 and curve.points[-1, 0] == 25 and curve.deviation == 0
-
-
-# ---------------------------------------------------------------- functions
-
-def function(text, x, origin=(0, 0)):
-    return shape("function", y=text, expr=parse(text), x=x, origin=origin)
-
-
-def function_at(text, origin=(0, 0)):
-    expr = parse(text)
-
-    def at(x):
-        return np.stack([origin[0] + x, origin[1] + expr.evaluate(x)], axis=-1)
-    return at
-
-
-WAVE = "5*sin(x/3) + x/10"  # |f''| <= 5/9
-
-
-@pytest.mark.parametrize("x, origin", [((0, 40), (0, 0)), ((40, -3), (10, -2))])
-def test_function_chords_are_within_tolerance_and_end_exactly(x, origin):
-    at = function_at(WAVE, origin)
-    curve = build(function(WAVE, x, origin), start=tuple(at(np.array(float(x[0])))))[-1]
-    assert isinstance(curve, Curve) and curve.label == "function"
-    assert np.array_equal(curve.points[0, :2], at(np.array(float(x[0]))))
-    assert np.array_equal(curve.points[-1, :2], at(np.array(float(x[1]))))
-    xs = curve.points[:, 0] - origin[0]
-    assert np.all(np.sign(np.diff(xs)) == np.sign(x[1] - x[0]))
-    check_chords(curve, xs, at, uniform_count(x[1] - x[0], 5 / 9))
-
-
-@pytest.mark.parametrize("text, x, most", [
-    ("abs(x)", (-7, 3), 100), ("2*abs(x - 1/3)", (3, -7), 100), ("sqrt(x)", (0, 4), 60), ("x**1.5", (0, 4), 150),
-    ("sqrt(4 - x)", (0, 4), 60),
-])
-def test_function_with_a_kink_or_an_infinite_slope(text, x, most):
-    _, curve = build(function(text, x), start=(9, 9))
-    xs = curve.points[:, 0]
-    assert xs[0] == x[0] and xs[-1] == x[1]
-    assert chord_deviation(curve, xs, function_at(text)) <= curve.deviation <= TOL
-    assert len(xs) - 1 <= most
-
-
-@pytest.mark.parametrize("text, x, message", [
-    ("1/(x - 1.5)", (0, 3), "function y is undefined at x=1.5"),
-    ("log(x)", (-1, 2), "function y is undefined at x=-1"),
-    ("sqrt(x) + sqrt(-x)", (-2, 3), "function y is undefined at x=-2"),
-    ("tan(x)", (0, 2), "function y is not defined or not bounded near x=1.5708"),
-    ("1/x", (-1, 2), "function y is not defined or not bounded near x=0 "),
-])
-def test_undefined_function_names_its_x(text, x, message):
-    (d,) = errors_of(line((1, 1)), function(text, x))
-    assert d.where == SRC and message in d.message and text in d.message
-
-
-def test_function_whose_curvature_cannot_be_bounded():
-    (d,) = errors_of(function("sqrt(x*x - 2*x + 1)", (-7, 3)))  # |x - 1|, beyond naive interval arithmetic
-    assert "function y: cannot bound the curvature near x=" in d.message
-    assert float(d.message.split("x=")[1].split()[0]) == pytest.approx(1, abs=0.01)
-
-
-# ---------------------------------------------------------------- heights
-
-def test_two_d_shapes_are_drawn_at_the_current_z_unless_they_carry_one():
-    xyz = ("x", "y", "z")
-    items = build(line((5, 0)), shape("circle", center=(0, 0), radius=5, start=0, direction="ccw", z=2),
-                  ellipse(z=2), start=(0, 0, 7), motors=xyz)
-    assert np.array_equal(items[0].end, v4(5, 0, 7))
-    travel, circle = items[1:3]
-    assert not travel.tool and np.array_equal(travel.end, v4(5, 0, 2))  # down to the shape's height
-    assert circle.start[2] == 2 and circle.end[2] == 2
-    assert np.all(items[-1].points[:, 2] == 2) and np.all(items[-1].points[:, 3] == 0)
-    (drawn,) = build(line((5, 0)), start=(0, 0, 7), motors=xyz)
-    assert drawn.start[2] == 7
-
-
-def test_no_z_motor_rejects_every_shape_that_needs_z():
-    diagnostics = errors_of(ellipse(z=3), shape("points", line=9, points=[(0, 0, 0), (1, 1, 2)]),
-                            shape("arc", line=11, center=(0, 0), radius=1, start=0, sweep=90, z=0))
-    assert [d.where.line for d in diagnostics] == [7, 9]
-    assert "ellipse needs z=3 mm" in diagnostics[0].message and "no z motor" in diagnostics[0].message
-    assert "points needs z=2 mm" in diagnostics[1].message
-    assert build(ellipse(z=0))  # z = 0 is fine
-    assert build(ellipse(z=3), motors=("a", "b", "c"), kinematics="delta")
-
-
-def test_a_shape_beyond_the_limits_is_refused_at_the_shape():
-    """Issue 28: the shapes get the G-code's limits (codegen/toolpath/limits.py), each reason at the shape."""
-    started = time.monotonic()
-    diagnostics = errors_of(line((1e10, 5), line=3), line((5, 5), feed=0.000001, line=4),
-                            shape("circle", center=(0, 0), radius=20000, start=0, direction="ccw", line=5),
-                            shape("arc", center=(2e5, 0), radius=5, start=0, sweep=90, line=6), line((6, 6), line=7))
-    assert [(d.where.line, d.message) for d in diagnostics] == [
-        (3, "x = 1e+10 mm is beyond the reach of 100000 mm from the origin"),
-        (4, "the feed of 1e-06 mm/min makes this move last 13.4 years; the slowest move the tables hold lasts 1 day "
-            "(here at least 0.00491 mm/min)"),
-        (5, "this arc is 125664 mm long; the longest arc a move may draw is 100000 mm"),
-        (6, "x = 200005 mm is beyond the reach of 100000 mm from the origin")]
-    assert time.monotonic() - started < 2.0
-    assert build(line((99999, 5)))  # within the reach
