@@ -45,8 +45,9 @@ def random_segments(n: int, delta: bool, seed: int = 1) -> Segments:
     pts[1:, :2] = xy
     pts[0] = pts[1]
     z = np.zeros(n)
-    return Segments(start=pts[:-1], end=pts[1:], feed=np.full(n, 150.0), tool=np.ones(n, bool), dwell=z,
-                    item=np.arange(n), accel=np.full(n, np.inf), axis_velocity=np.full((n, 4), np.inf),
+    return Segments(start=pts[:-1], end=pts[1:], feed=np.full(n, 150.0), tool=np.ones(n, bool), power=np.ones(n),
+                    dynamic=np.zeros(n, bool), dwell=z, item=np.arange(n), line=np.zeros(n, np.int64),
+                    advance=z, shaping=np.zeros(n, np.int64), accel=np.full(n, np.inf), axis_velocity=np.full((n, 4), np.inf),
                     axis_accel=np.full((n, 4), np.inf), jerk=np.full((n, 4), np.nan),
                     junction_deviation=np.full(n, np.nan), ref_kind=np.full(n, REF_LINE),
                     ref_center=np.zeros((n, 2)), ref_radius=z, ref_angle=z, ref_growth=z,
