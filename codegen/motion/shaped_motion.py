@@ -166,17 +166,21 @@ def shape(motion: Motion, settings: ShapingSettings) -> Motion:
     begin, length = breaks[:-1], np.diff(breaks)
     middle = begin + 0.5 * length
     position, velocity, accel = (np.zeros((len(begin), AXES)) for _ in range(3))
+    reads = {}  # impulse time -> where the plan is read: the axes of one shaper read it alike
+    end = motion.end
     for axis, (amplitudes, times) in enumerate(impulses):
         for amplitude, tau in zip(amplitudes, times):
-            source = middle - settings.shift - tau  # the plan's time this impulse reads
-            piece = motion.piece_of(source)
-            inside = (source >= motion.breaks[0]) & (source <= motion.breaks[-1])
-            dt = np.where(inside, begin - settings.shift - tau - motion.breaks[piece], 0.0)
-            last = source > motion.breaks[-1]  # past the end: the tool rests where the plan ends
-            held = np.where(last[:, None], motion.end[None, :], motion.position[piece])
+            if float(tau) not in reads:
+                source = middle - settings.shift - tau  # the plan's time this impulse reads
+                piece = motion.piece_of(source)
+                inside = (source >= motion.breaks[0]) & (source <= motion.breaks[-1])
+                dt = np.where(inside, begin - settings.shift - tau - motion.breaks[piece], 0.0)
+                reads[float(tau)] = piece, inside, dt, source > motion.breaks[-1]  # past the end: it rests there
+            piece, inside, dt, last = reads[float(tau)]
+            held = np.where(last, end[axis], motion.position[piece, axis])
             v, a = np.where(inside, motion.velocity[piece, axis], 0.0), np.where(inside, motion.accel[piece, axis], 0.0)
             p = np.where(inside, motion.position[piece, axis] + motion.velocity[piece, axis] * dt + 0.5 * a * dt * dt,
-                         held[:, axis])
+                         held)
             position[:, axis] += amplitude * p
             velocity[:, axis] += amplitude * (v + a * dt)
             accel[:, axis] += amplitude * a
