@@ -195,16 +195,29 @@ def _events(motion: Motion, bounds: np.ndarray, chords: Segments, steps: np.ndar
     modulus = np.where(rest[blocks], 1, n_master[blocks])
     init = bresenham_init(x0[blocks], x1[blocks], master[blocks], block_steps, modulus)
     first_event = np.concatenate([[0], np.cumsum(count)])
-    block = np.repeat(blocks, count)
-    k = np.arange(first_event[-1]) - np.repeat(first_event[:-1], count) + 1.0  # event number in its block
-    time = bounds[block] + np.diff(bounds)[block] * k / np.repeat(count, count)  # a rest's
-    phase = np.full(len(block), 3, dtype=np.int8)
-    moving = ~rest[block]
-    if kin.linear:
-        still = rest[blocks]
+    still = rest[blocks]
+    time, phase = _rest_times(bounds, blocks[still], count[still], first_event[:-1][still], first_event[-1])
+    if kin.linear:  # the moving blocks' events, without a per-event index (millions of them)
+        moving = slice(None) if not np.any(still) else np.repeat(~still, count)
         time[moving], phase[moving] = shaped_crossings(motion.breaks, *motor_motion(motion, kin), bounds, x0, steps,
                                                        master, blocks[~still], count[~still])
     else:
+        block = np.repeat(blocks, count)
+        k = np.arange(first_event[-1]) - np.repeat(first_event[:-1], count) + 1.0  # event number in its block
+        moving = ~rest[block]
         time[moving], phase[moving] = carriage_crossings(motion, bounds, x0, steps, master, block[moving], k[moving],
                                                          kin)
     return Events(blocks, block_steps, modulus, init, chords.tool[blocks], first_event, time, phase)
+
+
+def _rest_times(bounds: np.ndarray, blocks: np.ndarray, count: np.ndarray, first: np.ndarray,
+                events: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every event's time and phase, those of the rests `blocks` (their `count` events from event `first`) filled:
+    spread evenly over the rest, the last at its end (phase 3)."""
+    time, phase = np.empty(events), np.empty(events, dtype=np.int8)
+    k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count) + 1.0  # event number in its block
+    at = np.repeat(first, count) + k.astype(np.int64) - 1
+    block = np.repeat(blocks, count)
+    time[at] = bounds[block] + (bounds[block + 1] - bounds[block]) * k / np.repeat(count, count)
+    phase[at] = 3
+    return time, phase
