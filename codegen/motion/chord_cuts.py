@@ -25,21 +25,24 @@ MAX_DEPTH = 64  # cuts of a block, one within the other (a guard: a sane motion 
 
 
 def chord_bounds(breaks: np.ndarray, p: np.ndarray, v: np.ndarray, a: np.ndarray, bounds: np.ndarray,
-                 limit: float) -> np.ndarray:
+                 limit: float, fresh: np.ndarray | None = None) -> np.ndarray:
     """The bounds (s, sorted) of the blocks after every cut: `breaks` (K + 1,) and the motors' positions at each
     piece's start, velocities and accelerations `p`, `v`, `a` (K, M) in steps; `bounds` the blocks' ends before
-    (the motion's ends among them)."""
+    (the motion's ends among them); `fresh` (B,) the blocks to cut (None: all; the others are known to need
+    none)."""
+    fresh = np.ones(len(bounds) - 1, dtype=bool) if fresh is None else fresh
     lib = library("chordcuts")
     if lib is None:
-        return chord_bounds_numpy(breaks, p, v, a, bounds, limit)
+        return chord_bounds_numpy(breaks, p, v, a, bounds, limit, fresh)
     breaks, bounds = contiguous(np.float64, breaks, bounds)
     p, v, a = contiguous(np.float64, p, v, a)
+    fresh, = contiguous(np.uint8, fresh)
     capacity = 4 * len(bounds) + 1024
     while True:
         out = np.empty(capacity)
         count = lib.chord_cuts(ctypes.c_int64(len(breaks) - 1), ctypes.c_int64(p.shape[1]), pointer(breaks),
                                pointer(p), pointer(v), pointer(a), ctypes.c_int64(len(bounds)), pointer(bounds),
-                               ctypes.c_double(limit), ctypes.c_double(MAX_MODULUS - 1), ctypes.c_int64(MAX_DEPTH),
+                               pointer(fresh), ctypes.c_double(limit), ctypes.c_double(MAX_MODULUS - 1), ctypes.c_int64(MAX_DEPTH),
                                pointer(out), ctypes.c_int64(capacity))
         if count >= 0:
             return out[:count]
@@ -47,9 +50,8 @@ def chord_bounds(breaks: np.ndarray, p: np.ndarray, v: np.ndarray, a: np.ndarray
 
 
 def chord_bounds_numpy(breaks: np.ndarray, p: np.ndarray, v: np.ndarray, a: np.ndarray, bounds: np.ndarray,
-                       limit: float) -> np.ndarray:
+                       limit: float, fresh: np.ndarray) -> np.ndarray:
     """`chord_bounds` in numpy: each round cuts every block made by the round before, once."""
-    fresh = np.ones(len(bounds) - 1, dtype=bool)
     for _ in range(MAX_DEPTH):
         which = np.flatnonzero(fresh)
         if not len(which):

@@ -110,8 +110,9 @@ def _linear_bounds(motion: Motion, bounds: np.ndarray, segments: Segments, kin: 
     p, v, a = motor_motion(motion, kin)
     limit = STAIRCASE_LIMIT * kin.path_quantum()
     checked = np.empty(0)  # the bounds whose blocks were found within the staircase limit
+    fresh = None  # the blocks to cut to their chords: all at first, then those the staircase cut
     for _ in range(CUT_ROUNDS):
-        bounds = chord_bounds(motion.breaks, p, v, a, bounds, CHORD_LIMIT)
+        bounds = chord_bounds(motion.breaks, p, v, a, bounds, CHORD_LIMIT, fresh)
         new = ~np.isin(bounds, checked)
         which = np.flatnonzero(new[:-1] | new[1:])
         chords = _chords(motion, bounds, segments, points, which)
@@ -121,6 +122,8 @@ def _linear_bounds(motion: Motion, bounds: np.ndarray, segments: Segments, kin: 
             break
         checked = bounds
         bounds = np.unique(np.concatenate([bounds, 0.5 * (bounds[far] + bounds[far + 1])]))
+        cut_now = ~np.isin(bounds, checked)
+        fresh = cut_now[:-1] | cut_now[1:]
     return bounds
 
 

@@ -107,11 +107,12 @@ static int cut_of(const struct motion *m, double t0, double t1, double limit, do
     return 1;
 }
 
-/* bounds (B + 1): the blocks' ends before; writes every bound after (sorted) to out and returns their count, or -1
- * where more than `capacity` would be written. */
+/* bounds (B + 1): the blocks' ends before; fresh (B): the blocks to cut (the others are known to need none);
+ * writes every bound after (sorted) to out and returns their count, or -1 where more than `capacity` would be
+ * written. */
 int64_t chord_cuts(int64_t pieces, int64_t motors, const double *breaks, const double *p, const double *v,
-                   const double *a, int64_t bounds_count, const double *bounds, double limit, double max_span,
-                   int64_t max_depth, double *out, int64_t capacity)
+                   const double *a, int64_t bounds_count, const double *bounds, const uint8_t *fresh, double limit,
+                   double max_span, int64_t max_depth, double *out, int64_t capacity)
 {
     struct motion m = {pieces, motors, breaks, p, v, a};
     double stack_end[MAX_STACK];
@@ -124,7 +125,7 @@ int64_t chord_cuts(int64_t pieces, int64_t motors, const double *breaks, const d
         double begin = bounds[b];
         int64_t top = 0;
         stack_end[0] = bounds[b + 1];
-        stack_depth[0] = 0;
+        stack_depth[0] = fresh[b] ? 0 : max_depth;
         while (top >= 0) {
             double at, end = stack_end[top];
             int64_t depth = stack_depth[top];

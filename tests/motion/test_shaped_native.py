@@ -42,8 +42,15 @@ def test_c_and_numpy_cut_alike(seed, pieces, motors):
         return
     breaks, p, v, a, forced = random_motion(seed, pieces, motors)
     c = chord_bounds(breaks, p, v, a, forced, LIMIT)
-    py = chord_bounds_numpy(breaks, p, v, a, forced, LIMIT)
+    py = chord_bounds_numpy(breaks, p, v, a, forced, LIMIT, np.ones(len(forced) - 1, dtype=bool))
     assert np.array_equal(c, py)
+    # Blocks not fresh are left as they are; the fresh ones cut as before.
+    some = np.arange(len(forced) - 1) % 2 == 0
+    partly = chord_bounds(breaks, p, v, a, forced, LIMIT, some)
+    assert np.array_equal(partly, chord_bounds_numpy(breaks, p, v, a, forced, LIMIT, some))
+    kept = ~some
+    assert set(partly) <= set(c)
+    assert not np.any(kept[np.searchsorted(forced, np.setdiff1d(partly, forced), side="right") - 1])
 
 
 @settings(max_examples=40, deadline=None)
