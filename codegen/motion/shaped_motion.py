@@ -120,11 +120,16 @@ class Motion:
 
 
 def cut(motion: Motion, times: np.ndarray) -> Motion:
-    """The same motion with breaks at `times` too."""
-    breaks = np.unique(np.concatenate([motion.breaks, times]))
-    breaks = breaks[(breaks >= motion.breaks[0]) & (breaks <= motion.breaks[-1])]
+    """The same motion with breaks at `times` too (those inside it)."""
+    times = np.unique(times[(times > motion.breaks[0]) & (times < motion.breaks[-1])])
+    at = np.searchsorted(motion.breaks, times)  # the break each goes before
+    fresh = motion.breaks[at] != times
+    times, at = times[fresh], at[fresh]
+    if not len(times):
+        return motion
+    breaks = np.insert(motion.breaks, at, times)
     begin = breaks[:-1]
-    parent = motion.piece_of(begin + 0.5 * np.diff(breaks))
+    parent = np.repeat(np.arange(len(motion)), 1 + np.bincount(at - 1, minlength=len(motion)))
     dt = begin - motion.breaks[parent]
     inner = np.flatnonzero(dt != 0)  # the second parts of cut pieces; the rest begin where they did
     position, velocity = motion.position[parent], motion.velocity[parent]
