@@ -23,14 +23,12 @@ import subprocess
 import sys
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
 from codegen.errors import Diagnostic, JobError, SourceRef
-from codegen.report.junit import write_junit
 
 # `python -m codegen`, but with this codegen/ first on the path: -m would put the working folder first, and a
 # checkout there would answer for an installed printer-codegen
@@ -193,6 +191,8 @@ def verify_one(job: Job, flags: list[str], running: set) -> dict:
 def run_all(jobs: list[Job], flags: list[str], workers: int, quiet: bool) -> list[dict]:
     """Every job's case, in the jobs' order; at most `workers` children at once. Jobs that build into the same
     folder (one name) take turns; Ctrl-C ends the running children and leaves the rest unstarted."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed  # here: main.py's parser imports this module
+
     running: set = set()
     locks = {job.folder: threading.Lock() for job in jobs}
 
@@ -255,6 +255,7 @@ def cmd_verify_many(args) -> int:
     cases = run_all(jobs, child_flags(args), workers, args.quiet)
     total_s = time.monotonic() - began
     if args.junit:
+        from codegen.report.junit import write_junit  # xml.etree: imported only here
         write_junit(Path(args.junit), cases, total_s)
     if args.json:
         print(json.dumps({"pass": all(c["status"] == "PASS" for c in cases), "jobs": cases}, indent=2))

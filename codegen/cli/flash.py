@@ -16,7 +16,6 @@ from pathlib import Path
 from codegen.errors import BuildError
 from codegen.job import load_job
 from codegen.pipeline.normalized import job_fingerprint
-from codegen.pipeline.streaming import stream_setup
 from codegen.targets import target_info
 
 INSTALL = {"avrdude": "avrdude (Debian: apt-get install avrdude)", "stcgal": "stcgal (pip install stcgal)",
@@ -71,6 +70,8 @@ def cmd_flash(args) -> int:
 
 def _check_fresh(job, args, hex_path: Path) -> None:
     """BuildError unless `hex_path` and its report.json exist and the report's job fingerprint is the job's."""
+    from codegen.pipeline.streaming import stream_setup  # here: main.py's parser imports this module
+
     build = ["printer-codegen", "build", args.job, *(["--target", args.target] if args.target else []),
              *(["--stream"] if args.stream else []), *(["--out", args.out] if args.out else [])]
     rebuild = f"run `{shlex.join(build)}` first"

@@ -16,7 +16,6 @@ from codegen.cli import batch as cli_batch
 from codegen.cli import calibrate as cli_calibrate
 from codegen.cli import config as cli_config
 from codegen.cli import flash as cli_flash
-from codegen.cli import stream as cli_stream
 from codegen.cli import tune as cli_tune
 from codegen.cli.outputs import IMAGE_FILES, flash_dir, job_name_guess, stream_dir, whole_or_none
 from codegen.errors import BuildError, JobError, render_all
@@ -25,15 +24,10 @@ from codegen.job import load_job
 from codegen.pipeline.host import HostBuild, host_build
 from codegen.report.summaries import build_report, human_plan, motion, plan_summary, write_json, write_trace
 from codegen.tables.format import stream_bytes
-from codegen.verify.bounded import verify_flash
-from codegen.verify.compare import compare, simulated_switches
-from codegen.verify.heaters import fault_spec, heater_lines, job_faults, trip_lines, verify_heaters
-from codegen.verify.hold import hold_lines, hold_verify, pauses
-from codegen.verify.report_samples import whole_run_samples
 from codegen.verify.resonance import resonance_option
 from codegen.verify.results import verify_json, vibration_lines
-from codegen.verify.shipped import shipped_problems
-from codegen.verify.waveform import write_vcd
+# verify's other modules and codegen/cli/stream.py (the simulators, jinja2) are imported in the functions that use
+# them: the parser and plan start without them (tests/cli/test_lazy_imports.py)
 
 SIMULATORS = {"avr": "simavr", "mcs51": "s51"}
 TARGET_MODULES = {"firmware": "codegen.firmware.{target}.image", "sim": "codegen.sim.{target}"}
@@ -118,6 +112,7 @@ def cmd_build(args) -> int:
     folder = stream_dir if args.stream else flash_dir
     with whole_or_none(lambda: folder(job_name_guess(job_path), args.out)):  # a failed build leaves no image
         if args.stream:
+            from codegen.cli import stream as cli_stream
             return cli_stream.cmd_build_stream(args)
         job = load_job(job_path, args.target)
         host, image, out_dir = _build(job, args.out, reuse=False, strict=args.strict)
@@ -128,6 +123,12 @@ def cmd_build(args) -> int:
 
 
 def cmd_verify(args) -> int:
+    from codegen.cli import stream as cli_stream
+    from codegen.verify.bounded import verify_flash
+    from codegen.verify.compare import compare, simulated_switches
+    from codegen.verify.heaters import job_faults, verify_heaters
+    from codegen.verify.hold import hold_verify, pauses
+
     if cli_batch.is_batch(args):  # several jobs, a folder, --jobs or --junit: codegen/cli/batch.py
         return cli_batch.cmd_verify_many(args)
     args.job = args.job[0]  # one job file: the single verify below
@@ -171,6 +172,8 @@ def cmd_verify(args) -> int:
 
 def _shipped(host: HostBuild, image, result: dict) -> dict:
     """verify's result, failed where the image's table is not the schedule the twin played."""
+    from codegen.verify.shipped import shipped_problems
+
     problems = shipped_problems(image, host.target.target, host.schedule)
     if problems:
         result.update({"pass": False, "problems": problems + result["problems"]})
@@ -186,6 +189,10 @@ def _verify_headline(host: HostBuild, result: dict, out_dir: Path) -> list[str]:
 def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[str], samples=None) -> int:
     """verify's output: the files not written as the run was compared, then the JSON, or `headline` and the
     verdict's lines. `samples`: what --report draws, where it was gathered as the run was compared."""
+    from codegen.verify.heaters import heater_lines, trip_lines
+    from codegen.verify.report_samples import whole_run_samples
+    from codegen.verify.waveform import write_vcd
+
     if args.trace:
         write_trace(Path(args.trace), host, trace)
     if args.vcd:
@@ -208,6 +215,9 @@ def _conclude_verify(args, host: HostBuild, result: dict, trace, headline: list[
 
 def _print_verdict(result: dict) -> None:
     """verify's text lines after the first: motors, path, display, heaters, problems."""
+    from codegen.verify.heaters import heater_lines
+    from codegen.verify.hold import hold_lines
+
     for name, m in result["motors"].items():
         timing = ("timing not compared" if m["max_timing_error_us"] is None
                   else f"timing within {m['max_timing_error_us']:.2f} us of the twin")
@@ -243,6 +253,7 @@ def _print_verdict(result: dict) -> None:
 
 def cmd_plan(args) -> int:
     if args.stream:
+        from codegen.cli import stream as cli_stream
         return cli_stream.cmd_plan_stream(args)
     job = load_job(Path(args.job), args.target)
     samples = None
@@ -276,6 +287,17 @@ def _plan_writing_tables(job, strict: bool, path: Path, observe=None) -> HostBui
         partial.unlink(missing_ok=True)
 
 
+def cmd_stream(args) -> int:
+    from codegen.cli import stream as cli_stream
+    return cli_stream.cmd_stream(args)
+
+
+def _fault(text: str) -> tuple[str, str | None, float]:
+    """--fault's type (codegen/verify/heaters.py's fault_spec), its module imported only where verify is given one."""
+    from codegen.verify.heaters import fault_spec
+    return fault_spec(text)
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="printer-codegen",
@@ -289,7 +311,7 @@ def parser() -> argparse.ArgumentParser:
         ("build", cmd_build, "plan the job and build the firmware image"),
         ("verify", cmd_verify, "build (or reuse the build), run the image in the simulator, compare with the plan"),
         ("plan", cmd_plan, "plan only: no compiler, no simulator"),
-        ("stream", cli_stream.cmd_stream, "plan the job and stream it to a board running the streaming firmware"),
+        ("stream", cmd_stream, "plan the job and stream it to a board running the streaming firmware"),
     ):
         v = verbs.add_parser(name, help=help_text)
         v.set_defaults(handler=handler)
@@ -326,7 +348,7 @@ def parser() -> argparse.ArgumentParser:
             v.add_argument("--override", type=int, metavar="PERCENT",
                            help="step the feed override to PERCENT (10 up to machine.feed_hold.max_override, by 10) "
                                 "with the feed keys as the job starts (machine.feed_hold)")
-            v.add_argument("--fault", action="append", default=[], type=fault_spec, metavar="NAME[:HEATER]@SECONDS",
+            v.add_argument("--fault", action="append", default=[], type=_fault, metavar="NAME[:HEATER]@SECONDS",
                            help="inject a fault into a heater's simulated plant at a simulated time (repeatable): "
                                 "thermistor-open, thermistor-short, heater-dead, thermistor-loose; the heater "
                                 "(hotend, bed) defaults to the hot end, e.g. thermistor-open:bed@30")

@@ -9,15 +9,17 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from codegen import progress
 from codegen.errors import BuildError
-from codegen.firmware.avr.tune import build_tune_image, tune_setup
 from codegen.heaters.control import PID_PERIOD_S, fixed_gains, max_duty
 from codegen.heaters.plant import heating_figures, simulate
 from codegen.job import load_job
-from codegen.link.tune import TuneHost, heaters_snippet
 from codegen.program.heater_settings import heater_settings
+
+if TYPE_CHECKING:  # the tune firmware (jinja2) and its host are imported by cmd_tune: the parser starts without them
+    from codegen.link.tune import TuneHost
 
 DEFAULT_TARGET_C = {"hotend": 210.0, "bed": 60.0}
 MIN_ABOVE_C = 20.0  # a target this far above the heater's minimum at least: the relay must heat to cross it
@@ -75,6 +77,9 @@ def _session(args, image, hex_path: Path, host: TuneHost) -> dict:
 
 
 def cmd_tune(args) -> int:
+    from codegen.firmware.avr.tune import build_tune_image, tune_setup
+    from codegen.link.tune import TuneHost, heaters_snippet
+
     job = load_job(Path(args.job))
     if job.target != "avr":
         raise BuildError(f"tune runs on the ATmega2560 boards only, not the {job.target} target")

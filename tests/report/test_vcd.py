@@ -162,13 +162,11 @@ def test_the_page_and_the_waveform_are_written_as_the_run_is_compared(capsys, tm
     (codegen/verify/bounded.py): neither the whole run's waveform nor the whole run's samples are made; the page has
     its plots and the waveform every motor's STEP rises, as many as the result's steps (homing's before the player's
     start)."""
-    import codegen.cli.main as cli
-
     def whole(*_):
         raise AssertionError("the whole run was kept")
 
-    monkeypatch.setattr(cli, "write_vcd", whole)
-    monkeypatch.setattr(cli, "whole_run_samples", whole)
+    monkeypatch.setattr("codegen.verify.waveform.write_vcd", whole)  # main.py imports them as verify runs
+    monkeypatch.setattr("codegen.verify.report_samples.whole_run_samples", whole)
     page, vcd = tmp_path / "laser.html", tmp_path / "laser.vcd"
     code = main(["verify", str(LASER), "--out", str(tmp_path / "out"), "--json", "--report", str(page), "--vcd",
                  str(vcd)])
