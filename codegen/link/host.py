@@ -18,8 +18,9 @@ within `ack_timeout_s` of a frame's last byte, sends every frame in flight again
 (go-back-N). Blocked on credit with nothing in flight, the host pings (an empty DATA frame) every `ping_s`, and
 never more often than every PING_BYTES byte times (a ping and its ACK must not fill a slow line), for a fresh ACK;
 a firmware that sends window updates (an ACK unasked once its ring has room for a DATA frame again, after an ACK
-that said it had not: both targets') leaves the pings a fallback (LinkBudget.ping_s: rarer). `refill_byte_times` says how late the host starts to
-refill a ring that was full, either way (the plan counts on it: codegen/link/ring.py).
+that said it had not: both targets') leaves the pings a fallback (LinkBudget.ping_s: rarer). `refill_byte_times`
+says how long the line may stand idle behind what the host last heard of the ring, either way (the plan counts on
+it: codegen/link/ring.py).
 Times within TIME_SLACK_S of a deadline count as at it: the caller's clock may round.
 """
 
@@ -41,13 +42,23 @@ TIME_SLACK_S = 1e-9
 
 
 def refill_byte_times(payload: int, baud: int, window_updates: bool) -> float:
-    """Byte times from when the ring has room for a DATA frame again, the host blocked on credit, to when that
-    frame's last byte is in the ring: the firmware's ACK and its time to answer (ANSWER_BYTES), then the frame;
-    without window updates the ACK answers the host's next ping, up to a ping interval and the ping later."""
+    """Byte times from the ACK whose free space the host last went by to when the line, idle since (the host
+    blocked on credit), has brought the first frame of the refill: the lag of the host's knowledge, and a frame.
+
+    The worst case is a frame in flight, not a full ring: an ACK (ANSWER_BYTES on the line, with the firmware's
+    time to answer) reports room for one frame and less than two; the host sends that frame and waits for its ACK,
+    which reports the room the player made meanwhile: two ACKs and two frames. Measured in s51 (the at89c52 at
+    9600 baud, issue 28: one 8-byte frame every 23.6 byte times while its ACKs said 10 to 14 bytes free) against
+    a plan that counted on one ACK and one frame, the ring fell 2 bytes below the planned lowest fill and ran dry.
+    With window updates the host's fallback ping may be on the line ahead of that frame (its bytes); without them,
+    blocked with nothing in flight, the host hears of room only from the ACK of its next ping, up to a ping
+    interval after the ACK that stopped it."""
     frame = p.OVERHEAD_BYTES + payload
+    in_flight = 2 * ANSWER_BYTES + 2 * frame
     if window_updates:
-        return ANSWER_BYTES + frame
-    return max(PING_S * baud / 10, PING_BYTES) + p.OVERHEAD_BYTES + ANSWER_BYTES + frame
+        return in_flight + p.OVERHEAD_BYTES
+    ping = max(PING_S * baud / 10, PING_BYTES)
+    return max(in_flight, 2 * ANSWER_BYTES + ping + p.OVERHEAD_BYTES + frame)
 
 
 @dataclass

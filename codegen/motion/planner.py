@@ -215,9 +215,11 @@ def profile(segments: Segments, kin: Kinematics, steps: np.ndarray, limits: Plan
     w_jd = np.where(np.any(~np.isnan(jerk), axis=1), v_jerk ** 2, w_jd)
     w_jd = np.where(cos_turn < -1.0 + 1e-9, 0.0, w_jd)  # a full reversal stops
     smooth = (turn < SMOOTH_TURN) & moving[:-1] & moving[1:]
-    short = np.minimum(length[:-1], length[1:])
-    curvature = np.where(smooth, np.divide(2.0 * np.sin(0.5 * turn), short, out=np.zeros(n - 1),
-                                           where=short > 0), 0.0)
+    # The turn over the mean of the two chords: exactly 1 / R for chords of any lengths on a circle of radius R,
+    # and a blip of a chord beside a long one bends the long one little (as a corner, by junction deviation).
+    mean_chord = 0.5 * (length[:-1] + length[1:])
+    curvature = np.where(smooth, np.divide(2.0 * np.sin(0.5 * turn), mean_chord, out=np.zeros(n - 1),
+                                           where=mean_chord > 0), 0.0)
     with np.errstate(divide="ignore"):
         w_curve_j = np.where(curvature > 0, limits.centripetal_share * a_normal / curvature, np.inf)
 

@@ -205,10 +205,10 @@ class Stages:
         if scale is not None and scale[2] is not None:
             budget, short = carried.ring.budget, scale[2]
             raise BuildError(f"the link at {budget.baud} baud cannot keep the streaming player's ring of "
-                             f"{budget.ring_bytes} bytes (the host keeps {budget.usable} of them filled) fed between "
-                             f"{short.begin_s:.3f} and {short.end_s:.3f} s into the job, even slowed "
-                             f"{rounds} times: a board with a larger ring (XRAM), a faster link "
-                             f"(machine.link.baud), or a larger machine.tolerance")
+                             f"{budget.ring_bytes} bytes (the host keeps {budget.kept} of them filled, "
+                             f"{budget.usable} after the refill's lag) fed between {short.begin_s:.3f} and "
+                             f"{short.end_s:.3f} s into the job, even slowed {rounds} times: a board with a larger "
+                             f"ring (XRAM), a faster link (machine.link.baud), or a larger machine.tolerance")
         if w_exit is not None:
             self.lookahead.resume(w_exit, window.plan.total)
             self.lookahead.slow_straight_on(float(window.segments.feed[-1]))

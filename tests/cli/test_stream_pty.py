@@ -222,7 +222,7 @@ def test_ctrl_c_as_the_job_ends_reports_the_finished_job(wave):
     run = stream(line, wave, interrupt=(protocol.FINISHED, 0.0))
     assert run.bridge.interrupted_at is not None
     assert (run.code, run.err) == (0, "")
-    assert re.fullmatch(rf"streamed line to {re.escape(run.bridge.port)}: 187 stream bytes in \d+\.\d s, \d+ frames "
+    assert re.fullmatch(rf"streamed line to {re.escape(run.bridge.port)}: 185 stream bytes in \d+\.\d s, \d+ frames "
                         rf"retransmitted; positions \[7200, 4400\] as planned\n", run.out), run.out
     assert net_steps(run.trace, 2) == [7200, 4400]
 

@@ -4,6 +4,8 @@ the bytes arriving and the records read, record by record."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -20,15 +22,22 @@ UNLIMITED = link_budget(2_000_000, 60000, 2)  # the streaming player's costs, a 
 
 
 def direct_fill(times: np.ndarray, sizes: np.ndarray, budget: LinkBudget, prefill: int) -> np.ndarray:
-    """The fill before every record, stepping through them one by one: the link delivers at its rate into the
-    usable ring, never more than the stream has."""
+    """The fill before every record, record by record: the prefill's whole frames less the one on the line, refilled
+    at the link's rate; or what the host keeps less the bytes taken in the last lag_s; or `usable` after a record
+    read by lag_s before, refilled since; never more than the stream has."""
     total = int(sizes.sum()) + budget.need
-    arrived, taken, clock, fills = float(prefill), 0, 0.0, []
-    for t, size in zip(times.tolist(), sizes.tolist()):
-        arrived = min(arrived + budget.rate * (t - clock), taken + budget.usable, total)
-        clock = t
-        fills.append(arrived - taken)
-        taken += size
+    taken = np.concatenate([[0], np.cumsum(sizes[:-1])]).tolist()
+    sent = min(-(-prefill // budget.payload) * budget.payload, total)
+    fills, refilled, back, since = [], math.inf, 0, 0  # back: records read by lag_s before; since: the first after
+    for t, c in zip(times.tolist(), taken):
+        while times[back] <= t - budget.lag_s:
+            refilled = min(refilled, taken[back] + budget.usable - budget.rate * times[back])
+            back += 1
+        while times[since] < t - budget.lag_s:
+            since += 1
+        arrived = min(sent - budget.payload + budget.rate * t, budget.kept + taken[since], refilled + budget.rate * t,
+                      total)
+        fills.append(arrived - c)
     return np.array(fills)
 
 
@@ -40,7 +49,7 @@ def test_a_steady_stream_under_the_rate_needs_a_small_prefill_and_never_runs_dry
     for lo in range(0, 20000, 5000):
         assert ring.add(times[lo:lo + 5000], sizes[lo:lo + 5000]) == []
     prefill, low = ring.result(int(sizes.sum()) + budget.need)
-    assert budget.need <= prefill <= budget.need + 6 + 2 * budget.payload
+    assert budget.need <= prefill <= budget.need + 6 + 3 * budget.payload  # a frame on the line, two of margin
     fills = direct_fill(times, sizes, budget, prefill)
     assert fills.min() >= budget.need
     assert low == pytest.approx(fills[: len(fills) - budget.ring_bytes // 6].min(), abs=1)
@@ -56,7 +65,7 @@ def test_a_burst_the_ring_can_absorb_is_met_by_the_prefill():
     assert prefill >= 180
     margin = 2 * budget.payload
     assert direct_fill(times, sizes, budget, prefill)[:40].min() >= budget.need + margin  # the burst and after
-    assert direct_fill(times, sizes, budget, prefill - margin - 7).min() < budget.need  # and no less would do
+    assert direct_fill(times, sizes, budget, prefill - margin - budget.payload).min() < budget.need  # a frame less: dry
 
 
 def test_a_stretch_denser_than_the_link_is_a_shortfall_with_the_time_it_lacks():
@@ -66,8 +75,10 @@ def test_a_stretch_denser_than_the_link_is_a_shortfall_with_the_time_it_lacks():
     short = ring.add(times, np.full(2000, 6))[0]
     assert 0 <= short.begin_s < short.end_s < 2.0
     bytes_in_stretch = 6 * (round(short.end_s * 1000) - round(short.begin_s * 1000))
-    # Slowed by extra_s, the stretch fits what the link carries plus the ring.
-    assert bytes_in_stretch <= budget.rate * (short.end_s - short.begin_s + short.extra_s) + budget.usable
+    # More than the link carries in it from the level the refill counts from; slowed by extra_s, no more than the
+    # link carries plus what the host keeps in the ring.
+    assert budget.rate * (short.end_s - short.begin_s) + budget.usable < bytes_in_stretch
+    assert bytes_in_stretch <= budget.rate * (short.end_s - short.begin_s + short.extra_s) + budget.kept
 
 
 @pytest.mark.parametrize("baud", [1200, 2400])
@@ -114,19 +125,20 @@ def test_a_machine_without_program_is_enough_for_the_streaming_firmware_only(tmp
     assert "3:16: error: machine.link.baud: must be > 0" in caught.value.render()
 
 
-def test_the_host_keeps_the_ring_less_a_frame_and_what_the_link_carries_while_the_refill_waits():
-    """usable = ring - (payload - 1) - rate x latency: the at89c52's 63 bytes at 9600 baud in 8-byte frames with
-    window updates (latency: an ACK and its answer, 12 byte times, and a 14-byte frame); the seed-51's 255 in
-    31-byte frames; the RAMPS board's 7805 at 250000 baud in 128-byte frames, refilled after a ping (10 ms, the
-    ping's 6 bytes, the ACK's 12, the frame's 134)."""
+def test_the_host_keeps_the_ring_less_a_frame_and_counts_the_refill_two_acks_and_two_frames_late():
+    """kept = ring - (payload - 1); usable = kept - payload / frame x refill_byte_times (host.py): the at89c52's 63
+    bytes at 9600 baud in 8-byte frames with window updates (two ACKs and their answers, 12 byte times each, two
+    14-byte frames, a fallback ping's 6 bytes); the seed-51's 255 in 31-byte frames; the RAMPS board's 7805 at
+    250000 baud in 128-byte frames, refilled after a ping (10 ms, the ping's 6 bytes, two ACKs, the frame's
+    134)."""
     at89 = link_budget(9600, 63, 2, window_updates=True)
-    assert (at89.payload, at89.refill_latency_s * 960, at89.usable) == (8, pytest.approx(26), 41)
-    assert at89.usable == int(63 - 7 - at89.rate * 26 / 960)
+    assert (at89.payload, at89.refill_byte_times, at89.kept, at89.usable) == (8, 58, 56, 22)
+    assert at89.usable == int(56 - 8 / 14 * 58) and at89.lag_s == pytest.approx((56 - 22) / at89.rate)
     seed = link_budget(9600, 255, 2, window_updates=True)
-    assert (seed.payload, seed.refill_latency_s * 960, seed.usable) == (31, pytest.approx(49), 185)
+    assert (seed.payload, seed.refill_byte_times, seed.kept, seed.usable) == (31, 104, 225, 137)
     ramps = link_budget(250000, 7805, 4)
-    assert (ramps.payload, ramps.refill_latency_s * 25000, ramps.usable) == (128, pytest.approx(402), 7305)
-    assert link_budget(9600, 63, 2).usable == 11  # pings alone: 50 ms late, the ring holds no more than a record
+    assert (ramps.payload, ramps.refill_byte_times, ramps.usable) == (128, pytest.approx(414), 7282)
+    assert link_budget(9600, 63, 2).usable == 3  # pings alone: 50 ms late, the refill counts from 3 bytes
 
 
 def test_the_lowest_fill_counts_each_record_before_the_last_ring_of_the_stream():
@@ -144,7 +156,8 @@ def test_the_lowest_fill_counts_each_record_before_the_last_ring_of_the_stream()
 def test_a_ring_the_slowed_plan_cannot_keep_fed_is_refused_with_its_size_and_what_would_help():
     job = load_job(EXAMPLES / "plotter-set-51.yaml")
     with pytest.raises(BuildError, match=r"the link at 1200 baud cannot keep the streaming player's ring of 63 "
-                                         r"bytes \(the host keeps 41 of them filled\) fed between [0-9.]+ and [0-9.]+ "
+                                         r"bytes \(the host keeps 56 of them filled, 22 after the refill's lag\) fed "
+                                         r"between [0-9.]+ and [0-9.]+ "
                                          r"s into the job, even slowed 15 times: a board with a larger ring \(XRAM\), "
                                          r"a faster link \(machine.link.baud\), or a larger machine.tolerance"):
         host_build(job, link=link_budget(1200, 63, 2, window_updates=True))

@@ -77,6 +77,26 @@ def test_circle_speed_keeps_centripetal_acceleration_within_motor_limits():
     assert middle ** 2 / r >= 0.8 * a * 0.99
 
 
+def test_unequal_chords_on_a_circle_keep_its_radius():
+    """Chords of alternating lengths (0.2 and 1 mm) on a circle: each vertex's curvature is the circle's, so the
+    long chords go as fast as the centripetal limit allows, no slower (as if every chord were the short one)."""
+    r, a = 10.0, 3000 * KEEP
+    angles = np.cumsum(np.tile([2 * math.asin(0.1 / r), 2 * math.asin(0.5 / r)], 30))
+    points = [(r * math.cos(t), r * math.sin(t)) for t in np.concatenate([[0.0], angles])]
+    _, _, _, p = planned(polyline(points, feed=1e9))
+    middle = p.v_peak[20:40]
+    assert np.all(middle ** 2 / r <= 0.8 * a * math.sqrt(2) * 1.001)
+    assert np.all(middle ** 2 / r >= 0.8 * a * 0.99)
+
+
+def test_a_blip_of_a_chord_does_not_slow_the_long_move_beside_it():
+    """`G1 X10 / G1 X10.001 / G1 X20 Y-1` at F3600: the 0.1 rad turn after a 1 um chord is a corner (junction
+    deviation), not a curve of radius 10 um; Klipper goes through at 60 mm/s too."""
+    _, _, _, p = planned(polyline([(0, 0), (10, 0), (10.001, 0), (20, -1)], feed=60))
+    assert p.v_peak[2] == pytest.approx(60)
+    assert p.v_exit[1] == pytest.approx(60)
+
+
 def test_passes_respect_acceleration_between_every_junction():
     rng = np.random.default_rng(7)
     pts = np.cumsum(rng.uniform(-3, 3, size=(300, 2)), axis=0)
