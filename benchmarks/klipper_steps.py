@@ -42,9 +42,9 @@ G1 Z1 F600 / G4 P200 / G1 X20 Y20 F9000 / G3 X40 Y20 I10 J0 E2 F1800`.
   min(P, T) = 1250), retractions +16.4 s (R = 1250 for us, max_extrude_only_accel 5000 for Klipper), z
   +6.1 s. With --same-limits (M204/M205 left out on both sides: the same junction deviation at 2500
   mm/s^2): 2127.6 s against 2092.5 s, drift +35.1 s: extruding moves +55.0 s, z -8.9 s, retractions
-  -6.4 s, travels -4.6 s. The largest gains of a single line (0.3-1.7 s) are a bug of ours: a straight
-  move next to a short one that turns takes the curvature of their vertex (codegen/motion/planner.py,
-  `kappa` of both neighbours of a vertex) and is capped by its centripetal limit along its whole length.
+  -6.4 s, travels -4.6 s. The largest gains of a single line (0.3-1.7 s) were a bug of ours, fixed since (now
+  2389.1 s, drift +92.5 s): a straight move next to a short one that turned took the curvature of their vertex
+  over the shorter chord (now the mean) and was capped by its centripetal limit along its whole length.
   `G28 / G1 X10 F3600 / G1 X10.001 / G1 X20 Y-1`: the last move takes us 2.26 s (x at 2.2-2.3 ms a step,
   4.4 mm/s) against Klipper's 0.187 s at 60 mm/s; without the 0.001 mm move, or with X20 instead of X20
   Y-1, both take the same. Benchy line 22648 (10.3 mm after the 0.001 mm `G1 X77.484 Y78.67 E.00006`):
