@@ -163,9 +163,12 @@ def advanced_extruder(breaks: np.ndarray, position: np.ndarray, velocity: np.nda
     triangle's half width before the plan's first break to as far after its last. The plan's extruder pieces:
     `breaks` (K + 1,), `position`, `velocity`, `accel` (K,), `origin` their segments. `smooth`: whether it is
     smoothed (None: `smooths`); if not, it is the nominal extruder, the plan's pieces."""
-    if not (smooths(origin, segments) if smooth is None else smooth):
-        return Quadratics(breaks, position, velocity, accel)
     half = settings.half
+    if not (smooths(origin, segments) if smooth is None else smooth):  # resting as far on either side as g does
+        end = Quadratics(breaks, position, velocity, accel).end
+        return Quadratics(np.concatenate([[breaks[0] - half], breaks, [breaks[-1] + half]]),
+                          np.concatenate([[position[0]], position, [end]]), np.concatenate([[0.0], velocity, [0.0]]),
+                          np.concatenate([[0.0], accel, [0.0]]))
     f = advanced_source(breaks, position, velocity, accel, origin, segments, half)
     quartic = np.unique((breaks[:, None] + np.array([-half, 0.0, half])[None, :]).ravel())
     begin, length = quartic[:-1], np.diff(quartic)

@@ -177,6 +177,17 @@ def test_k_0_first_then_m900_later_is_held_to_the_formula_the_host_played(tmp_pa
     assert check.worst[0] <= 1.0
 
 
+def test_k_0_with_a_first_window_shorter_than_the_delay_builds(tmp_path):
+    """K 0 plays the nominal extruder on a clock half a smoothing time late; a first window (a 0.37 mm travel,
+    0.02 s) that ends before that clock begins was an empty stretch, and shaped_blocks failed (IndexError). The
+    nominal extruder rests a half width either side, as the smoothed one does."""
+    gcode = "G0 X0.250 Y36.722\nG2 X0.2496 Y36.7215 I0.4534 J0.2751\n"
+    text = job_text(gcode, "{k: 0}").replace("start: [10, 10]", "start: [0, 37]")
+    host = built(tmp_path, text)
+    assert host.findings.ok, host.findings.problems
+    assert host.totals.windows >= 2 and host.findings.steps["e"] == 0
+
+
 @pytest.mark.parametrize("text, message", [
     ("{k: -0.1}", "machine.pressure_advance.k: must be >= 0"),
     ("{k: 0.05, smooth_time: 0.3}", "machine.pressure_advance.smooth_time: must be > 0 and <= 0.2 (s, Klipper's "
