@@ -110,15 +110,18 @@ def test_the_quadratic_pieces_stay_within_their_tolerance_of_the_formula(seed, k
 
 
 def test_k_0_everywhere_leaves_the_nominal_extruder():
-    """As Klipper's smoothing time is 0 with K 0: the plan's own pieces, and a reference of half width 0 (g = e);
-    told to smooth (a window after one with K), the same pieces are smoothed."""
+    """As Klipper's smoothing time is 0 with K 0: the plan's own pieces, resting a half width either side (as far
+    as g reaches), and a reference of half width 0 (g = e); told to smooth (a window after one with K), the same
+    pieces are smoothed."""
     plan = continuous([0.1, 0.2, 0.1], [0.0, 5.0, 5.0], [50.0, 0.0, -50.0])
     moves = np.array([[10.0, 0, 0, 1.0]] * 3)
     segments = segments_of(moves, np.zeros(3))
     advance = AdvanceSettings(0.04, FIT_STEPS / STEPS_PER_MM)
     args = (plan.breaks, plan.position, plan.velocity, plan.accel, np.arange(3), segments)
     nominal = advanced_extruder(*args, advance)
-    assert np.array_equal(nominal.breaks, plan.breaks) and np.array_equal(nominal.accel, plan.accel)
+    assert np.array_equal(nominal.breaks[1:-1], plan.breaks) and np.array_equal(nominal.accel[1:-1], plan.accel)
+    assert nominal.breaks[[0, -1]] == pytest.approx([-0.02, 0.42]) and np.array_equal(nominal.at(t := np.linspace(
+        -0.1, 0.5, 61)), plan.at(t))
     reference = advance_reference(*args, advance.half, 0.02)
     t = np.linspace(-0.1, 0.5, 61)
     assert reference.half == 0.0 and np.array_equal(smoothed(reference.source, t, reference.half), plan.at(t))
