@@ -1,4 +1,4 @@
-"""Property tests: random machines and programs on both table formats (tests/jobgen.py). A job the loader
+"""Property tests: random machines and programs on both table formats (tests/jobgen/). A job the loader
 accepts builds with every check passing, or is refused with a positioned error (exit 2) or a size error (exit 1).
 
 The short profile here is derandomized (the same ~200 examples on every run, about 35 per kinematics and
