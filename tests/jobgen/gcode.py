@@ -84,8 +84,8 @@ class _GState:
 
 
 @st.composite
-def gcode(draw, machine: Drawn):
-    """A G-code program: see the module's docstring."""
+def gcode(draw, machine: Drawn, issue29: bool = True):
+    """A G-code program: see the module's docstring (`issue29`: with M593, M900 and M572)."""
     box, extruder = machine.box, machine.extruder
     lines = [draw(st.sampled_from(["G21", "G21 G90", "G90"]))]
     if extruder:
@@ -125,8 +125,8 @@ def gcode(draw, machine: Drawn):
         return text
 
     for _ in range(draw(st.integers(1, 7))):
-        kind = draw(st.sampled_from(["G0", "G1", "G1", "arc", "arc", "arc", "G91", "G20", "G92", "misc", "grbl",
-                                     "M593", "advance"]))
+        kind = draw(st.sampled_from(["G0", "G1", "G1", "arc", "arc", "arc", "G91", "G20", "G92", "misc", "grbl"]
+                                    + (["M593", "advance"] if issue29 else [])))
         if kind == "M593":
             lines.append(draw(m593(machine)))
         elif kind == "advance":

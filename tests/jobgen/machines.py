@@ -143,8 +143,8 @@ def _axis_speeds(kinematics: str, vmax: dict) -> dict:
 
 
 @st.composite
-def machines(draw, kinematics: str):
-    """A Drawn machine of the kinematics."""
+def machines(draw, kinematics: str, issue29: bool = True):
+    """A Drawn machine of the kinematics; `issue29`: some with input shapers and pressure advance."""
     three = kinematics == "delta" or draw(st.booleans())
     extruder = draw(st.integers(0, 4)) == 0
     names = {"cartesian": ("x", "y", "z"), "corexy": ("a", "b", "z"), "delta": ("a", "b", "c")}[kinematics]
@@ -188,9 +188,9 @@ def machines(draw, kinematics: str):
     if delta:
         text.append(delta)
     drawn = Drawn("", box, extruder)
-    if draw(st.integers(0, 3)) == 3:
+    if issue29 and draw(st.integers(0, 3)) == 3:
         text += _input_shaper(draw, drawn, _axis_speeds(kinematics, vmaxes))
-    if extruder and draw(st.booleans()):
+    if issue29 and extruder and draw(st.booleans()):
         drawn.advance = True
         k = draw(st.one_of(st.sampled_from([0.0, 0.02, 0.05, 0.5]), st.floats(0, 0.5).map(lambda v: num(v, 2))))
         smooth = f", smooth_time: {num(draw(mixed([0.01, 0.04, 0.2], 0.001, 0.2)))}" if draw(st.booleans()) else ""

@@ -19,9 +19,10 @@ from tests.jobgen.shapes import points, shape
 
 
 @st.composite
-def jobs(draw, kinematics: str, target: str):
-    """A whole job file's text."""
-    machine = draw(machines(kinematics))
+def jobs(draw, kinematics: str, target: str, issue29: bool = True):
+    """A whole job file's text; `issue29`: with input shapers, pressure advance, M593, M900 and M572 (machines.py,
+    gcode.py)."""
+    machine = draw(machines(kinematics, issue29))
     box = machine.box
     program = ["program:"]
     if draw(st.integers(0, 3)) == 0:
@@ -35,7 +36,7 @@ def jobs(draw, kinematics: str, target: str):
         program.append(f"  travel_feed: {num(draw(mixed([600, 3000, 12000], 60, 60000)))}")
     if draw(st.integers(0, 2)) == 0:
         program.append("  gcode: |")
-        program += ["    " + line for line in draw(gcode(machine)).splitlines()]
+        program += ["    " + line for line in draw(gcode(machine, issue29)).splitlines()]
     else:
         program.append("  shapes:")
         program += ["    " + draw(shape(box)) for _ in range(draw(st.integers(1, 3)))]
