@@ -1,4 +1,4 @@
-"""The long profile of the property tests (tests/jobgen.py): many random jobs per kinematics and table format,
+"""The long profile of the property tests (tests/jobgen/): many random jobs per kinematics and table format,
 every outcome counted, every failure class shrunk to a minimal job file.
 
     python scripts/property_run.py [--examples 5000] [--kinematics delta] [--target mcs51] [--out /tmp/propfind]
@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from tests.jobgen import KINEMATICS, TARGETS, Bug, jobs, outcome  # noqa: E402
 
 NUMBER = re.compile(r"(?<![\w.])-?\d+\.\d+|(?<![\w.])-?\d{2,}(?![\w.])")
-OPTIONAL = re.compile(r", (feed|z|from|rotation|start|phase|invert_dir|range|tower_angles|direction|travel_feed)"
-                      r": (\[[^\]]*\]|[^,}\]]+)")
+OPTIONAL = re.compile(r", (feed|z|from|rotation|start|phase|invert_dir|range|tower_angles|direction|travel_feed|damping|"
+                      r"smooth_time): (\[[^\]]*\]|[^,}\]]+)")
 
 
 def _fails_with(text: str, key: str) -> bool:

@@ -104,7 +104,7 @@ def test_r_arcs_near_the_diameter_property(folder, r, over, direction, code, lon
 @pytest.mark.parametrize("arc", [FOUND, "G3 X-3 Y2 R1.5", "G2 X-3 Y2 R1.5", "G2 X-3.008 Y2 R1.5",
                                  "G3 X-2.9 Y2.5 R-1.5"])
 def test_arcs_on_coarse_chords_keep_to_their_feed(tmp_path, arc):
-    """The property run's invariant (tests/jobgen.py): built, every check passed, the tables held against the
+    """The property run's invariant (tests/jobgen/): built, every check passed, the tables held against the
     G-code's second reading."""
     assert outcome(COARSE % arc, tmp_path) == "built"
 
