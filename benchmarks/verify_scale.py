@@ -72,8 +72,11 @@ def kind(command: str) -> str:
 def measure(job: Path, out: Path) -> dict:
     """verify --stream --json of `job` in a child process, sampled."""
     began = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "codegen", "verify", str(job), "--stream", "--json", "--quiet",
-                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=ROOT)
+    out.mkdir(parents=True, exist_ok=True)
+    report = out.parent / f"{out.name}-verify.json"  # a file, not a pipe: a long run's JSON fills a pipe's 64 KiB
+    with report.open("wb") as sink:
+        proc = subprocess.Popen([sys.executable, "-m", "codegen", "verify", str(job), "--stream", "--json", "--quiet",
+                                 "--out", str(out)], stdout=sink, stderr=subprocess.DEVNULL, cwd=ROOT)
     peak_one = peak_sum = 0
     cpu: dict[int, tuple[str, float]] = {}
     peaks: dict[str, int] = {}  # by kind of process: the verb's, the comparing one, the simulator...
@@ -88,7 +91,7 @@ def measure(job: Path, out: Path) -> dict:
                     for pid, (command, _, seconds) in sample.items()})      # no command line any more
         time.sleep(0.1)
     wall = time.perf_counter() - began
-    result = json.loads(proc.stdout.read() or "{}")
+    result = json.loads(report.read_text() or "{}")
     shares = {"simulator": 0.0, "python": 0.0, "other": 0.0}
     others: dict[str, float] = {}
     for command, seconds in cpu.values():
