@@ -36,28 +36,49 @@ def link_slow_down(plan, shortfalls: list[Shortfall], record_segment: np.ndarray
     return speed, accel
 
 
-def slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list):
+def slow_down(plan, event_segment: np.ndarray, pulses: Pulses, hits: list, tick_hz: float,
+              reach: float | None = None):
     """The share of their peak speed and acceleration the segments under a stretch over a limit keep
-    (None where the checks found nothing); `event_segment`: the window's segment of every event."""
+    (None where the checks found nothing); `event_segment`: the window's segment of every event. `reach` (s):
+    a shaped window's shapers' spread (None: unshaped). Its pulses at a moment t come from the plan between
+    t - reach and t, so the segments there are slowed (those under the events would miss a stretch the shaper
+    delays)."""
     if not any(len(rate[0]) or len(accel[0]) for rate, accel in hits):
         return None
     n = len(plan.duration)
     speed, accel = np.ones(n), np.ones(n)
+
+    def under(begin: float, end: float) -> slice:
+        first, last = np.searchsorted(plan.t_start, [begin - (reach or 0.0), end], side="right") - 1
+        return slice(max(first - 1, 0), last + 2)
+
     for m, ((rate_end, rate_ratio), (begin, accel_ratio)) in enumerate(hits):
-        mine = event_segment[pulses.event[pulses.motor == m]]
+        events = pulses.event[pulses.motor == m]
         for end, ratio in zip(rate_end, rate_ratio):
-            span = slice(max(mine[max(end - RATE_WINDOW, 0)] - 1, 0), mine[end] + 2)
+            first = events[max(end - RATE_WINDOW, 0)]
+            if reach is None:
+                span = slice(max(event_segment[first] - 1, 0), event_segment[events[end]] + 2)
+            else:
+                span = under(pulses.event_tick[first] / tick_hz, pulses.event_tick[events[end]] / tick_hz)
             speed[span] = np.minimum(speed[span], RETRY_SHARE / ratio)
         for t, ratio in zip(begin, accel_ratio):
-            first, last = np.searchsorted(plan.t_start, [t, t + 2 * ACCEL_WINDOW_S], side="right") - 1
-            span = slice(max(first - 1, 0), last + 2)
+            span = under(t, t + 2 * ACCEL_WINDOW_S)
             speed[span] = np.minimum(speed[span], np.sqrt(RETRY_SHARE / ratio))  # bends: v^2
             accel[span] = np.minimum(accel[span], RETRY_SHARE / ratio)
     return None if np.all(speed == 1.0) and np.all(accel == 1.0) else (speed, accel)
 
 
-def reaches_back(hits: list, t0: float) -> bool:
+def reaches_back(hits: list, t0: float, pulses: Pulses, tick_hz: float, reach: float | None = None) -> bool:
     """Whether a stretch over a limit begins before the window (at `t0`): its first of 8 steps, or its first
-    20 ms, in the window before. Only then is that window played again with this one: a stretch of this window's
-    own is slowed in it alone, so a long program whose every window is slowed once takes time in proportion."""
-    return any(np.any(rate_end < RATE_WINDOW) or np.any(begin < t0) for (rate_end, _), (begin, _) in hits)
+    20 ms, in the window before (for a shaped window, `reach` s earlier: slow_down's). Only then is that window
+    played again with this one: a stretch of this window's own is slowed in it alone, so a long program whose
+    every window is slowed once takes time in proportion."""
+    back = reach or 0.0
+    for m, ((rate_end, _), (begin, _)) in enumerate(hits):
+        if np.any(rate_end < RATE_WINDOW) or np.any(begin - back < t0):
+            return True
+        if back and len(rate_end):
+            first = pulses.event[pulses.motor == m][rate_end - RATE_WINDOW]
+            if np.any(pulses.event_tick[first] / tick_hz - back < t0):
+                return True
+    return False

@@ -187,18 +187,25 @@ class Stages:
         before = self.carried
         out = []
         played, carried, scale = self._attempt(window, after, last, before)
-        # Play the open window and this one again (not across the rest between two eras of the shapers).
-        if (scale is not None and scale[3] and self.open is not None
-                and self.open[0].window.segments.shaping[-1] == window.segments.shaping[0]):
-            open_window = self.open[0].window if self.open[0].planned is None else self.open[0].planned
-            window, before = merge(open_window, window), self.open[1]
-            self.open = None
-            played, carried, scale = self._attempt(window, after, last, before)
         w_exit, rounds = None, 0
-        while scale is not None and rounds < (RATE_ROUNDS if scale[2] is None else LINK_ROUNDS) - 1:
+        while scale is not None:
+            # Play the open window and this one again where a stretch reaches back into it (not across the rest
+            # between two eras of the shapers): a slowed window keeps its entry speed, which the one before set.
+            if (scale[3] and self.open is not None
+                    and self.open[0].window.segments.shaping[-1] == window.segments.shaping[0]):
+                open_window = self.open[0].window if self.open[0].planned is None else self.open[0].planned
+                window, before = merge(open_window, window), self.open[1]
+                self.open = None
+                played, carried, scale = self._attempt(window, after, last, before)
+                continue
+            if rounds >= (RATE_ROUNDS if scale[2] is None else LINK_ROUNDS) - 1:
+                break
             rounds += 1
             was = window.plan.total
-            window, w_exit = self._plan_again(window, *scale[:2])
+            # A stretch still over after a few rounds is slowed harder (each round's share squared, cubed ...):
+            # where the shaper mixes the plan's times, slowing by the overshoot alone can leave it a few % over.
+            harder = 1 + rounds // 3
+            window, w_exit = self._plan_again(window, scale[0] ** harder, scale[1] ** harder)
             if scale[2] is not None:
                 self.totals.link_slowdown_s += window.plan.total - was
             played, carried, scale = self._attempt(window, after, last, before)
@@ -320,7 +327,8 @@ class Stages:
                            None if shaped is None or era_ends else shaped.tail)
         # Limits are kept by slowing the plan's segments: a shaped piece's are the one under it.
         planned_segment = event_segment - shift if shaped is None else shaped.origin[event_segment - shift]
-        scale = slow_down(planned.plan, planned_segment, pulses, hits)
+        reach = None if shaped is None else shaping.spread
+        scale = slow_down(planned.plan, planned_segment, pulses, hits, target.tick_hz, reach)
         if ring is not None:
             with watch("link"):
                 reads, sizes, record_event = _record_reads(compressed.schedule, pulses, before.origin_fx,
@@ -330,7 +338,8 @@ class Stages:
                 record_segment = planned_segment[np.minimum(record_event, len(event_segment) - 1)]
                 return played, carried, (*link_slow_down(planned.plan, shortfalls, record_segment, sizes,
                                                                ring.budget.rate), shortfalls[0], True)
-        return played, carried, None if scale is None else (*scale, None, reaches_back(hits, window.plan.t_start[0]))
+        back = scale is not None and reaches_back(hits, planned.plan.t_start[0], pulses, target.tick_hz, reach)
+        return played, carried, None if scale is None else (*scale, None, back)
 
     def _note_extruder_limits(self, hits: list, pulses: Pulses, planned: Window, shift: float) -> None:
         """Where the advanced extruder breaks its rate or acceleration (the window is then planned again, slower):
@@ -349,11 +358,13 @@ class Stages:
             self.totals.advance_slowed_line = int(planned.segments.line[segment])
 
     def _advance_worst(self, shaped, pulses: Pulses, position: np.ndarray) -> tuple[float, float, int]:
-        """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`)."""
+        """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`), each at
+        its event's planned time: a slow block load makes a pulse late, which the timing check allows for."""
         e = self.kin.motors.index("e")
-        tick, direction = pulses.of_motor(e)
-        after = self.checker.start_steps[e] + position[e] + np.cumsum(direction)
-        return shaped.advance.worst(tick / self.target.tick_hz, direction, after, self.kin.limits.steps_per_mm[e])
+        mine = pulses.motor == e
+        after = self.checker.start_steps[e] + position[e] + np.cumsum(pulses.dir[mine])
+        return shaped.advance.worst(shaped.events.time[pulses.event[mine]], pulses.dir[mine], after,
+                                    self.kin.limits.steps_per_mm[e])
 
     def _plan_again(self, window: Window, speed: np.ndarray, accel: np.ndarray) -> tuple[Window, float]:
         """The window with its segments slowed: the same entry speed, an exit no faster than before (v^2)."""

@@ -2,14 +2,16 @@
 
 The tables carry the advanced extruder as the host fitted it (codegen/motion/advance.py); this check does not
 read that fit. It takes the plan before shaping (the segments with their K), evaluates the formula exactly at
-every simulated extruder pulse (on the plan's clock: the shaped clock less its delay) and measures how far it
-lies from the extruder's position there (the nearer of the positions before and after the pulse,
+every simulated extruder pulse's planned time (its twin pulse's event, on the plan's clock: the shaped clock less
+its delay; the timing check holds the pulse to that time, late block loads and all) and measures how far it lies
+from the extruder's position there (the nearer of the positions before and after the pulse,
 `AdvanceReference.worst`). It holds within a step: a step made where the formula crosses the half step is 0 off;
 the blocks' chords (half a step from the motion at most) and the Bresenham coupling of a slave (about half a step
-more) move a pulse by less than a step and a half. A kept build's whole plan gives the formula (`host.planned`), nominal (K 0 throughout so far) up to where the host
-first smoothed each era's extruder (`Totals.smoothed_from`, codegen/motion/advance.py);
-verify in bounded memory has each window's, its chapter's windows' (`Chapter.advance`), each for the pulses of its
-own stretch. A held run's clock is dilated, so it is not checked there.
+more) move a pulse by less than a step and a half. A kept build's whole plan gives the formula (`host.planned`),
+nominal (K 0 throughout so far) up to where the host first smoothed each era's extruder (`Totals.smoothed_from`,
+codegen/motion/advance.py); verify in bounded memory has each window's, its chapter's windows'
+(`Chapter.advance`), each for the pulses of its own stretch. A held run's clock is dilated, so it is not checked
+there.
 """
 
 from __future__ import annotations
@@ -33,12 +35,15 @@ class AdvanceCheck:
         self.worst = (0.0, 0.0, 0)  # steps, when (s), G-code line
 
     def add(self, time: np.ndarray, motor: np.ndarray, direction: np.ndarray,
-            references: list[AdvanceReference] | None = None) -> None:
-        """`references`: the chapter's windows' formulas (None: the whole program's)."""
+            references: list[AdvanceReference] | None = None, planned: np.ndarray | None = None) -> None:
+        """`references`: the chapter's windows' formulas (None: the whole program's); `planned` (s): the planned
+        time of each of the extruder's pulses (its twin pulse's event), where the formula is evaluated (None: at
+        the simulated times). A pulse the player makes late, as a slow block load allows (the timing check
+        holds it to its own rule), is held at the time it was meant for."""
         mine = motor == self.motor
         if not np.any(mine):
             return
-        time, direction = time[mine], direction[mine]
+        time, direction = (time[mine] if planned is None else planned), direction[mine]
         after = self.position + np.cumsum(direction)
         self.position = int(after[-1])
         for reference in references or self.references:

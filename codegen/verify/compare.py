@@ -136,7 +136,9 @@ class Comparison:
         self.paired = self.paired and counts_agree
         matched = matched and self.paired
         if self.advance is not None:
-            self.advance.add(sim_s, sim.motor, sim.dir, chapter.advance)
+            theirs = twin.motor == self.advance.motor
+            planned = chapter.events.time[twin.event[theirs]] if matched else None
+            self.advance.add(sim_s, sim.motor, sim.dir, chapter.advance, planned)
         if len(twin.event_position):
             self.twin_final = twin.event_position[-1].copy()  # not a view: the chapter's arrays go
         if len(twin.event):  # pulses come in event order: the first and the last event that steps

@@ -22,6 +22,8 @@ times, raises its own allowance and passes them. These two rules are stated here
   The events after it in its block catch up (at no more than the motors' rates: a block at their limit takes a
   while): none comes later than the block's first did, over both their windows, and the block's last comes within
   its window (the planner leaves every block the time to make up its load: codegen/motion/planner.py catch_up_time).
+  A shaped build's blocks are chords of the shaped motion, not the plan's segments, so that time is not theirs:
+  there a block's last event may still lag (as much as its first), and the next block's load adds to that lag.
 
 Both run a chapter at a time (codegen/verify/chapters.py), in numpy, carrying a few numbers from chapter to chapter.
 """
@@ -149,7 +151,8 @@ class PlanChecks:
         first, last = chapter.events.block_first[:-1], chapter.events.block_first[1:] - 1
         late = played[first] - planned[first]  # a block's load, and its block's events catching up after it
         load = np.repeat(np.where(late > window[first], late + window[first], 0.0), last - first + 1)
-        load[last] = 0.0
+        if not self.shaped:  # the planner left the block the time to catch up (a shaped one's are not its segments)
+            load[last] = 0.0
         catching_up = (load > 0) & (played > planned)
         ratio[catching_up] = np.maximum(played - planned - load, 0.0)[catching_up] / window[catching_up]
         ratio[first[late > 0]] = 0.0

@@ -56,6 +56,16 @@ class MachineGeometry:
             coords = xyz
         return np.round(coords[:, :len(self.index)] * self.spm).astype(np.int64)
 
+    def motor_per_mm(self, xyz: np.ndarray) -> np.ndarray:
+        """(len(index),) the most mm each motor moves per mm of the tool near point `xyz` (3,): a corexy belt
+        sqrt(2) (it sums x and y); a delta's carriage rod / height over the tool (its horizontal reach tilts the
+        rod: more near the edge)."""
+        if self.kind == "delta":
+            reach = xyz[None, :2] - self.towers
+            height = np.sqrt(np.maximum(self.rod ** 2 - np.sum(reach * reach, axis=1), 1e-12))
+            return np.maximum(self.rod / height, 1.0)[:len(self.index)]
+        return np.full(len(self.index), math.sqrt(2.0) if self.kind == "corexy" else 1.0)
+
     def tool(self, steps: np.ndarray) -> np.ndarray | None:
         """(N, len(index)) steps -> (N, 3) mm on a linear machine (None on a delta); a missing z stays 0."""
         if self.kind == "delta":
@@ -94,8 +104,6 @@ class ProgramCheck:
         self.tolerance = host.settings.stages.tolerance_mm
         self.smoothing = float(host.findings.smoothing_mm or 0.0) if host.shaped else 0.0  # mm
         self.spread = max((s.spread for s in host.shapings if s is not None), default=0.0)  # s, the longest era's
-        motor_per_mm = math.sqrt(2.0) if self.geometry.kind == "corexy" else 1.0  # a belt sums x and y
-        self.end_slack = STEP_SLACK + self.smoothing * motor_per_mm * self.geometry.spm  # steps, per motor
         self.moves: dict[int, Move] = {}
         self.dwells: dict[int, Dwell] = {}
         self.open_run: tuple | None = None  # (line, position, time) of the last run so far: it may go on
@@ -154,7 +162,9 @@ class ProgramCheck:
             return
         want = self.geometry.steps(np.array([move.end]))[0]
         self.checked["ends"] += 1
-        if np.any(np.abs(position - want) > self.end_slack):
+        # The shaped tool's distance from the planned one, in each motor's steps there.
+        slack = STEP_SLACK + self.smoothing * self.geometry.motor_per_mm(np.array(move.end)) * self.geometry.spm
+        if np.any(np.abs(position - want) > slack):
             self.problems.append(
                 f"{_at(move)}: the tables end the move at steps {_steps(self.geometry, position)} where the "
                 f"program's end, {_mm(move.end)} in machine mm, gives {_steps(self.geometry, want)}" + _offsets(move))
@@ -196,13 +206,16 @@ class ProgramCheck:
                                  f"turns {math.degrees(sweep):.1f}")
 
     def _dwells(self, segments, duration: np.ndarray) -> None:
-        """Each G4's dwell in the plan lasts what its line says."""
+        """Each G4's dwell in the plan lasts what its line says; shaped, within the shapers' spread either way: the
+        shaped motion of the moves beside it runs into it, and where they do not move (or the program ends there)
+        the shaped tool's rest takes in their time."""
         for k in np.flatnonzero(segments.dwell > 0):
             dwell = self.dwells.pop(int(segments.line[k]), None)
             if dwell is None:
                 continue
             self.checked["dwells"] += 1
-            if not dwell.seconds - self.spread - DWELL_SLACK_S <= float(duration[k]) <= dwell.seconds + DWELL_SLACK_S:
+            low, high = dwell.seconds - self.spread - DWELL_SLACK_S, dwell.seconds + self.spread + DWELL_SLACK_S
+            if not low <= float(duration[k]) <= high:
                 self.problems.append(f"{_at(dwell)}: the plan dwells {float(duration[k]):.4f} s where the "
                                      f"program's G4 says {dwell.seconds:.4f} s")
 

@@ -86,6 +86,14 @@ def test_decelerating_the_extruder_turns_back_and_the_summary_says_how_close(tmp
            "steps of the formula" in human_plan(summary)
 
 
+def extruder_pulses(host) -> tuple:
+    """The twin's extruder pulses as AdvanceCheck.add takes them (verify's simulated ones in its place): played
+    times (s), motors, directions, and each one's planned time, where the formula is read."""
+    mine = host.pulses.motor == host.kin.motors.index("e")
+    return (host.pulses.tick[mine] / host.target.tick_hz, host.pulses.motor[mine], host.pulses.dir[mine],
+            None, host.events.time[host.pulses.event[mine]])
+
+
 def scaled(segments: Segments, factor: float) -> Segments:
     return segments.take(np.arange(len(segments)), advance=segments.advance * factor)
 
@@ -98,11 +106,9 @@ def test_a_formula_with_k_off_by_ten_percent_fails_at_its_line(tmp_path, kinemat
             "M900 K0.08\nG2 X40 Y40 I10 J10 E1.5 F2400\n"
     host = built(tmp_path, job_text(gcode, kinematics=kinematics))
     assert host.findings.ok, host.findings.problems
-    e = host.kin.motors.index("e")
-    tick, direction = host.pulses.of_motor(e)
     right, wrong = advance_check(host), advance_check(host, scaled(host.planned[0], 1.1))
     for check in (right, wrong):
-        check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+        check.add(*extruder_pulses(host))
     assert right.problems() == [] and right.worst[0] == pytest.approx(host.findings.advance_steps)
     (problem,) = wrong.problems()
     steps, when, line = wrong.worst
@@ -152,10 +158,8 @@ def test_after_m900_k0_the_smoothing_goes_on_in_every_window(tmp_path, monkeypat
     host = built(tmp_path, job_text(f"G90\nM83\nG1 X60 Y10 E2 F3000\nM900 K0\n{zigzag}"))
     assert host.findings.ok, host.findings.problems
     assert host.totals.windows >= 6
-    e = host.kin.motors.index("e")
-    tick, direction = host.pulses.of_motor(e)
     check = advance_check(host)
-    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    check.add(*extruder_pulses(host))
     assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
 
 
@@ -168,11 +172,9 @@ def test_k_0_first_then_m900_later_is_held_to_the_formula_the_host_played(tmp_pa
     host = built(tmp_path, job_text(f"G90\nM83\n{zigzag}M900 K0.05\n{zigzag}", "{k: 0}"))
     assert host.findings.ok, host.findings.problems
     assert host.totals.windows >= 6 and 0 < host.totals.smoothed_from[0] < np.inf
-    e = host.kin.motors.index("e")
-    tick, direction = host.pulses.of_motor(e)
     check = advance_check(host)
     assert [r.half for r in check.references] == [0.0, 0.02]
-    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    check.add(*extruder_pulses(host))
     assert check.problems() == [] and check.worst[0] == pytest.approx(host.findings.advance_steps)
     assert check.worst[0] <= 1.0
 
@@ -303,9 +305,7 @@ def test_m593_mid_program_shapes_what_follows_and_the_extruder_keeps_the_formula
         assert not np.any(apart[:, :3]) and np.abs(apart[:, 3]).max() <= 1
         assert np.array_equal(position[-1], part.pulses.event_position[-1] + offset)
     # The twin's extruder against the formula as verify holds it (a reference per era), within a step.
-    e = host.kin.motors.index("e")
-    tick, direction = host.pulses.of_motor(e)
     check = advance_check(host)
-    check.add(tick / host.target.tick_hz, np.full(len(tick), e), direction)
+    check.add(*extruder_pulses(host))
     assert len(check.references) == 3 and check.problems() == []
     assert check.worst[0] == pytest.approx(host.findings.advance_steps) and host.findings.advance_steps <= 1.0

@@ -2,10 +2,8 @@
 accepts builds with every check passing, or is refused with a positioned error (exit 2) or a size error (exit 1).
 
 The short profile here is derandomized (the same ~200 examples on every run, about 35 per kinematics and
-format), for now without issue 29's input shapers, pressure advance and their G-code: its examples of them hit
-the open bugs of tests/data/jobs/open (3 of the 6 failed, delta's runs took 28 s instead of 5). Turn them on
-(issue29=True) once those build. scripts/property_run.py runs the long one, with them, and writes each failure
-class's minimal job."""
+format), with issue 29's input shapers, pressure advance and their G-code. scripts/property_run.py runs the long
+one and writes each failure class's minimal job (tests/data/jobs/open while open, found once fixed)."""
 
 import tempfile
 from pathlib import Path
@@ -25,7 +23,7 @@ SHORT = settings(max_examples=34, deadline=None, derandomize=True, database=None
 @pytest.mark.parametrize("kinematics", KINEMATICS)
 def test_every_accepted_job_builds_or_is_refused_cleanly(kinematics, target):
     @SHORT
-    @given(jobs(kinematics, target, issue29=False))
+    @given(jobs(kinematics, target))
     def check(text):
         with tempfile.TemporaryDirectory() as folder:
             outcome(text, Path(folder))  # raises tests.jobgen.Bug, with the job's text shown by hypothesis
