@@ -42,6 +42,7 @@ import numpy as np
 
 from codegen.tables.schedule import RUNTIME_NAMES, TOOL_BIT, Schedule
 
+REVISION = 2  # of the records' layout, raised whenever a player must change to read them (2: packed inits)
 LONG_BIT = 0x80
 MASTER_SHIFT = 4
 RUNTIME_FLAGS = LONG_BIT | 1 << MASTER_SHIFT  # a long record with master bits 01: a runtime record
