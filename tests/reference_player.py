@@ -103,7 +103,8 @@ def play_stream(data: bytes, motors: int, runtime: list | None = None, power: li
             for m in slaves:
                 steps[m] = read.u(1)
             for m in slaves:
-                acc[m] = read.u(1)
+                if 0 < steps[m] < modulus:
+                    acc[m] = read.u(1)
         dirs = [1 if flags >> m & 1 else -1 for m in range(motors)]
         for _ in range(modulus):
             if run_left == 0:

@@ -32,7 +32,7 @@ class Decoded:
     flags: list[int] = field(default_factory=list)  # per block, as stored (LONG and master bits cleared)
     modulus: list[int] = field(default_factory=list)
     steps: list[list[int]] = field(default_factory=list)
-    init: list[list[int]] = field(default_factory=list)  # -1: not stored (a short record's master)
+    init: list[list[int]] = field(default_factory=list)  # -1: not stored (a short record's master, a slave at no or every event)
     block_at: list[int] = field(default_factory=list)  # byte offset of each block record
     runtime: list[tuple[int, int, int]] = field(default_factory=list)  # (command, value, the block it precedes)
     runs: list[tuple[int, int, int]] = field(default_factory=list)  # (count, interval, add)
@@ -120,10 +120,13 @@ class TableReader:
             slaves = [m for m in range(motors) if m != master]
             steps, init = [0] * motors, [-1] * motors
             steps[master] = modulus
+            size = 2 + len(slaves)
             for k, m in enumerate(slaves):
                 steps[m] = self._u(at + 2 + k, 1)
-                init[m] = self._u(at + 2 + len(slaves) + k, 1)
-            size = 2 * motors
+            for m in slaves:  # only a Bresenham slave's init is stored (neither 0 steps nor every event)
+                if 0 < steps[m] < modulus:
+                    init[m] = self._u(at + size, 1)
+                    size += 1
         out.flags.append(flags & ~(LONG | 0x30))
         out.modulus.append(modulus)
         out.steps.append(steps)

@@ -8,8 +8,10 @@ block record comes first. Little-endian.
 
 Block record, first byte `flags`: bit m (m < 4) motor m moves in + direction, bits 4-5 the master motor (short
 form), bit 6 the tool is on, and
-    bit 7 clear   short form: modulus u8 (1..255), then steps u8 and init u8 of every motor but the master, which
-                  steps at every event                                                 (2 * motors bytes)
+    bit 7 clear   short form: modulus u8 (1..255), then steps u8 of every motor but the master (which steps at
+                  every event), in motor order, then init u8 of each of them whose steps are neither 0 nor the
+                  modulus (a Bresenham slave; the others step at no event or at every one) (motors + 1 to
+                  2 * motors bytes)
                   modulus 0: the end of the program; nothing follows and the tool takes bit 6 (2 bytes)
     bit 7 (LONG)  long form:  modulus u16, steps u16 x motors, init u16 x motors       (3 + 4 * motors bytes)
                   (a dwell, whose motors all stand, is always long)
@@ -40,6 +42,7 @@ import numpy as np
 
 from codegen.tables.schedule import RUNTIME_NAMES, TOOL_BIT, Schedule
 
+REVISION = 2  # of the records' layout, raised whenever a player must change to read them (2: packed inits)
 LONG_BIT = 0x80
 MASTER_SHIFT = 4
 RUNTIME_FLAGS = LONG_BIT | 1 << MASTER_SHIFT  # a long record with master bits 01: a runtime record
@@ -70,7 +73,28 @@ class CompactTable:
 
 
 def short_block_bytes(motors: int) -> int:
+    """The longest short block record (every slave a Bresenham one)."""
     return 2 * motors
+
+
+def _slave_order(master: np.ndarray, motors: int) -> np.ndarray:
+    """(B, motors - 1): a short block's slaves, every motor but its master, in motor order."""
+    slave = np.arange(motors)[None, :] != master[:, None]
+    return np.argsort(~slave, axis=1, kind="stable")[:, :motors - 1]
+
+
+def _bresenham_slaves(modulus: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(B, motors - 1) of short blocks: which slaves (in `_slave_order`) store their init."""
+    master = np.argmax(steps, axis=1)
+    slave_steps = np.take_along_axis(steps, _slave_order(master, steps.shape[1]), axis=1)
+    return (slave_steps > 0) & (slave_steps != modulus[:, None])
+
+
+def _block_bytes(modulus: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Every block record's bytes."""
+    motors = steps.shape[1]
+    short = 1 + motors + _bresenham_slaves(modulus, steps).sum(axis=1)
+    return np.where(_long_blocks(modulus, steps), long_block_bytes(motors), short)
 
 
 def long_block_bytes(motors: int) -> int:
@@ -105,13 +129,10 @@ def _long_runs(count: np.ndarray, interval: np.ndarray, add: np.ndarray) -> np.n
 
 def stream_bytes(schedule: Schedule) -> int:
     """len(encode(schedule).data), without encoding."""
-    motors = len(schedule.motors)
     modulus, steps, _ = block_fields(schedule)
-    long_blocks = int(_long_blocks(modulus, steps).sum())
     long_runs = int(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add).sum())
-    return (long_blocks * long_block_bytes(motors) + (schedule.n_blocks - long_blocks) * short_block_bytes(motors)
-            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES
-            + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power
+    return (int(_block_bytes(modulus, steps).sum())
+            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power
             + CEILING_BYTES * schedule.n_ceiling + 2)
 
 
@@ -131,16 +152,19 @@ def encode(schedule: Schedule) -> CompactTable:
     short = np.flatnonzero(~block_long)
     blocks[:, 0] = flags | np.where(block_long, LONG_BIT, master << MASTER_SHIFT)
     blocks[short, 1] = modulus[short]
-    # The slaves of a short block: every motor but its master, in motor order.
-    slave = np.arange(motors)[None, :] != master[short][:, None]
-    order = np.argsort(~slave, axis=1, kind="stable")[:, :motors - 1]
+    # A short block's slaves' steps, then the inits of its Bresenham slaves, packed to the front.
+    order = _slave_order(master[short], motors)
+    slave_init = np.take_along_axis(init[short], order, axis=1)
+    stored = _bresenham_slaves(modulus[short], steps[short])
     blocks[short[:, None], 2 + np.arange(motors - 1)[None, :]] = np.take_along_axis(steps[short], order, axis=1)
-    blocks[short[:, None], motors + 1 + np.arange(motors - 1)[None, :]] = np.take_along_axis(init[short], order, axis=1)
+    packed = np.argsort(~stored, axis=1, kind="stable")  # the stored inits first, in slave order
+    blocks[short[:, None], motors + 1 + np.arange(motors - 1)[None, :]] = np.where(
+        np.take_along_axis(stored, packed, axis=1), np.take_along_axis(slave_init, packed, axis=1), 0)
     blocks[block_long, 1:3] = _le(modulus[block_long], 2)
     for m in range(motors):
         blocks[block_long, 3 + 2 * m:5 + 2 * m] = _le(steps[block_long, m], 2)
         blocks[block_long, 3 + 2 * (motors + m):5 + 2 * (motors + m)] = _le(init[block_long, m], 2)
-    block_len = np.where(block_long, width, short_block_bytes(motors))
+    block_len = _block_bytes(modulus, steps)
 
     count, interval, add = schedule.run_count, schedule.run_interval, schedule.run_add
     run_long = _long_runs(count, interval, add)
@@ -204,9 +228,8 @@ def _record_order(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
 
 def record_events(schedule: Schedule) -> tuple[np.ndarray, np.ndarray]:
     """Every record of the stream in order (the end marker aside): the event it starts, and its bytes."""
-    motors = len(schedule.motors)
     modulus, steps, _ = block_fields(schedule)
-    block_len = np.where(_long_blocks(modulus, steps), long_block_bytes(motors), short_block_bytes(motors))
+    block_len = _block_bytes(modulus, steps)
     run_len = np.where(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add), LONG_RUN_BYTES,
                        SHORT_RUN_BYTES)
     order, key = _record_order(schedule)

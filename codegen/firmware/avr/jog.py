@@ -28,8 +28,8 @@ START_US = 100  # a move's first step after its DIR change (the drivers' DIR set
 SCAN_WORK_TICKS = 50
 EVENT_TICKS = 60
 # The streaming firmware answers a STATUS at a scan only this far before the next step: link_status() with its call
-# is about 130 cycles with 2 motors (avr-objdump), each motor 21 more, each heater 16, a laser 10: at most 214 cycles
-# (27 ticks) with 4 motors, 2 heaters and a laser. With margin.
+# is about 135 cycles with 2 motors (avr-objdump), each motor 22 more, each heater 17, a laser 11: at most 229 cycles
+# (29 ticks) with 4 motors, 2 heaters and a laser. With margin.
 STATUS_WORK_TICKS = 40
 KEY_IDS = {"x+": "XP", "x-": "XM", "y+": "YP", "y-": "YM", "x+y+": "XP_YP", "x-y+": "XM_YP", "x-y-": "XM_YM",
            "x+y-": "XP_YM", "speed+": "SPEED_UP", "speed-": "SPEED_DOWN", "start": "START"}

@@ -140,7 +140,7 @@ def player_context(config: FirmwareConfig, stream: bool = False) -> tuple[dict, 
         "stop_ticks": STOP_TICKS, "start_ticks": START_TICKS, "step_pulse_us": config.step_pulse_us,
         "step_pulse_ticks": pulse_ticks, "step_path_ticks": min(path.values()), "pads": pads,
         "short_run_bytes": tables.SHORT_RUN_BYTES, "long_run_bytes": tables.LONG_RUN_BYTES,
-        "short_block_bytes": tables.short_block_bytes(len(motors)),
+        "short_block_bytes": tables.short_block_bytes(len(motors)),  # the longest: the player advances by what it read
         "long_block_bytes": tables.long_block_bytes(len(motors)),
     }
     context.update(homing_context(config, pins, motors, pulse_ticks))

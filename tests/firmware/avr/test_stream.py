@@ -86,12 +86,14 @@ def net_steps(trace, motors):
 def test_a_stream_longer_than_the_ring_plays_like_the_twin(images, name):
     """Streaming while it plays (the ring refilled many times over, the records read across its end), blocks and
     runs of every form: the pulses are the twin's, FINISHED's positions its net steps; STATUS is answered while it
-    plays; no byte is lost and the ring never ran dry."""
+    plays, and answering it keeps no step waiting longer than the latency the target states (its interrupts off
+    for a few instructions at a time); no byte is lost and the ring never ran dry."""
     cfg, image = CONFIGS[name], images[name]
     motors = tuple(m.name for m in cfg.motors)
     for schedule in (short_schedule(motors), long_schedule(motors)):
         host = host_for(schedule, image)
-        trace, link = simulate_stream(image.hex_path, cfg, Scripted(host, [(0.1, "request_status")]), BUDGET)
+        requests = [(0.1 + 0.0002 * k, "request_status") for k in range(8)]  # each lands at another instruction
+        trace, link = simulate_stream(image.hex_path, cfg, Scripted(host, requests), BUDGET)
         twin = check_pulses(schedule, trace)
         assert host.outcome == "finished" and host.position == tuple(twin.final_positions())
         assert link.lost_bytes == 0 and link.underruns == 0 and link.retransmits == 0

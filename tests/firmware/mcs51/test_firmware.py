@@ -83,6 +83,30 @@ def test_many_runs_across_code_pages(tmp_path):
     assert image.flash_bytes > 6000 and image.flash_capacity == 8192
 
 
+def test_short_blocks_of_four_motors_read_the_inits_of_their_bresenham_slaves_only(tmp_path):
+    """Four motors, every one the master of a short block once: slaves at no event, at every event and Bresenham
+    ones mixed in every order, so that a short record is 5 to 8 bytes and the inits it stores sit at other places
+    than their slaves' steps; a slave at no event keeps the Bresenham state of the block before."""
+    blocks = [
+        ((1, 1, 1, 1), (20, 7, 13, 19), 20, (10, 3, 12, 1), False, [(900 * 256, 0, 20)]),  # every init: 8 bytes
+        ((1, -1, 1, -1), (0, 9, 0, 4), 9, (0, 0, 0, 8), True, [(700 * 256, 5, 9)]),  # master y; x, z idle: 6 bytes
+        ((-1, 1, 1, 1), (11, 11, 3, 11), 11, (0, 0, 2, 0), True, [(800 * 256, 0, 11)]),  # master x; z's init only
+        ((1, 1, -1, 1), (6, 0, 25, 25), 25, (5, 0, 24, 0), False, [(600 * 256, -3, 25)]),  # master z; x only: 6 bytes
+        ((-1, -1, -1, 1), (1, 2, 0, 30), 30, (29, 0, 0, 0), True, [(1000 * 256, 0, 30)]),  # master e; x, y
+        ((1, 1, 1, 1), (0, 0, 0, 0), 1, (0, 0, 0, 0), False, [(500 * 256, 0, 2)]),  # a dwell (long)
+        ((1, 1, 1, -1), (17, 17, 17, 17), 17, (0, 0, 0, 0), False, [(900 * 256, 0, 17)]),  # no init: 5 bytes
+    ]
+    sched = make_schedule(("x", "y", "z", "e"), blocks, final_tool=True)
+    table = tables.encode(sched)
+    assert table.counts()["short_blocks"] == 6
+    # 8 + 6 + 6 + 6 + 7 + 5 bytes of short blocks, a long dwell, 7 short runs, the end marker
+    assert len(table.data) == 38 + tables.long_block_bytes(4) + 7 * tables.SHORT_RUN_BYTES + 2
+    cfg = config(("x", "y", "z", "e"), ("X", "Y", "Z", "E0"), board="stc89c52rc")
+    image, trace = build_and_run(sched, cfg, tmp_path)
+    check_plays(sched, cfg, trace)
+    assert image.flash_parts["table"] == len(table.data)
+
+
 def test_sources_and_image_are_deterministic(tmp_path):
     sched = make_schedule(("x", "y"), [((1, -1), (30, 20), 30, (15, 15), True, [(500 * 256, 0, 30)])])
     cfg = config(("x", "y"), ("X", "Y"))
@@ -215,9 +239,10 @@ def test_runs_go_on_across_blocks_in_short_and_long_records(tmp_path):
     sched = make_schedule(("x", "y", "z"), blocks, final_tool=True, runs=runs)
     table = tables.encode(sched)
     assert table.counts() == {"short_blocks": 4, "long_blocks": 2, "short_runs": 2, "long_runs": 2}
-    # short block = 2 x motors bytes; its flags carry the master in bits 4-5
-    assert table.data[0] == 0x40 | 0b101 and table.data[1] == 10 and list(table.data[2:6]) == [4, 0, 2, 5]
-    assert len(table.data) == 4 * 6 + 2 * (3 + 12) + 2 * 6 + 2 * 10 + 2
+    # short block: flags (the master in bits 4-5), modulus, the slaves' steps, then the inits of the Bresenham
+    # slaves only (not of one at no event or at every one): here 5 bytes each, z's init (0 steps) left out
+    assert table.data[0] == 0x40 | 0b101 and table.data[1] == 10 and list(table.data[2:5]) == [4, 0, 2]
+    assert len(table.data) == 4 * 5 + 2 * (3 + 12) + 2 * 6 + 2 * 10 + 2
     assert table.data[-2:] == bytes([0x40, 0])
     cfg = config(("x", "y", "z"), ("X", "Y", "Z"))
     image, trace = build_and_run(sched, cfg, tmp_path)
