@@ -155,9 +155,9 @@ def test_the_lowest_fill_counts_each_record_before_the_last_ring_of_the_stream()
 
 def test_a_ring_the_slowed_plan_cannot_keep_fed_is_refused_with_its_size_and_what_would_help():
     job = load_job(EXAMPLES / "plotter-set-51.yaml")
-    with pytest.raises(BuildError, match=r"the link at 1200 baud cannot keep the streaming player's ring of 63 "
+    with pytest.raises(BuildError, match=r"the link at 600 baud cannot keep the streaming player's ring of 63 "
                                          r"bytes \(the host keeps 56 of them filled, 22 after the refill's lag\) fed "
                                          r"between [0-9.]+ and [0-9.]+ "
                                          r"s into the job, even slowed 15 times: a board with a larger ring \(XRAM\), "
                                          r"a faster link \(machine.link.baud\), or a larger machine.tolerance"):
-        host_build(job, link=link_budget(1200, 63, 2, window_updates=True))
+        host_build(job, link=link_budget(600, 63, 2, window_updates=True))
