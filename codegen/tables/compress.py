@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codegen.motion.blocks import Events
-from codegen.motion.planner import CATCH_UP_SHARE, quantisation_factor
+from codegen.motion.planner import quantisation_factor
 from codegen.native import contiguous, library, pointer
 from codegen.tables.rate_windows import rate_windows
 from codegen.tables.runfit import fit_runs, fit_runs_native

@@ -5,7 +5,6 @@ interrupt comes within that budget: every pulse of a real print delayed by up to
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import pytest
