@@ -361,10 +361,10 @@ class Stages:
         """The advanced extruder's pulses against the pressure advance formula (`AdvanceReference.worst`), each at
         its event's planned time: a slow block load makes a pulse late, which the timing check allows for."""
         e = self.kin.motors.index("e")
-        mine = pulses.motor == e
-        after = self.checker.start_steps[e] + position[e] + np.cumsum(pulses.dir[mine])
-        return shaped.advance.worst(shaped.events.time[pulses.event[mine]], pulses.dir[mine], after,
-                                    self.kin.limits.steps_per_mm[e])
+        tick, direction = pulses.of_motor(e)
+        event = np.searchsorted(pulses.event_tick, tick)  # a pulse's event: events come at distinct ticks
+        after = self.checker.start_steps[e] + position[e] + np.cumsum(direction)
+        return shaped.advance.worst(shaped.events.time[event], direction, after, self.kin.limits.steps_per_mm[e])
 
     def _plan_again(self, window: Window, speed: np.ndarray, accel: np.ndarray) -> tuple[Window, float]:
         """The window with its segments slowed: the same entry speed, an exit no faster than before (v^2)."""
