@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from codegen.tables.decode import TableError, decode, differences
-from codegen.tables.format import encode
+from codegen.tables.format import encode, stream_bytes
+from tests.helpers import make_schedule
 
 EXAMPLES = ["star.yaml", "kossel-mini.yaml", "gcode/laser-hiking.yaml", "plotter-set-51.yaml", "delta-seed.yaml"]
 
@@ -80,3 +81,19 @@ def test_any_corrupted_table_is_named_never_a_traceback(planned_example, data):
         assert str(err)
         return
     assert all(isinstance(p, str) for p in differences(decoded, schedule))
+
+
+def test_a_short_block_stores_the_start_of_its_bresenham_slaves_only():
+    """Flags, modulus, every slave's steps, then the init of each slave that steps at some events and not all:
+    4 motors, the master y (steps 9 = the modulus); x at 3 of 9 events, z idle, e at every event."""
+    schedule = make_schedule(("x", "y", "z", "e"), [((1, -1, 1, 1), (3, 9, 0, 9), 9, (4, 0, 4, 0), False,
+                                                      [(256 * 500, 0, 9)]),
+                                                     ((1, 1, 1, 1), (2, 7, 5, 0), 7, (3, 0, 1, 3), False,
+                                                      [(256 * 500, 0, 7)])])
+    table = encode(schedule)
+    first, second = (table.data[a:b] for a, b in zip(table.block_offsets, [*table.block_offsets[1:], None]))
+    flags = schedule.block_flags()
+    assert first[:6] == bytes([flags[0] | 1 << 4, 9, 3, 0, 9, 4])  # then the run
+    assert second[:7] == bytes([flags[1] | 1 << 4, 7, 2, 5, 0, 3, 1])
+    assert len(table.data) == stream_bytes(schedule) == 6 + 7 + 2 * 6 + 2
+    assert differences(decode(table.data, 4), schedule) == []
