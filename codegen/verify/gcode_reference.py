@@ -7,7 +7,8 @@ one of them writes), G17-G19, G20/G21, G90/G91, G92/G92.1, G93/G94, F, M220 S/B/
 times the M220 factor, at least M205's least feeds), Grbl's coordinate systems (G54-G59, G10 L2/L20, G53,
 G43.1/G49), M2/M30, Grbl's `$H` (`$` lines move nothing else). A line's axis words move in the modal motion whatever
 else it holds (G40, G64, M3 ...), but beside an M code that takes its own letters (M201 X). Homing (G28, G30, $H)
-leaves its axes unknown until an absolute coordinate gives each again; nothing about an unknown axis is checked.
+leaves its axes unknown until an absolute coordinate gives each again (homing clears their G92 offsets, going to a
+G28.1 / G30.1 position keeps them); nothing about an unknown axis is checked.
 Lines are read one at a time (`Reading.upto`), so a print of any length is held a line at a time.
 """
 
@@ -120,6 +121,8 @@ class Reading:
         self.factor, self.saved_factor, self.least = 1.0, 1.0, 0.0  # M220's; the larger of M205 S and T
         self.delimited, self.ended = False, False
         self.text = ""  # the line being read
+        self.stored: set[str] = set()  # G28 / G30 whose position G28.1 / G30.1 stored (Grbl's)
+        self.delta = job.machine.kinematics == "delta"  # which homes all three axes at once
 
     def upto(self, last_line: int) -> Iterator[Move | Dwell]:
         """The moves and dwells of the lines not read yet, up to `last_line`."""
@@ -199,6 +202,8 @@ class Reading:
                 self.tool_length = 0.0
             elif code == "G92.1":
                 self.g92 = [0.0, 0.0, 0.0]
+            elif code in ("G28.1", "G30.1"):
+                self.stored.add(code[:3])
         if "G92" in codes:
             for i, value in given:
                 self.g92[i] = self.pos[i] - value - self._base(i)
@@ -208,8 +213,13 @@ class Reading:
             for i, value in given:  # L2: the origin itself; L20: the origin that puts the tool at the value
                 origin[i] = value if params["L"] == 2.0 else self.pos[i] - value - self.g92[i] - self._tool(i)
         elif HOMES.intersection(codes):
-            for i in [i for i, letter in enumerate("XYZ") if letter in letters] or [0, 1, 2]:
-                self.pos[i], self.g92[i] = UNKNOWN, 0.0
+            # Homing (G28 with no stored position) clears the offsets of its axes, as Marlin; going to a stored
+            # position (G28 after G28.1, G30) keeps them, as Grbl. Either way the axes are not followed from there.
+            homes = "G28" in codes and "G28" not in self.stored
+            named = [i for i, letter in enumerate("XYZ") if letter in letters]
+            for i in [0, 1, 2] if not named or (homes and self.delta) else named:
+                self.pos[i] = UNKNOWN
+                self.g92[i] = 0.0 if homes else self.g92[i]
         else:
             return "G43.1" in codes or "G10" in codes
         return True
