@@ -1,0 +1,18 @@
+G1 F22854
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
+G3 I-9 J-5
