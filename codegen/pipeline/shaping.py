@@ -78,7 +78,7 @@ def shaped_window(window: Window, kin: Kinematics, settings: ShapingSettings, ma
     stretch = between(shaped, *span)
     start = segments.start[0] if tail is None else tail.point
     blocks = shaped_blocks(stretch, segments, kin, max_gap, start, segments.end[-1] if last or settles else None)
-    corners_t, jumps = shaped_corners(window.plan, window.segments, kin, settings, smooth)
+    corners_t, jumps = shaped_corners(plan, segments, kin, settings, smooth, before)
     origin = blocks.pieces.origin[np.searchsorted(blocks.pieces.breaks, blocks.bounds[:-1])]
     shaped_plan = block_plan(blocks.chords, blocks.bounds)
     reference = None if settings.advance is None else advance_reference(
@@ -112,13 +112,15 @@ def block_plan(chords: Segments, bounds: np.ndarray) -> Plan:
 
 
 def shaped_corners(plan: Plan, segments: Segments, kin: Kinematics, settings: ShapingSettings,
-                   smooth: bool) -> tuple[np.ndarray, np.ndarray]:
+                   smooth: bool, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The plan's corners (codegen/tables/checks.py `corner_jumps`) shaped: each axis's velocity jump splits into
     its shaper's impulses, a share A_i of it at tau_i after the corner (on the shaped clock); each motor takes
     its axes' shares (a corexy belt both of x and y, at their own times; a delta's carriage by its Jacobian at the
     corner). A smoothed extruder's velocity (`smooth`) has no jump: its smoothing spreads every change over the
-    smoothing time."""
+    smoothing time. `first`: the window's first segment in `plan` (the tail of the window before comes first),
+    whose junction with the one before is the window's too: windows end at corners."""
     j = np.flatnonzero(plan.corner[1:-1] & (plan.v_entry[1:] > 0)) + 1
+    j = j[j >= first]
     change = plan.v_entry[j][:, None] * (plan.direction[j] - plan.direction[j - 1])  # (J, 4) mm/s per axis
     times, jumps = [], []
     for axis in range(AXES - 1 if smooth else AXES):
