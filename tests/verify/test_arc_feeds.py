@@ -17,7 +17,6 @@ from codegen.job import load_job
 from codegen.pipeline.host import host_build
 from codegen.toolpath.segments import arc_chord_count
 from codegen.verify.chapters import whole_chapter
-from codegen.verify.gcode_reference import Move
 from tests.jobgen import outcome
 from tests.verify.test_program_check import checked, reading
 

@@ -6,7 +6,6 @@ over those records with other chapter sizes and with records taken out, in this 
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import shutil
 import tempfile
@@ -22,7 +21,6 @@ from codegen.report.summaries import write_trace
 from codegen.sim.avr import decode_edges
 from codegen.sim.avr_edges import EDGE_RECORD, read_edges
 from codegen.verify.bounded import RunOutputs, compare_run
-from codegen.verify.compare import simulated_switches
 from codegen.verify.stream import simulate_stream, simulate_stream_bounded
 from tests.helpers import ROOT
 
