@@ -154,7 +154,8 @@ def firmware_identity(config, f_cpu: int, tick_hz: int) -> int:
     and their sockets, pulse timing, homing, clocks, heaters, laser, jog keys. The job's program and name do not
     count."""
     canonical = {
-        "protocol": VERSION, "tables": [table_format.__doc__.split("\n\n")[0], table_format.REVISION], "board": config.board,
+        "protocol": VERSION, "tables": [table_format.__doc__.split("\n\n")[0], table_format.REVISION],
+        "board": config.board,
         "target": config.target, "motors": [[m.name, m.socket, m.invert_dir] for m in config.motors],
         "step_pulse_us": config.step_pulse_us, "dir_setup_us": config.dir_setup_us,
         "homing": [repr(h) for h in config.homing], "f_cpu": f_cpu, "tick_hz": tick_hz,

@@ -32,7 +32,7 @@ class Decoded:
     flags: list[int] = field(default_factory=list)  # per block, as stored (LONG and master bits cleared)
     modulus: list[int] = field(default_factory=list)
     steps: list[list[int]] = field(default_factory=list)
-    init: list[list[int]] = field(default_factory=list)  # -1: not stored (a short record's master, a slave at no or every event)
+    init: list[list[int]] = field(default_factory=list)  # -1: not stored (a short master; no or every event)
     block_at: list[int] = field(default_factory=list)  # byte offset of each block record
     runtime: list[tuple[int, int, int]] = field(default_factory=list)  # (command, value, the block it precedes)
     runs: list[tuple[int, int, int]] = field(default_factory=list)  # (count, interval, add)

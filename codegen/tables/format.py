@@ -132,7 +132,8 @@ def stream_bytes(schedule: Schedule) -> int:
     modulus, steps, _ = block_fields(schedule)
     long_runs = int(_long_runs(schedule.run_count, schedule.run_interval, schedule.run_add).sum())
     return (int(_block_bytes(modulus, steps).sum())
-            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power
+            + long_runs * LONG_RUN_BYTES + (schedule.n_runs - long_runs) * SHORT_RUN_BYTES
+            + RUNTIME_BYTES * schedule.n_runtime + POWER_BYTES * schedule.n_power
             + CEILING_BYTES * schedule.n_ceiling + 2)
 
 
